@@ -1,0 +1,183 @@
+"""Benchmarks that print numbers and compare against a reference measured in the same run.
+
+``uavmpc bench tracker`` flies the virtual UAV over a demanding reference (random far waypoints,
+50 m steps, limits halved and restored) three times on the same scenario:
+
+1. with the configured solver (DAQP), timing every whole tick (all 4 axes: build, solve, simulate);
+2. with Clarabel, an independent interior-point solver at tight tolerance, timed the same way;
+3. with DAQP again, re-solving every QP that reached the solver with Clarabel to compare the
+   first inputs (``max_solution_diff``).
+
+The last line of output is one JSON object.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+
+from uavmpc.reference import Reference
+from uavmpc.tracker import ClarabelSolver, DaqpSolver, MpcTracker, QpResult, TrackerConfig
+
+#: A tick whose state lies outside the limits in force by more than this is a violation.
+VIOLATION_TOL = 1e-6
+
+
+@dataclasses.dataclass(frozen=True)
+class Event:
+    """Something the benchmark does to the tracker at a given tick."""
+
+    tick: int
+    kind: str  # "goto", "step", "halve", "restore"
+    point: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+
+def demanding_events(ticks: int, seed: int) -> list[Event]:
+    """Random far waypoints and 50 m steps every 1.5–6 s, limits halved then restored."""
+    rng = np.random.default_rng(seed)
+    events: list[Event] = []
+    tick, here = 0, np.zeros(3)
+    while tick < ticks:
+        if rng.random() < 0.5:
+            target = rng.uniform([-200, -200, 2], [200, 200, 60])
+            kind = "goto"
+        else:
+            direction = np.zeros(3)
+            direction[rng.integers(0, 2)] = rng.choice([-1.0, 1.0])
+            target = here + 50.0 * direction
+            kind = "step"
+        events.append(Event(tick, kind, (*map(float, target), float(rng.uniform(-np.pi, np.pi)))))
+        here = target
+        tick += int(rng.integers(150, 600))
+    limit_tick = 0
+    while limit_tick < ticks:
+        limit_tick += int(rng.integers(200, 700))
+        events.append(Event(limit_tick, "halve"))
+        limit_tick += int(rng.integers(100, 400))
+        events.append(Event(limit_tick, "restore"))
+    return sorted(events, key=lambda e: e.tick)
+
+
+class _Recording:
+    """Wraps an axis solver and re-solves every QP it sees with a reference solver."""
+
+    def __init__(self, inner: DaqpSolver, reference: ClarabelSolver) -> None:
+        self.name = inner.name
+        self._inner, self._reference = inner, reference
+        self.max_diff = 0.0
+        self.compared = 0
+        self.reference_failures = 0
+
+    def solve(self, f: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> QpResult:
+        result = self._inner.solve(f, lower, upper)
+        ref = self._reference.solve(f, lower, upper)
+        if result.inputs is not None and ref.inputs is not None:
+            self.max_diff = max(self.max_diff, abs(float(result.inputs[0] - ref.inputs[0])))
+            self.compared += 1
+        elif ref.inputs is None:
+            self.reference_failures += 1
+        return result
+
+
+def _fly(
+    tracker: MpcTracker, events: list[Event], ticks: int, timed: bool = True
+) -> Iterator[tuple[float, Any, np.ndarray]]:
+    nominal = tracker.config.limits
+    pending = iter(events)
+    nxt = next(pending, None)
+    for tick in range(ticks):
+        while nxt is not None and nxt.tick <= tick:
+            if nxt.kind in ("goto", "step"):
+                tracker.set_reference(Reference.goto(*nxt.point, start_s=tracker.time_s))
+            elif nxt.kind == "halve":
+                tracker.set_limits(nominal.scaled(0.5, 0.5))
+            else:
+                tracker.set_limits(nominal)
+            nxt = next(pending, None)
+        before = tracker.state
+        t0 = time.perf_counter()
+        out = tracker.step()
+        yield (time.perf_counter() - t0 if timed else 0.0), out, before
+
+
+def _excess(tracker: MpcTracker, s: np.ndarray) -> tuple[float, float]:
+    """(how far state s lies outside the limits in force, the same for w = v + τa)."""
+    lim = tracker.limits
+    v_lo, v_hi = lim.velocity_bounds()
+    a_lo, a_hi = lim.acceleration_bounds()
+    w = s[:, 1] + tracker.config.tau_s * s[:, 2]
+    va = max(float(np.max(s[:, 1] - v_hi)), float(np.max(v_lo - s[:, 1])),
+             float(np.max(s[:, 2] - a_hi)), float(np.max(a_lo - s[:, 2])), 0.0)
+    we = max(float(np.max(w - v_hi)), float(np.max(v_lo - w)), 0.0)
+    return va, we
+
+
+def bench_tracker(
+    ticks: int = 6000, seed: int = 1, progress: Callable[[str], None] = print
+) -> dict[str, Any]:
+    """Run the tracker benchmark; returns the result dictionary (see module docstring)."""
+    if ticks < 1:
+        raise ValueError(f"ticks must be ≥ 1, got {ticks}")
+    config = TrackerConfig.from_toml()
+    events = demanding_events(ticks, seed)
+
+    progress(f"tracker benchmark: {ticks} ticks, {len(events)} events, seed {seed}")
+    tracker = MpcTracker(config, position_m=(0.0, 0.0, 10.0))
+    step_times, qp_ticks = [], 0
+    violations, max_violation = 0, 0.0
+    for dt, out, before in _fly(tracker, events, ticks):
+        step_times.append(dt)
+        qp_ticks += out.qp_solves > 0
+        va, we = _excess(tracker, tracker.state)
+        # Outside the box is allowed only while braking back into it after a tightening, and
+        # then w = v + τa (which integrates the input) must move towards the box every tick.
+        bad = va if not out.braking else max(0.0, we - _excess(tracker, before)[1])
+        if bad > VIOLATION_TOL:
+            violations += 1
+        max_violation = max(max_violation, bad)
+    fallbacks = tracker.fallback_count
+
+    progress("reference run: the same flight with Clarabel as the QP solver")
+    ref_config = dataclasses.replace(config, solver="clarabel")
+    ref_tracker = MpcTracker(ref_config, position_m=(0.0, 0.0, 10.0))
+    ref_times = [dt for dt, _, _ in _fly(ref_tracker, events, ticks)]
+
+    progress("comparison run: every QP solved by both solvers")
+    model_tracker = MpcTracker(config, position_m=(0.0, 0.0, 10.0))
+    recorders = [_Recording(DaqpSolver(model_tracker.model, config.iter_limit),
+                            ClarabelSolver(model_tracker.model)) for _ in range(4)]
+    cmp_tracker = MpcTracker(config, position_m=(0.0, 0.0, 10.0), solvers=list(recorders))
+    for _ in _fly(cmp_tracker, events, ticks, timed=False):
+        pass
+
+    us = np.array(step_times) * 1e6
+    return {
+        "ticks": ticks,
+        "seed": seed,
+        "solver": config.solver,
+        "step_median_us": round(float(np.median(us)), 2),
+        "step_p99_us": round(float(np.percentile(us, 99)), 2),
+        "ticks_with_qp": int(qp_ticks),
+        "limit_violations": int(violations),
+        "max_violation": float(max_violation),
+        "fallbacks": int(fallbacks),
+        "reference_solver": "clarabel",
+        "reference_step_median_us": round(float(np.median(ref_times) * 1e6), 2),
+        "max_solution_diff": float(max(r.max_diff for r in recorders)),
+        "qps_compared": int(sum(r.compared for r in recorders)),
+        "reference_failures": int(sum(r.reference_failures for r in recorders)),
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+    }
+
+
+def main_tracker(ticks: int, seed: int) -> int:
+    result = bench_tracker(ticks, seed)
+    print(json.dumps(result))
+    return 0

@@ -1,0 +1,43 @@
+"""Figures (matplotlib, headless)."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
+
+
+def plot_axis_response(
+    t_s: np.ndarray,
+    position_m: np.ndarray,
+    velocity_mps: np.ndarray,
+    accel_mps2: np.ndarray,
+    *,
+    target: float,
+    v_max: float,
+    a_max: float,
+    title: str,
+) -> Figure:
+    """Position, velocity and acceleration of one axis vs time, with the limits drawn."""
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 7))
+    axes[0].plot(t_s, position_m, label="virtual UAV")
+    axes[0].axhline(target, color="k", ls="--", lw=0.8, label="reference")
+    axes[0].set_ylabel("position [m]")
+    axes[0].legend(loc="lower right")
+    axes[1].plot(t_s, velocity_mps)
+    axes[2].plot(t_s, accel_mps2)
+    for ax, lim, name in ((axes[1], v_max, "velocity [m/s]"), (axes[2], a_max, "accel. [m/s²]")):
+        ax.axhline(lim, color="r", ls=":", lw=1.0, label="limit")
+        ax.axhline(-lim, color="r", ls=":", lw=1.0)
+        ax.set_ylabel(name)
+        ax.legend(loc="upper right")
+    axes[-1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,164 @@
+"""Desired trajectories (SPEC §2.4): what the mission asks the tracker to fly.
+
+A reference is a sequence of points ``[x, y, z, heading]`` (ENU metres, heading in rad) stamped
+with absolute times. It may be infeasible on purpose (steps, jumps, too fast): the tracker makes
+it flyable. A "go to" is a reference with one point. Validation happens here, on arrival, so a
+bad reference is rejected with a message naming the problem before it can reach the tracker.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Largest accepted |x|, |y|, |z| in metres: far beyond any mission, small enough that
+#: squared errors in the QP stay well inside float64 precision.
+MAX_ABS_POSITION_M = 1.0e5
+#: Largest number of points in one reference (≈ 55 h at 0.2 s): guards memory, not physics.
+MAX_POINTS = 1_000_000
+#: Smallest accepted spacing between two reference stamps.
+MIN_SAMPLE_PERIOD_S = 1.0e-3
+
+
+class InvalidReferenceError(ValueError):
+    """A desired trajectory that cannot be flown as given (the message names the problem)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Reference:
+    """A desired trajectory, validated.
+
+    Attributes:
+        times_s: (N,) absolute stamps in seconds, strictly increasing.
+        points: (N, 4) rows ``[x_m, y_m, z_m, heading_rad]`` in the ENU world frame. Headings are
+            stored unwrapped so that linear interpolation between points turns the short way.
+        loop: when true the trajectory repeats after its last point, closing back to the first
+            point over one last sample period; otherwise the last point is held.
+    """
+
+    times_s: np.ndarray
+    points: np.ndarray
+    loop: bool = False
+
+    def __post_init__(self) -> None:
+        times = _as_float_array(self.times_s, "times_s")
+        points = _as_float_array(self.points, "points")
+        if times.ndim != 1:
+            raise InvalidReferenceError(f"times_s must be 1-D, got shape {times.shape}")
+        if points.ndim != 2 or points.shape[1] != 4:
+            raise InvalidReferenceError(
+                f"points must have shape (N, 4) [x, y, z, heading], got {points.shape}"
+            )
+        n = points.shape[0]
+        if n == 0:
+            raise InvalidReferenceError("points is empty: a reference needs at least one point")
+        if n > MAX_POINTS:
+            raise InvalidReferenceError(f"points has {n} rows, more than the limit {MAX_POINTS}")
+        if times.shape[0] != n:
+            raise InvalidReferenceError(
+                f"times_s has {times.shape[0]} stamps but points has {n} rows"
+            )
+        if not np.all(np.isfinite(times)):
+            raise InvalidReferenceError("times_s contains NaN or inf")
+        bad = ~np.isfinite(points)
+        if bad.any():
+            row, col = np.argwhere(bad)[0]
+            name = ("x", "y", "z", "heading")[col]
+            raise InvalidReferenceError(
+                f"points[{row}] {name} is {points[row, col]}: NaN or inf is not allowed"
+            )
+        if np.any(np.abs(points[:, :3]) > MAX_ABS_POSITION_M):
+            row = int(np.argmax(np.abs(points[:, :3]).max(axis=1)))
+            raise InvalidReferenceError(
+                f"points[{row}] lies {np.abs(points[row, :3]).max():.3g} m from the origin, "
+                f"beyond the sane bound of {MAX_ABS_POSITION_M:.0e} m"
+            )
+        if n > 1:
+            gaps = np.diff(times)
+            if np.any(gaps < MIN_SAMPLE_PERIOD_S):
+                i = int(np.argmax(gaps < MIN_SAMPLE_PERIOD_S))
+                raise InvalidReferenceError(
+                    f"times_s must increase by at least {MIN_SAMPLE_PERIOD_S} s between points; "
+                    f"times_s[{i}]={times[i]} then times_s[{i + 1}]={times[i + 1]}"
+                )
+        if self.loop and n < 2:
+            raise InvalidReferenceError("a looping reference needs at least two points")
+        points = points.copy()
+        points[:, 3] = np.unwrap(points[:, 3])
+        times = times.copy()
+        times.flags.writeable = False
+        points.flags.writeable = False
+        object.__setattr__(self, "times_s", times)
+        object.__setattr__(self, "points", points)
+
+    @classmethod
+    def sampled(
+        cls, points: np.ndarray, sample_period_s: float = 0.2, start_s: float = 0.0, *,
+        loop: bool = False,
+    ) -> Reference:
+        """A trajectory sampled every ``sample_period_s`` seconds from ``start_s`` on."""
+        period = _finite_scalar(sample_period_s, "sample_period_s")
+        if period < MIN_SAMPLE_PERIOD_S:
+            raise InvalidReferenceError(
+                f"sample_period_s must be ≥ {MIN_SAMPLE_PERIOD_S} s, got {period}"
+            )
+        start = _finite_scalar(start_s, "start_s")
+        pts = _as_float_array(points, "points")
+        n = pts.shape[0] if pts.ndim >= 1 else 0
+        if n > MAX_POINTS:
+            raise InvalidReferenceError(f"points has {n} rows, more than the limit {MAX_POINTS}")
+        return cls(start + period * np.arange(n), pts, loop)
+
+    @classmethod
+    def goto(cls, x: float, y: float, z: float, heading: float = 0.0,
+             start_s: float = 0.0) -> Reference:
+        """A single point to fly to and hold (a step reference, infeasible on purpose)."""
+        return cls(np.array([_finite_scalar(start_s, "start_s")]),
+                   np.array([[x, y, z, heading]], dtype=float))
+
+    @property
+    def start_s(self) -> float:
+        return float(self.times_s[0])
+
+    def sample(self, t_s: np.ndarray) -> np.ndarray:
+        """Linear interpolation at the times ``t_s`` (K,) → (K, 4); holds the end points."""
+        times, points = self.times_s, self.points
+        if times.shape[0] == 1:
+            return np.broadcast_to(points[0], (t_s.shape[0], 4)).copy()
+        if self.loop:
+            closing = times[-1] - times[-2]
+            period = times[-1] - times[0] + closing
+            phase = np.mod(t_s - times[0], period)
+            t_s = times[0] + np.where(t_s < times[0], 0.0, phase)
+            times = np.append(times, times[-1] + closing)
+            last = points[0].copy()
+            # Close the loop the short way round in heading.
+            last[3] = points[-1, 3] + _wrap(points[0, 3] - points[-1, 3])
+            points = np.vstack([points, last])
+        idx = np.clip(np.searchsorted(times, t_s, side="right") - 1, 0, times.shape[0] - 2)
+        t0 = times[idx]
+        frac = np.clip((t_s - t0) / (times[idx + 1] - t0), 0.0, 1.0)[:, None]
+        return points[idx] * (1.0 - frac) + points[idx + 1] * frac
+
+
+def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
+    """Wrap to [-π, π)."""
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _as_float_array(value: object, name: str) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidReferenceError(f"{name} is not numeric: {exc}") from None
+
+
+def _finite_scalar(value: object, name: str) -> float:
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InvalidReferenceError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(out):
+        raise InvalidReferenceError(f"{name} must be finite, got {out}")
+    return out
