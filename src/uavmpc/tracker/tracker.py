@@ -19,7 +19,7 @@ import numpy as np
 from uavmpc.reference import Reference
 from uavmpc.tracker.model import CondensedModel, braking_plan
 from uavmpc.tracker.params import DynamicLimits, TrackerConfig
-from uavmpc.tracker.qp import FEASIBILITY_TOL, AxisQpSolver, make_solver
+from uavmpc.tracker.qp import FEASIBILITY_TOL, AxisQpSolver, QpResult, make_solver
 
 N_AXES = 4
 #: State components outside the limit box by less than this count as inside (solver round-off).
@@ -161,7 +161,10 @@ class MpcTracker:
         self._a0_t = self.model.a_steps[0].T.copy()
         self._b0 = self.model.b_steps[0].copy()
         self._m = m
+        #: Ticks on which at least one axis fell back to braking (solver failure).
         self.fallback_count = 0
+        #: The last status word of each axis' solver ("optimal" or why it failed).
+        self.last_solver_status = ["optimal"] * N_AXES
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -317,8 +320,12 @@ class MpcTracker:
         fallback: list[int] = []
         iterations = 0
         for axis in need_qp:
-            result = self._solvers[axis].solve(f[axis], lower_qp[axis], upper_qp[axis])
+            try:
+                result = self._solvers[axis].solve(f[axis], lower_qp[axis], upper_qp[axis])
+            except Exception as exc:  # a solver crash must not stop the virtual UAV
+                result = QpResult(None, f"solver raised {type(exc).__name__}: {exc}", 0)
             iterations += result.iterations
+            self.last_solver_status[axis] = result.status
             if result.inputs is not None:
                 u_all[axis] = result.inputs
             else:
