@@ -19,7 +19,7 @@ def _demo(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     tracker = MpcTracker(position_m=(0.0, 0.0, 10.0))
     tracker.set_reference(Reference.goto(50.0, 0.0, 10.0))
-    n = int(round(args.duration / tracker.config.first_step_s))
+    n = round(args.duration / tracker.config.first_step_s)
     log = np.empty((n, 4))
     for i in range(n):
         cmd = tracker.step().command
@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
     bench = sub.add_parser("bench", help="benchmarks; the last line printed is JSON")
     bench.add_argument("what", choices=["tracker"])
-    bench.add_argument("--ticks", type=int, default=6000, help="tracker ticks (≥ 2000 advised)")
+    bench.add_argument("--ticks", type=int, default=3000, help="tracker ticks (≥ 2000 advised)")
     bench.add_argument("--seed", type=int, default=1)
     bench.set_defaults(func=_bench)
     return parser

@@ -62,4 +62,5 @@ def reject_unknown(table: dict[str, Any], known: set[str], prefix: str) -> None:
     """Typos in parameter files must not be silently ignored."""
     unknown = sorted(set(table) - known)
     if unknown:
-        raise ConfigError(f"{prefix}.{unknown[0]}: unknown field (known: {', '.join(sorted(known))})")
+        names = ", ".join(sorted(known))
+        raise ConfigError(f"{prefix}.{unknown[0]}: unknown field (known: {names})")

@@ -57,9 +57,9 @@ class DynamicLimits:
 
     @classmethod
     def from_dict(cls, table: dict[str, Any], prefix: str = "limits") -> DynamicLimits:
-        known = {f.name for f in fields(cls)}
-        reject_unknown(table, known, prefix)
-        return cls(**{k: take(table, k, prefix) for k in known})
+        names = [f.name for f in fields(cls)]
+        reject_unknown(table, set(names), prefix)
+        return cls(**{k: take(table, k, prefix) for k in names})
 
     def scaled(self, horizontal: float = 1.0, vertical: float = 1.0) -> DynamicLimits:
         """A copy with horizontal and/or vertical limits multiplied (e.g. halved when avoiding)."""
@@ -135,7 +135,8 @@ class TrackerConfig:
         if isinstance(self.iter_limit, bool) or not isinstance(self.iter_limit, int) or (
             self.iter_limit < 1
         ):
-            raise ConfigError(f"solver.iter_limit: must be a positive integer, got {self.iter_limit!r}")
+            raise ConfigError(
+                f"solver.iter_limit: must be a positive integer, got {self.iter_limit!r}")
         if not isinstance(self.limits, DynamicLimits):
             raise ConfigError("limits: must be a DynamicLimits")
 
@@ -157,7 +158,8 @@ class TrackerConfig:
         model = data.get("model", {})
         reject_unknown(model, {"tau_s"}, "model")
         w = data.get("weights", {})
-        reject_unknown(w, {"position", "velocity", "acceleration", "input", "input_rate"}, "weights")
+        reject_unknown(
+            w, {"position", "velocity", "acceleration", "input", "input_rate"}, "weights")
         solver = data.get("solver", {})
         reject_unknown(solver, {"name", "iter_limit"}, "solver")
         d = cls()

@@ -293,7 +293,7 @@ class MpcTracker:
         r_rel = ref.T - p0[:, None]  # (4, m)
         f = rel @ self._fstate_t + r_rel @ self._fref_t + self._u_prev[:, None] * self.model.f_uprev
         if self._use_vref:
-            # The reference's own velocity, clipped: a jump in the reference is not a speed to match.
+            # The reference's own velocity, clipped: a jump in it is not a speed to match.
             vref = r_rel @ self._vref_of_ref
             np.minimum(vref, self._v_hi[:, None], out=vref)
             np.maximum(vref, self._v_lo[:, None], out=vref)

@@ -1,0 +1,120 @@
+"""Bad input gets a clear error naming the problem; the tracker keeps flying its current plan."""
+
+import numpy as np
+import pytest
+
+from uavmpc import (
+    ConfigError,
+    DynamicLimits,
+    InvalidReferenceError,
+    MpcTracker,
+    Reference,
+    TrackerConfig,
+)
+from uavmpc.reference import MAX_POINTS
+from uavmpc.tracker import InvalidStateError
+
+T3 = np.array([0.0, 0.2, 0.4])
+P3 = np.zeros((3, 4))
+
+
+@pytest.mark.parametrize(
+    ("times", "points", "match"),
+    [
+        (T3, np.zeros((3, 3)), r"shape \(N, 4\)"),
+        (T3, np.zeros(4), r"shape \(N, 4\)"),
+        (T3, np.zeros((3, 4, 1)), r"shape \(N, 4\)"),
+        (np.zeros((3, 1)), P3, "times_s must be 1-D"),
+        (T3[:2], P3, "2 stamps but points has 3 rows"),
+        (np.array([]), np.zeros((0, 4)), "empty"),
+        (T3, np.where(np.arange(12).reshape(3, 4) == 6, np.nan, 0.0), r"points\[1\] z is nan"),
+        (T3, np.where(np.arange(12).reshape(3, 4) == 3, np.inf, 0.0),
+         r"points\[0\] heading is inf"),
+        (np.array([0.0, np.nan, 0.4]), P3, "times_s contains NaN"),
+        (np.array([0.0, 0.4, 0.2]), P3, r"times_s\[1\]=0.4 then times_s\[2\]=0.2"),
+        (np.array([0.0, 0.2, 0.2]), P3, "must increase"),
+        (T3, np.full((3, 4), 1e9), "beyond the sane bound"),
+        (T3, [["a", 0, 0, 0]] * 3, "not numeric"),
+    ],
+)
+def test_bad_reference_is_rejected_with_a_named_problem(times, points, match) -> None:
+    with pytest.raises(InvalidReferenceError, match=match):
+        Reference(times, points)
+
+
+def test_absurd_sizes_and_periods_are_rejected() -> None:
+    with pytest.raises(InvalidReferenceError, match="more than the limit"):
+        Reference.sampled(np.zeros((MAX_POINTS + 1, 4)), 0.2)
+    with pytest.raises(InvalidReferenceError, match="sample_period_s"):
+        Reference.sampled(P3, 0.0)
+    with pytest.raises(InvalidReferenceError, match="sample_period_s must be finite"):
+        Reference.sampled(P3, float("nan"))
+    with pytest.raises(InvalidReferenceError, match="start_s must be finite"):
+        Reference.goto(1.0, 2.0, 3.0, start_s=float("inf"))
+    with pytest.raises(InvalidReferenceError, match="looping reference needs at least two"):
+        Reference(np.array([0.0]), np.zeros((1, 4)), loop=True)
+
+
+@pytest.mark.parametrize("field", ["horizontal_speed_mps", "descend_accel_mps2",
+                                   "heading_rate_radps"])
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf"), 1e6, "fast"])
+def test_bad_limits_are_rejected_naming_the_field(field: str, value: object) -> None:
+    with pytest.raises(ConfigError, match=f"limits.{field}"):
+        DynamicLimits(**{field: value})
+
+
+def test_tracker_keeps_its_reference_and_state_after_bad_input() -> None:
+    tracker = MpcTracker(position_m=(0.0, 0.0, 10.0))
+    good = Reference.goto(20.0, 0.0, 10.0)
+    tracker.set_reference(good)
+    for _ in range(200):
+        tracker.step()
+    state, t = tracker.state, tracker.time_s
+    with pytest.raises(TypeError, match=r"must be a uavmpc\.Reference"):
+        tracker.set_reference(np.zeros((3, 4)))  # type: ignore[arg-type]
+    with pytest.raises(InvalidReferenceError):
+        tracker.set_reference(Reference(T3, np.full((3, 4), np.nan)))
+    with pytest.raises(TypeError, match="DynamicLimits"):
+        tracker.set_limits({"horizontal_speed_mps": 1.0})  # type: ignore[arg-type]
+    with pytest.raises(InvalidStateError, match="shape"):
+        tracker.set_state(np.zeros((3, 3)))
+    with pytest.raises(InvalidStateError, match="NaN"):
+        tracker.set_state(np.full((4, 3), np.nan))
+    with pytest.raises(InvalidStateError, match="outside the limits"):
+        tracker.set_state(np.array([[0, 50.0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0]]))
+    assert tracker.reference is good
+    np.testing.assert_array_equal(tracker.state, state)
+    assert tracker.time_s == t
+    for _ in range(1500):
+        tracker.step()
+    assert tracker.state[0, 0] == pytest.approx(20.0, abs=0.01)
+
+
+def test_bad_constructor_arguments() -> None:
+    with pytest.raises(InvalidStateError, match="position_m"):
+        MpcTracker(position_m=(0.0, np.nan, 0.0))
+    with pytest.raises(InvalidStateError, match="heading_rad"):
+        MpcTracker(heading_rad=np.inf)
+    with pytest.raises(ValueError, match="one per axis"):
+        MpcTracker(solvers=[])
+
+
+def test_tracker_config_files_are_validated(tmp_path) -> None:
+    good = TrackerConfig.from_toml()
+    assert good.steps == 40 and good.limits.horizontal_speed_mps == 8.3
+    cases = {
+        "[weights]\nposition = -5.0\n": "weights.position: must be > 0",
+        "[horizon]\nsteps = 1\n": "horizon.steps",
+        "[horizon]\nstep = 0.2\n": "horizon.step: unknown field",
+        "[limits]\nhorizontal_speed_mps = 8.3\n": "limits.horizontal_accel_mps2: missing",
+        "[solver]\nname = 'cvxgen'\n": "solver.name",
+        "[model]\ntau_s = 0\n": "model.tau_s: must be > 0",
+        "[weights\n": "invalid TOML",
+    }
+    for i, (text, match) in enumerate(cases.items()):
+        path = tmp_path / f"t{i}.toml"
+        path.write_text(text)
+        with pytest.raises(ConfigError, match=match):
+            TrackerConfig.from_toml(path)
+    with pytest.raises(ConfigError, match="file not found"):
+        TrackerConfig.from_toml(tmp_path / "missing.toml")
