@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from uavmpc.plant import G_MPS2, Airframe, AttitudeTarget, Plant, VehicleState, Wind
+from uavmpc.plant import G_MPS2, Airframe, AttitudeTarget, GnssNoise, Plant, VehicleState, Wind
 from uavmpc.plant.interface import quat_to_rot, rot_to_quat, yaw_quat
 from uavmpc.plant.multirotor import N_RIGID, Multirotor
 
@@ -101,8 +101,8 @@ def test_torque_free_tumble_conserves_angular_momentum(no_drag: Airframe) -> Non
     for _ in range(300):
         s = plant.step_motors(np.zeros(6), 0.01)
         rates.append(s.body_rates_radps)
-        l, e = momentum(s)
-        np.testing.assert_allclose(l, l0, rtol=0, atol=1e-8 * np.linalg.norm(l0))
+        ang, e = momentum(s)
+        np.testing.assert_allclose(ang, l0, rtol=0, atol=1e-8 * np.linalg.norm(l0))
         assert e == pytest.approx(e0, rel=1e-8)
     # The body rates really do change (the test exercises the gyroscopic term).
     assert np.ptp(np.array(rates), axis=0).max() > 0.5
@@ -135,10 +135,10 @@ def test_ground_holds_vehicle_with_motors_off(f550: Airframe) -> None:
 
 def test_drop_lands_without_bounce_or_nan(f550: Airframe) -> None:
     plant = Multirotor(f550, position_m=(0.0, 0.0, 3.0), rotors_at_hover=False)
+    tilted = np.array([0.98, 0.1, 0.15, 0.05])
+    tilted = rot_to_quat(quat_to_rot(tilted / np.linalg.norm(tilted)))
     plant.set_state(VehicleState(0.0, np.array([0.0, 0.0, 3.0]), np.array([2.0, 0.0, -5.0]),
-                                 rot_to_quat(quat_to_rot(np.array([0.98, 0.1, 0.15, 0.05])
-                                                         / np.linalg.norm([0.98, 0.1, 0.15, 0.05]))),
-                                 np.array([1.0, -1.0, 0.5])))
+                                 tilted, np.array([1.0, -1.0, 0.5])))
     heights = []
     for _ in range(200):
         s = plant.step_motors(np.zeros(6), 0.01)
@@ -192,7 +192,8 @@ def test_numba_path_equals_numpy_reference(name: str) -> None:
     for k in range(60):  # 0.6 s of varied targets, saturating some of them
         axis = rng.normal(size=3)
         angle = rng.uniform(0.0, 0.6)
-        q = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis / np.linalg.norm(axis)])
+        axis /= np.linalg.norm(axis)
+        q = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis])
         thrust = af.mass_kg * G_MPS2 * rng.uniform(0.5, 1.8)
         targets.append(AttitudeTarget(q, thrust, rng.normal(size=3) * (k % 2)))
     for tgt in targets:
@@ -208,3 +209,31 @@ def test_numba_path_equals_numpy_reference(name: str) -> None:
     xa, xb = plants["numba"]._x, plants["numpy"]._x
     np.testing.assert_allclose(xa[:N_RIGID], xb[:N_RIGID], rtol=0, atol=1e-9)
     assert plants["numba"].landed == plants["numpy"].landed
+
+
+def test_rejects_invalid_attitude_target(f550: Airframe) -> None:
+    plant = Multirotor(f550, position_m=(0.0, 0.0, 5.0))
+    with pytest.raises(ValueError, match="invalid attitude target"):
+        plant.step(AttitudeTarget(np.array([1.0, 0.0, 0.0, 0.0]), float("nan")), 0.01)
+    with pytest.raises(ValueError, match="invalid attitude target"):
+        plant.step(AttitudeTarget(np.zeros(4), 10.0), 0.01)
+
+
+def test_gnss_noise_statistics_and_seed() -> None:
+    truth = VehicleState(0.0, np.array([1.0, 2.0, 3.0]), np.zeros(3), yaw_quat(0.0), np.zeros(3))
+    gnss = GnssNoise(position_sigma_m=0.5, velocity_sigma_mps=0.2, bias_sigma_m=0.0, seed=4)
+    meas = [gnss.apply(dataclasses.replace(truth, t_s=0.01 * k)) for k in range(20000)]
+    pos = np.array([m.position_m for m in meas])
+    vel = np.array([m.velocity_mps for m in meas])
+    np.testing.assert_allclose(pos.mean(axis=0), truth.position_m, atol=0.02)
+    np.testing.assert_allclose(pos.std(axis=0), 0.5, rtol=0.05)
+    np.testing.assert_allclose(vel.std(axis=0), 0.2, rtol=0.05)
+    assert meas[5].attitude_wxyz is truth.attitude_wxyz
+    # The bias wanders slowly: consecutive samples share it.
+    biased = GnssNoise(position_sigma_m=0.0, velocity_sigma_mps=0.0, bias_sigma_m=1.0,
+                       bias_tau_s=60.0, seed=4)
+    a = biased.apply(truth).position_m
+    b = biased.apply(dataclasses.replace(truth, t_s=0.01)).position_m
+    assert np.linalg.norm(a - truth.position_m) > 0.05 and np.linalg.norm(a - b) < 0.05
+    again = GnssNoise(position_sigma_m=0.5, velocity_sigma_mps=0.2, bias_sigma_m=0.0, seed=4)
+    np.testing.assert_array_equal(again.apply(truth).position_m, meas[0].position_m)

@@ -75,12 +75,19 @@ class _Recording:
         self.max_objective_excess = -np.inf
         self.compared = 0
         self.reference_failures = 0
+        self.worst: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def polished(self) -> int:
+        return self._reference.polished
 
     def solve(self, f: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> QpResult:
         result = self._inner.solve(f, lower, upper)
         ref = self._reference.solve(f, lower, upper)
         if result.inputs is not None and ref.inputs is not None:
-            self.max_diff = max(self.max_diff, abs(float(result.inputs[0] - ref.inputs[0])))
+            diff = abs(float(result.inputs[0] - ref.inputs[0]))
+            if diff > self.max_diff:
+                self.max_diff, self.worst = diff, (f.copy(), lower.copy(), upper.copy())
             # Where the two differ, whose plan is better? (> 0: ours costs more than the reference)
             h = self._hessian
             ours = 0.5 * result.inputs @ h @ result.inputs + f @ result.inputs
@@ -182,6 +189,7 @@ def bench_tracker(
         "max_relative_objective_excess": float(max(r.max_objective_excess for r in recorders)),
         "qps_compared": int(sum(r.compared for r in recorders)),
         "reference_failures": int(sum(r.reference_failures for r in recorders)),
+        "reference_polished": int(sum(r.polished for r in recorders)),
         "python": platform.python_version(),
         "machine": platform.machine(),
     }

@@ -49,9 +49,11 @@ class Mixer:
         over = (u_yaw > 0.0) & (u + u_yaw > self.hi_radps2)
         under = (u_yaw < 0.0) & (u + u_yaw < self.lo_radps2)
         if over.any():
-            scale = min(scale, float(np.min(np.maximum(0.0, (self.hi_radps2 - u[over]) / u_yaw[over]))))
+            room = (self.hi_radps2 - u[over]) / u_yaw[over]
+            scale = min(scale, float(np.min(np.maximum(0.0, room))))
         if under.any():
-            scale = min(scale, float(np.min(np.maximum(0.0, (self.lo_radps2 - u[under]) / u_yaw[under]))))
+            room = (self.lo_radps2 - u[under]) / u_yaw[under]
+            scale = min(scale, float(np.min(np.maximum(0.0, room))))
         u = np.clip(u + scale * u_yaw, self.lo_radps2, self.hi_radps2)
         return np.sqrt(u)
 

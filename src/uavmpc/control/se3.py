@@ -1,4 +1,4 @@
-"""Geometric tracking controller on SE(3) (Lee, Leok, McClamroch 2010) with integral terms (SPEC §3).
+"""Geometric tracking on SE(3) (Lee, Leok, McClamroch 2010) with integral terms (SPEC §3).
 
     e_p = p − p_d,  e_v = v − v_d
     F_d = m (a_d + g e₃) − K_p e_p − K_v e_v − R K_ib ∫ Rᵀ e_p dt − K_iw ∫ e_p dt
@@ -20,7 +20,7 @@ from typing import Protocol
 import numpy as np
 
 from uavmpc.plant.airframe import G_MPS2, Airframe
-from uavmpc.plant.interface import AttitudeTarget, VehicleState, rot_to_quat
+from uavmpc.plant.interface import AttitudeTarget, VehicleState, cross3, rot_to_quat
 
 _E3 = np.array([0.0, 0.0, 1.0])
 
@@ -76,15 +76,6 @@ class Se3Controller:
         rot = state.rotation()
         e_p = state.position_m - np.asarray(command.position_m, dtype=float)
         e_v = state.velocity_mps - np.asarray(command.velocity_mps, dtype=float)
-        if not (self.saturated or self.tilt_limited):
-            self.integral_world_ms = np.clip(
-                self.integral_world_ms + e_p * dt, -g.integral_limit_world_ms,
-                g.integral_limit_world_ms,
-            )
-            self.integral_body_ms = np.clip(
-                self.integral_body_ms + rot.T @ e_p * dt, -g.integral_limit_body_ms,
-                g.integral_limit_body_ms,
-            )
         m = self.airframe.mass_kg
         force = (
             m * (np.asarray(command.acceleration_mps2, dtype=float) + G_MPS2 * _E3)
@@ -97,12 +88,23 @@ class Se3Controller:
         b3 = force / np.linalg.norm(force)
         psi = float(command.heading_rad)
         b1c = np.array([math.cos(psi), math.sin(psi), 0.0])
-        b2 = np.cross(b3, b1c)
+        b2 = cross3(b3, b1c)
         b2 /= np.linalg.norm(b2)  # b3 is within 80° of vertical, so never parallel to b1c
-        rot_d = np.column_stack([np.cross(b2, b3), b2, b3])
+        rot_d = np.column_stack([cross3(b2, b3), b2, b3])
         thrust = float(force @ (rot @ _E3))
         clipped = min(max(thrust, self.thrust_min_n), self.thrust_max_n)
         self.saturated = clipped != thrust
+        # Integrate after the output (it uses the integrals up to the previous step), and only
+        # when this output is unsaturated.
+        if not (self.saturated or self.tilt_limited):
+            lim_w, lim_b = g.integral_limit_world_ms, g.integral_limit_body_ms
+            # (np.minimum/np.maximum: same as np.clip, a few µs cheaper on (3,) arrays)
+            self.integral_world_ms = np.minimum(
+                np.maximum(self.integral_world_ms + e_p * dt, -lim_w), lim_w
+            )
+            self.integral_body_ms = np.minimum(
+                np.maximum(self.integral_body_ms + rot.T @ e_p * dt, -lim_b), lim_b
+            )
         # Heading-rate feedforward: world-z rate ψ̇ seen in the desired body frame.
         ff = float(command.heading_rate_radps) * rot_d[2, :]
         return AttitudeTarget(attitude_wxyz=rot_to_quat(rot_d), thrust_n=clipped,

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from uavmpc.plant.airframe import G_MPS2, Airframe, AttitudeGains, Se3Gains
 from uavmpc.plant.interface import AttitudeTarget, Plant, VehicleState
+from uavmpc.plant.sensors import GnssNoise
 from uavmpc.plant.wind import Wind
 
 if TYPE_CHECKING:
@@ -22,6 +23,7 @@ __all__ = [
     "Airframe",
     "AttitudeGains",
     "AttitudeTarget",
+    "GnssNoise",
     "Multirotor",
     "Plant",
     "Se3Gains",

@@ -66,7 +66,7 @@ _ATTITUDE = {
 
 
 def _vector(value: Any, field: str, n: int = 3, *, allow_zero: bool = False) -> np.ndarray:
-    """A length-``n`` list of non-negative (or positive) numbers; a scalar is repeated ``n`` times."""
+    """A length-``n`` list of positive (or non-negative) numbers; a scalar is repeated."""
     if isinstance(value, int | float) and not isinstance(value, bool):
         value = [value] * n
     if not isinstance(value, list) or len(value) != n:
@@ -269,7 +269,9 @@ class Airframe:
             positive(take(it, k, p), f"{p}.{k}", upper=1e4)
             for k in ("ixx_kgm2", "iyy_kgm2", "izz_kgm2")
         )
-        ixy, ixz, iyz = (_signed(it.get(k, 0.0), f"{p}.{k}") for k in ("ixy_kgm2", "ixz_kgm2", "iyz_kgm2"))
+        ixy, ixz, iyz = (
+            _signed(it.get(k, 0.0), f"{p}.{k}") for k in ("ixy_kgm2", "ixz_kgm2", "iyz_kgm2")
+        )
         inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
         if np.min(np.linalg.eigvalsh(inertia)) <= 0.0:
             raise ConfigError(f"{p}: not positive definite (check the products of inertia)")
@@ -328,10 +330,11 @@ class Airframe:
             se3=se3,
             attitude=att,
         )
-        if out.max_thrust_n * se3.thrust_max_fraction <= mass * G_MPS2:
+        usable = out.max_thrust_n * se3.thrust_max_fraction
+        if usable <= mass * G_MPS2:
             raise ConfigError(
-                f"{prefix}.rotors: usable thrust {out.max_thrust_n * se3.thrust_max_fraction:.1f} N "
-                f"cannot lift the weight {mass * G_MPS2:.1f} N"
+                f"{prefix}.rotors: usable thrust {usable:.1f} N cannot lift the weight "
+                f"{mass * G_MPS2:.1f} N"
             )
         if np.linalg.matrix_rank(out.allocation()) < 4:
             raise ConfigError(f"{prefix}.rotors: geometry cannot produce all three torques")

@@ -107,6 +107,13 @@ def rot_to_quat(r: np.ndarray) -> np.ndarray:
     return q if q[0] >= 0.0 else -q
 
 
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for (3,) vectors; ≈ 10× faster than ``np.cross`` on such small arrays."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
 def yaw_quat(yaw_rad: float) -> np.ndarray:
     """Quaternion of a pure rotation by ``yaw_rad`` about world z."""
     return np.array([np.cos(0.5 * yaw_rad), 0.0, 0.0, np.sin(0.5 * yaw_rad)])

@@ -35,10 +35,12 @@ def attitude_kernel(
     freeze: bool,
     out: np.ndarray,
 ) -> None:
-    """Compiled :meth:`uavmpc.control.attitude.AttitudeController.update`; writes the (n,) rotor commands into ``out``.
+    """Compiled :meth:`uavmpc.control.attitude.AttitudeController.update`; writes the (n,)
+    rotor commands [rad/s] into ``out``.
 
-    ``gains`` is :func:`pack_gains`' table. ``ctrl`` (7,) is the controller's state, updated in place: [0:3] rate integrator,
-    [3:6] last measured rate, [6] 1.0 once [3:6] holds a measurement.
+    ``gains`` is :func:`uavmpc.control.attitude.pack_gains`' table. ``ctrl`` (7,) is the
+    controller's state, updated in place: [0:3] rate integrator, [3:6] last measured rate,
+    [6] 1.0 once [3:6] holds a measurement.
     """
     qc = (q[0], q[1], q[2], q[3])
     qdt = _weighted_target_k(qc, (qd[0], qd[1], qd[2], qd[3]), gains[6, 0])
@@ -86,7 +88,7 @@ def attitude_kernel(
 
 
 @numba.njit(cache=True)
-def _qmul(a, b):  # noqa: ANN001, ANN202
+def _qmul(a, b):
     """Hamilton product of two (w, x, y, z) tuples (as :func:`uavmpc.control.attitude.quat_mul`)."""
     return (
         a[0] * b[0] - (a[1] * b[1] + a[2] * b[2] + a[3] * b[3]),
@@ -97,7 +99,7 @@ def _qmul(a, b):  # noqa: ANN001, ANN202
 
 
 @numba.njit(cache=True)
-def _weighted_target_k(q, qd, yaw_weight):  # noqa: ANN001, ANN202
+def _weighted_target_k(q, qd, yaw_weight):
     """Compiled :func:`uavmpc.control.attitude.weighted_target` on (w, x, y, z) tuples."""
     ex = 2.0 * (q[1] * q[3] + q[0] * q[2])
     ey = 2.0 * (q[2] * q[3] - q[0] * q[1])
@@ -114,7 +116,7 @@ def _weighted_target_k(q, qd, yaw_weight):  # noqa: ANN001, ANN202
     if abs(r1) > 1.0 - 1e-5 or abs(r2) > 1.0 - 1e-5:
         return qd
     red = _qmul((r0, r1, r2, r3), q)
-    m0, m1, m2, m3 = _qmul((red[0], -red[1], -red[2], -red[3]), qd)
+    m0, _, _, m3 = _qmul((red[0], -red[1], -red[2], -red[3]), qd)
     if m0 < 0.0:
         m0, m3 = -m0, -m3
     w0 = min(max(m0, -1.0), 1.0)
@@ -126,7 +128,7 @@ def _weighted_target_k(q, qd, yaw_weight):  # noqa: ANN001, ANN202
 
 
 @numba.njit(cache=True)
-def _rhs(x, cmd, phys, inertia, inertia_inv, alloc, wind, dx):  # noqa: ANN001, ANN202
+def _rhs(x, cmd, phys, inertia, inertia_inv, alloc, wind, dx):
     """dx = f(x, cmd) in place. ``phys`` = [mass, g, motor_tau, omega_max, dx, dy, dz]."""
     n = cmd.shape[0]
     m = phys[0]
@@ -183,7 +185,7 @@ def _rhs(x, cmd, phys, inertia, inertia_inv, alloc, wind, dx):  # noqa: ANN001, 
 
 
 @numba.njit(cache=True)
-def _ground(x, alloc, phys):  # noqa: ANN001, ANN202
+def _ground(x, alloc, phys):
     """Inelastic flat-ground contact at z = 0; returns True when the vehicle rests on it."""
     if x[2] > 0.0:
         return False
@@ -215,7 +217,7 @@ def _ground(x, alloc, phys):  # noqa: ANN001, ANN202
 def run_substeps(
     x, ctrl, landed, n_sub, dt, direct, motor_cmd, qd, thrust_n, ff, wind,
     phys, inertia, inertia_inv, alloc, gains, mix_inv, lo, hi,
-):  # noqa: ANN001, ANN202
+):
     """Advance ``x`` (and the attitude loop's state ``ctrl``) by ``n_sub`` substeps of ``dt``.
 
     ``direct``: use ``motor_cmd`` as the rotor commands instead of the attitude loop.

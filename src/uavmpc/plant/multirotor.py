@@ -1,4 +1,4 @@
-"""6-DoF multirotor plant: attitude controller + motors + rigid body + drag + wind + ground (SPEC §4).
+"""6-DoF multirotor plant: attitude loop + motors + rigid body + drag + wind + ground (SPEC §4).
 
 State vector x (13 + n,): position (3) and velocity (3) in the world frame ENU [m, m/s],
 attitude quaternion (4) (w, x, y, z) body → world, body rates (3) in FLU [rad/s], rotor
@@ -62,7 +62,7 @@ def _rot(q: np.ndarray) -> np.ndarray:
 
 def rhs_numpy(x: np.ndarray, cmd: np.ndarray, af: Airframe, wind: np.ndarray) -> np.ndarray:
     """ẋ for state ``x`` (13 + n,) and rotor commands ``cmd`` (n,) [rad/s] (readable version)."""
-    p, v, q, w, rotors = x[0:3], x[3:6], x[6:10], x[10:13], x[N_RIGID:]
+    v, q, w, rotors = x[3:6], x[6:10], x[10:13], x[N_RIGID:]
     rot = _rot(q)
     wrench = af.allocation() @ rotors**2  # [T, τx, τy, τz]
     f_body = np.array([0.0, 0.0, wrench[0]]) - af.drag_n_per_mps * (rot.T @ (v - wind))
@@ -76,7 +76,6 @@ def rhs_numpy(x: np.ndarray, cmd: np.ndarray, af: Airframe, wind: np.ndarray) ->
     j = af.inertia_kgm2
     wdot = np.linalg.solve(j, wrench[1:] - np.cross(w, j @ w))
     rdot = (np.clip(cmd, 0.0, af.omega_max_radps) - rotors) / af.motor_tau_s
-    del p
     return np.concatenate([v, acc, qdot, wdot, rdot])
 
 
@@ -176,10 +175,19 @@ class Multirotor:
         )
 
     def step(self, target: AttitudeTarget, dt_s: float) -> VehicleState:
-        """Fly ``target`` for ``dt_s`` (a whole number of substeps) and return the new state."""
+        """Fly ``target`` for ``dt_s`` (a whole number of substeps) and return the new state.
+
+        Raises:
+            ValueError: a target that is not finite or whose quaternion is far from unit length
+                (fail fast instead of integrating NaN).
+        """
         qd = np.asarray(target.attitude_wxyz, dtype=float)
         ff = np.asarray(target.body_rates_ff_radps, dtype=float)
-        self._advance(dt_s, False, self._no_cmd(), qd, float(target.thrust_n), ff)
+        thrust = float(target.thrust_n)
+        norm = math.sqrt(float(qd @ qd))
+        if not (0.9 < norm < 1.1 and math.isfinite(thrust) and np.isfinite(ff).all()):
+            raise ValueError(f"invalid attitude target: {target}")
+        self._advance(dt_s, False, self._no_cmd(), qd / norm, thrust, ff)
         return self.state()
 
     # -- extras for tests and other simulators ------------------------------------------------

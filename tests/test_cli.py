@@ -1,0 +1,39 @@
+"""The command line, end to end: the demo writes its figure, the benchmark prints its JSON."""
+
+import json
+
+import pytest
+
+from uavmpc.cli import main
+
+
+def test_demo_writes_figure_and_summary(tmp_path, capsys) -> None:
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert (tmp_path / "step_50m.png").stat().st_size > 10_000
+    assert summary["overshoot_m"] <= 0.05
+    assert summary["max_speed_mps"] <= summary["speed_limit_mps"] + 1e-6
+    assert "50 m step" in capsys.readouterr().out
+
+
+def test_bench_tracker_prints_one_json_object_last(capsys) -> None:
+    assert main(["bench", "tracker", "--ticks", "300"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    result = json.loads(last)
+    for key, kind in [("ticks", int), ("step_median_us", float), ("step_p99_us", float),
+                      ("limit_violations", int), ("max_violation", float), ("fallbacks", int),
+                      ("reference_solver", str), ("reference_step_median_us", float),
+                      ("max_solution_diff", float)]:
+        assert isinstance(result[key], kind), key
+    assert result["ticks"] == 300
+    assert result["limit_violations"] == 0 and result["fallbacks"] == 0
+    assert result["max_solution_diff"] < 1e-3
+    assert result["qps_compared"] > 0
+
+
+@pytest.mark.parametrize(
+    "argv", [["demo", "--duration", "-1"], ["bench", "tracker", "--ticks", "0"]]
+)
+def test_bad_cli_values_exit_with_a_message(argv, capsys) -> None:
+    assert main(argv) == 2
+    assert "must be" in capsys.readouterr().err
