@@ -41,3 +41,25 @@ def plot_axis_response(
     fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def plot_tracking(
+    t_s: np.ndarray, reference: np.ndarray, command: np.ndarray, actual: np.ndarray, title: str
+) -> Figure:
+    """Per axis (x, y, z, heading): the user's reference, the tracker's output, the UAV."""
+    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(9, 9))
+    names = ("x [m]", "y [m]", "z [m]", "heading [rad]")
+    for i, ax in enumerate(axes):
+        ref, cmd, act = reference[:, i], command[:, i], actual[:, i]
+        if i == 3:  # show headings continuous, not wrapped
+            ref, cmd, act = np.unwrap(ref), np.unwrap(cmd), np.unwrap(act)
+        ax.plot(t_s, ref, "k--", lw=0.9, label="reference (mission)")
+        ax.plot(t_s, cmd, lw=1.4, label="tracker output (virtual UAV)")
+        ax.plot(t_s, act, lw=1.0, label="UAV (actual)")
+        ax.set_ylabel(names[i])
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

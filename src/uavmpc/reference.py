@@ -91,6 +91,20 @@ class Reference:
         points.flags.writeable = False
         object.__setattr__(self, "times_s", times)
         object.__setattr__(self, "points", points)
+        # Sampling tables: a looping reference gets its closing segment appended once here.
+        knots, values = times, points
+        if self.loop:
+            closing = times[-1] - times[-2]
+            last = points[0].copy()
+            # Close the loop the short way round in heading.
+            last[3] = points[-1, 3] + _wrap(points[0, 3] - points[-1, 3])
+            knots = np.append(times, times[-1] + closing)
+            values = np.vstack([points, last])
+        gaps = np.diff(knots)
+        uniform = gaps.size > 0 and bool(np.all(np.abs(gaps - gaps[0]) <= 1e-9 * gaps[0]))
+        object.__setattr__(self, "_knots", knots)
+        object.__setattr__(self, "_values", values)
+        object.__setattr__(self, "_uniform_period", float(gaps[0]) if uniform else 0.0)
 
     @classmethod
     def sampled(
@@ -123,23 +137,25 @@ class Reference:
 
     def sample(self, t_s: np.ndarray) -> np.ndarray:
         """Linear interpolation at the times ``t_s`` (K,) → (K, 4); holds the end points."""
-        times, points = self.times_s, self.points
-        if times.shape[0] == 1:
-            return np.broadcast_to(points[0], (t_s.shape[0], 4)).copy()
+        knots, values = self._knots, self._values  # type: ignore[attr-defined]
+        n = knots.shape[0]
+        if n == 1:
+            return np.broadcast_to(values[0], (t_s.shape[0], 4)).copy()
+        t0 = knots[0]
         if self.loop:
-            closing = times[-1] - times[-2]
-            period = times[-1] - times[0] + closing
-            phase = np.mod(t_s - times[0], period)
-            t_s = times[0] + np.where(t_s < times[0], 0.0, phase)
-            times = np.append(times, times[-1] + closing)
-            last = points[0].copy()
-            # Close the loop the short way round in heading.
-            last[3] = points[-1, 3] + _wrap(points[0, 3] - points[-1, 3])
-            points = np.vstack([points, last])
-        idx = np.clip(np.searchsorted(times, t_s, side="right") - 1, 0, times.shape[0] - 2)
-        t0 = times[idx]
-        frac = np.clip((t_s - t0) / (times[idx + 1] - t0), 0.0, 1.0)[:, None]
-        return points[idx] * (1.0 - frac) + points[idx + 1] * frac
+            period = knots[-1] - t0
+            t_s = t0 + np.where(t_s < t0, 0.0, np.mod(t_s - t0, period))
+        period = self._uniform_period  # type: ignore[attr-defined]
+        if period > 0.0:  # O(1) indexing for the common, uniformly sampled trajectory
+            pos = np.minimum(np.maximum((t_s - t0) / period, 0.0), n - 1.0)
+            idx = np.minimum(pos.astype(np.intp), n - 2)
+            frac = (pos - idx)[:, None]
+        else:
+            idx = np.minimum(np.maximum(np.searchsorted(knots, t_s, side="right") - 1, 0), n - 2)
+            k0 = knots[idx]
+            frac = np.minimum(np.maximum((t_s - k0) / (knots[idx + 1] - k0), 0.0), 1.0)[:, None]
+        lo = values[idx]
+        return lo + (values[idx + 1] - lo) * frac
 
 
 def _wrap(angle: np.ndarray | float) -> np.ndarray | float:

@@ -12,6 +12,7 @@ Each :meth:`MpcTracker.step` (every ``first_step_s``, 10 ms by default):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,7 @@ from uavmpc.reference import Reference
 from uavmpc.tracker.model import CondensedModel, braking_plan
 from uavmpc.tracker.params import DynamicLimits, TrackerConfig
 from uavmpc.tracker.qp import FEASIBILITY_TOL, AxisQpSolver, QpResult, make_solver
+from uavmpc.tracker.qpdata import QpData, build_qp
 
 N_AXES = 4
 #: State components outside the limit box by less than this count as inside (solver round-off).
@@ -140,26 +142,28 @@ class MpcTracker:
             raise InvalidStateError(f"heading_rad must be finite, got {heading_rad!r}")
         self._reference: Reference | None = None
         self._previous_reference: Reference | None = None
+        self._z_offset_m = 0.0
         self._set_limits(self.config.limits)
-        # Precomputed views used every tick.
-        self._neg_hinv = -self.model.hessian_inv
-        self._c_t = self.model.constraint_matrix.T.copy()
-        self._cfree_t = self.model.constraint_free.T.copy()
-        self._fstate_t = self.model.f_state.T.copy()
-        self._fref_t = self.model.f_ref.T.copy()
-        self._fvref_t = self.model.f_vref.T.copy()
-        self._use_vref = self.config.q_velocity > 0.0
-        # vref = r @ D: backward differences of the sampled reference (first one repeated).
+        # Constant matrices of the per-tick QP build, laid out for row-vector products.
         lengths = self.config.step_lengths_s
-        diff = np.zeros((m, m))
+        vref_of_ref = np.zeros((m, m))  # vref = r @ D: backward differences, first one repeated
         for k in range(1, m):
-            diff[k - 1, k], diff[k, k] = -1.0 / lengths[k], 1.0 / lengths[k]
-        diff[:, 0] = diff[:, 1]
-        self._vref_of_ref = diff
-        self._free_t = self.model.free.T.copy()
-        self._forced_t = self.model.forced.T.copy()
-        self._a0_t = self.model.a_steps[0].T.copy()
-        self._b0 = self.model.b_steps[0].copy()
+            vref_of_ref[k - 1, k], vref_of_ref[k, k] = -1.0 / lengths[k], 1.0 / lengths[k]
+        vref_of_ref[:, 0] = vref_of_ref[:, 1]
+        mdl = self.model
+        self._qp_data = QpData(
+            f_state_t=np.ascontiguousarray(mdl.f_state.T),
+            f_ref_t=np.ascontiguousarray(mdl.f_ref.T),
+            vref_of_ref=vref_of_ref,
+            f_vref_t=np.ascontiguousarray(mdl.f_vref.T),
+            f_uprev=mdl.f_uprev.copy(),
+            cfree_t=np.ascontiguousarray(mdl.constraint_free.T),
+            neg_hinv=-mdl.hessian_inv,
+            c_t=np.ascontiguousarray(mdl.constraint_matrix.T),
+            use_vref=self.config.q_velocity > 0.0,
+        )
+        self._free_t = mdl.free.T.copy()
+        self._forced_t = mdl.forced.T.copy()
         self._m = m
         #: Ticks on which at least one axis fell back to braking (solver failure).
         self.fallback_count = 0
@@ -197,8 +201,8 @@ class MpcTracker:
         a_lo, a_hi = limits.acceleration_bounds()
         self._limits = limits
         self._v_lo, self._v_hi, self._a_lo, self._a_hi = v_lo, v_hi, a_lo, a_hi
-        self._vaw_lo = np.stack([v_lo, a_lo, v_lo], axis=1)
-        self._vaw_hi = np.stack([v_hi, a_hi, v_hi], axis=1)
+        self._v_lo_list, self._v_hi_list = v_lo.tolist(), v_hi.tolist()
+        self._a_lo_list, self._a_hi_list = a_lo.tolist(), a_hi.tolist()
         # Row layout of the bounds: [u_1..u_m | v_1..v_m | w_1] per axis (see tracker.model).
         self._lower_nominal = np.hstack([np.repeat(a_lo[:, None], m, 1),
                                          np.repeat(v_lo[:, None], m + 1, 1)])
@@ -220,6 +224,17 @@ class MpcTracker:
         else:
             self._previous_reference = None
         self._reference = reference
+
+    @property
+    def z_offset_m(self) -> float:
+        return self._z_offset_m
+
+    def set_z_offset(self, z_offset_m: float) -> None:
+        """Fly the reference shifted up by ``z_offset_m`` (collision avoidance's reshaping)."""
+        dz = float(z_offset_m)
+        if not np.isfinite(dz) or abs(dz) > 1.0e4:
+            raise ValueError(f"z_offset_m must be finite and within ±1e4 m, got {z_offset_m!r}")
+        self._z_offset_m = dz
 
     def goto(self, x: float, y: float, z: float, heading: float = 0.0) -> None:
         """Fly to a point and hold it, starting now."""
@@ -246,17 +261,16 @@ class MpcTracker:
 
     def _limit_excess(self, s: np.ndarray) -> float:
         """How far state s (4, 3) lies outside the box of ``v``, ``a`` and ``w = v + τa``."""
-        vaw = np.empty((N_AXES, 3))
-        vaw[:, :2] = s[:, 1:]
-        vaw[:, 2] = s[:, 1] + self.config.tau_s * s[:, 2]
-        return max(float(np.maximum(vaw - self._vaw_hi, self._vaw_lo - vaw).max()), 0.0)
+        tau = self.config.tau_s
+        worst = 0.0
+        # Plain floats: twelve comparisons are cheaper than a dozen numpy calls, every tick.
+        for (_, v, a), vl, vh, al, ah in zip(s.tolist(), self._v_lo_list, self._v_hi_list,
+                                            self._a_lo_list, self._a_hi_list, strict=True):
+            w = v + tau * a
+            worst = max(worst, v - vh, vl - v, a - ah, al - a, w - vh, vl - w)
+        return worst
 
     # ------------------------------------------------------------------ the tick
-    def _bound_excess(self, u: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-        """(4,) largest bound violation of each axis' inputs u (4, m); NaN if u is not finite."""
-        rows = np.concatenate([u, u @ self._c_t], axis=1)
-        return np.maximum(lower - rows, rows - upper).max(axis=1)
-
     def _sample_reference(self, times: np.ndarray) -> np.ndarray:
         """(m, 4) reference at absolute ``times``; holds the current position if none."""
         ref, prev = self._reference, self._previous_reference
@@ -269,6 +283,8 @@ class MpcTracker:
             else:
                 early = times < ref.start_s
                 out[early] = prev.sample(times[early])
+        if self._z_offset_m:
+            out[:, 2] += self._z_offset_m
         return out
 
     def step(self) -> TrackerOutput:
@@ -284,21 +300,13 @@ class MpcTracker:
         h = ref[:, 3]
         if self._previous_reference is not None:
             h[1:] = h[0] + np.cumsum((np.diff(h) + np.pi) % (2.0 * np.pi) - np.pi)
-        h += 2.0 * np.pi * np.round((s0[3, 0] - h[0]) / (2.0 * np.pi))
+        h += 2.0 * math.pi * round((float(s0[3, 0]) - float(h[0])) / (2.0 * math.pi))
 
         # Positions relative to the current one keep the QP data well scaled (10 km steps).
         p0 = s0[:, 0].copy()
         rel = s0.copy()
         rel[:, 0] = 0.0
         r_rel = ref.T - p0[:, None]  # (4, m)
-        f = rel @ self._fstate_t + r_rel @ self._fref_t + self._u_prev[:, None] * self.model.f_uprev
-        if self._use_vref:
-            # The reference's own velocity, clipped: a jump in it is not a speed to match.
-            vref = r_rel @ self._vref_of_ref
-            np.minimum(vref, self._v_hi[:, None], out=vref)
-            np.maximum(vref, self._v_lo[:, None], out=vref)
-            f += vref @ self._fvref_t
-        rows_free = rel @ self._cfree_t  # (4, m + 1)
 
         lower, upper = self._lower_nominal, self._upper_nominal
         braking = self._limit_excess(s0) > INSIDE_TOL
@@ -309,14 +317,10 @@ class MpcTracker:
                              brake_s[:, :1, 1] + tau * brake_s[:, :1, 2]])
             lower = np.minimum(lower, env)
             upper = np.maximum(upper, env)
-        lower_qp = lower.copy()
-        upper_qp = upper.copy()
-        lower_qp[:, m:] -= rows_free
-        upper_qp[:, m:] -= rows_free
-
         # Unconstrained optimum first: when it respects every bound it is the QP's solution.
-        u_all = f @ self._neg_hinv
-        need_qp = np.flatnonzero(self._bound_excess(u_all, lower_qp, upper_qp) > 0.0)
+        f, lower_qp, upper_qp, u_all, excess = build_qp(
+            self._qp_data, rel, r_rel, self._u_prev, self._v_lo, self._v_hi, lower, upper)
+        need_qp = [i for i, e in enumerate(excess.tolist()) if not e <= 0.0]  # NaN too
         fallback: list[int] = []
         iterations = 0
         for axis in need_qp:
@@ -330,9 +334,10 @@ class MpcTracker:
                 u_all[axis] = result.inputs
             else:
                 fallback.append(int(axis))
-        if need_qp.size:
+        if need_qp:
             # Never trust a solver's word alone: every solution must be finite and within bounds.
-            excess = self._bound_excess(u_all, lower_qp, upper_qp)
+            rows = np.concatenate([u_all, u_all @ self._qp_data.c_t], axis=1)
+            excess = np.maximum(lower_qp - rows, rows - upper_qp).max(axis=1)
             fallback = sorted(set(fallback) | {
                 int(i) for i in need_qp if not excess[i] <= FEASIBILITY_TOL})
         if fallback:
@@ -367,5 +372,5 @@ class MpcTracker:
             heading_rad=plan[3, :, 0].copy(),
             heading_rate_radps=plan[3, :, 1].copy(),
         )
-        return TrackerOutput(command, prediction, tuple(fallback), braking, int(need_qp.size),
+        return TrackerOutput(command, prediction, tuple(fallback), braking, len(need_qp),
                              iterations)
