@@ -1,18 +1,23 @@
-"""One UAV's onboard stack (SPEC §1): reference → MPC tracker → SE(3) controller.
+"""One UAV's onboard stack (SPEC §1): avoidance → MPC tracker → SE(3) controller.
 
-The stack is what would run on the UAV's own computer. It takes the state estimate and returns
-an :class:`~uavmpc.plant.AttitudeTarget` for whatever stands behind the
-:class:`~uavmpc.plant.Plant` contract (our simulator, another simulator, an autopilot).
+The stack is what would run on the UAV's own computer. It takes the state estimate and the
+predictions other UAVs broadcast, and returns an :class:`~uavmpc.plant.AttitudeTarget` for
+whatever stands behind the :class:`~uavmpc.plant.Plant` contract (our simulator, another
+simulator, an autopilot), plus its own prediction message to broadcast.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from uavmpc.control import Se3Controller
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.reference import Reference
-from uavmpc.tracker import MpcTracker, TrackerConfig, TrackerOutput
+from uavmpc.tracker import DynamicLimits, MpcTracker, TrackerConfig, TrackerOutput
+
+#: How often the avoidance re-plans (the tracker ticks at 100 Hz, predictions arrive at 2 Hz).
+AVOIDANCE_PERIOD_S = 0.1
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,12 +34,16 @@ class OnboardOutput:
 
 
 class OnboardStack:
-    """Tracker and SE(3) controller of one UAV, ticked at the tracker's rate (100 Hz).
+    """Avoidance, tracker and SE(3) controller of one UAV, ticked at the tracker's rate (100 Hz).
 
     Args:
         airframe: the aircraft (mass, thrust range, SE(3) gains).
         tracker_config: MPC set-up and nominal limits (default: packaged data/tracker.toml).
         position_m, heading_rad, t0_s: the initial virtual-UAV state (usually the UAV's own).
+        uav_id, priority: identity on the link (lower priority number = higher priority).
+        avoidance: a resolution strategy (see :mod:`uavmpc.avoidance`), or None to fly without
+            avoidance (the broadcast flag is then down: others treat this UAV as
+            non-cooperative and yield to it).
     """
 
     def __init__(
@@ -45,19 +54,75 @@ class OnboardStack:
         position_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
         heading_rad: float = 0.0,
         t0_s: float = 0.0,
+        uav_id: str = "uav",
+        priority: int = 0,
+        avoidance: object | None = None,
     ) -> None:
         self.airframe = airframe
+        self.uav_id = uav_id
+        self.priority = priority
         self.tracker = MpcTracker(tracker_config, position_m=position_m, heading_rad=heading_rad,
                                   t0_s=t0_s)
         self.period_s = self.tracker.config.first_step_s
         self.controller = Se3Controller(airframe, period_s=self.period_s)
+        self.avoidance = avoidance
+        self.nominal_limits = self.tracker.limits
+        self.decision: object | None = None
+        self._last: TrackerOutput | None = None
+        self._next_avoidance_s = t0_s
+        self._limits_key: tuple[float, float | None, float | None] = (1.0, None, None)
 
     def set_mission(self, reference: Reference) -> None:
         """Fly a new desired trajectory (validated when the Reference was built)."""
         self.tracker.set_reference(reference)
 
-    def tick(self, estimate: VehicleState) -> OnboardOutput:
-        """One control period: advance the virtual UAV, then steer the real one towards it."""
+    @property
+    def last_output(self) -> TrackerOutput | None:
+        return self._last
+
+    def tick(self, estimate: VehicleState,
+             others: Mapping[str, object] | None = None) -> OnboardOutput:
+        """One control period: reshape the reference if needed, advance the virtual UAV, then
+        steer the real UAV towards it. ``others``: the newest prediction message per sender."""
+        if self.avoidance is not None and self._last is not None and others is not None:
+            now = self.tracker.time_s
+            if now >= self._next_avoidance_s - 1e-9:
+                self._next_avoidance_s = now + AVOIDANCE_PERIOD_S
+                self._avoid(now, others)
         out = self.tracker.step()
+        self._last = out
         target = self.controller.update(out.command, estimate, self.period_s)
         return OnboardOutput(out, target)
+
+    def _avoid(self, now: float, others: Mapping[str, object]) -> None:
+        pred = self._last.prediction  # type: ignore[union-attr]
+        # The strategy offsets our prediction by its own z offset; hand it the plan without
+        # the offset the tracker is already flying, so the offset is not counted twice.
+        own = pred.position_m.copy()
+        own[:, 2] -= self.tracker.z_offset_m
+        decision = self.avoidance.update(  # type: ignore[attr-defined]
+            now, self.uav_id, self.priority, pred.times_s, own, others)
+        self.decision = decision
+        if decision.z_offset_m != self.tracker.z_offset_m:
+            self.tracker.set_z_offset(decision.z_offset_m)
+        key = (decision.horizontal_scale, decision.climb_speed_mps, decision.climb_accel_mps2)
+        if key != self._limits_key:
+            self._limits_key = key
+            self.tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
+
+
+def avoidance_limits(nominal: DynamicLimits, horizontal_scale: float,
+                     climb_speed_mps: float | None, climb_accel_mps2: float | None
+                     ) -> DynamicLimits:
+    """Nominal limits, horizontally tightened and with the climb lifted while avoiding."""
+    limits = nominal.scaled(horizontal=horizontal_scale)
+    if climb_speed_mps is None and climb_accel_mps2 is None:
+        return limits
+    return DynamicLimits(
+        limits.horizontal_speed_mps, limits.horizontal_accel_mps2,
+        max(limits.ascend_speed_mps, climb_speed_mps or 0.0),
+        max(limits.ascend_accel_mps2, climb_accel_mps2 or 0.0),
+        limits.descend_speed_mps, limits.descend_accel_mps2,
+        limits.heading_rate_radps, limits.heading_accel_radps2,
+    )
+

@@ -259,6 +259,15 @@ class MpcTracker:
             )
         self._state = s.copy()
 
+    def limit_excess(self, state: np.ndarray | None = None) -> float:
+        """How far ``state`` (default: the current one) lies outside the limits in force.
+
+        The box covers ``v``, ``a`` and ``w = v + τa`` of every axis; 0 inside. Right after a
+        tightening this is positive while the virtual UAV brakes back inside
+        (``TrackerOutput.braking``); otherwise it is 0 up to the solver tolerance.
+        """
+        return self._limit_excess(self._state if state is None else state)
+
     def _limit_excess(self, s: np.ndarray) -> float:
         """How far state s (4, 3) lies outside the box of ``v``, ``a`` and ``w = v + τa``."""
         tau = self.config.tau_s
