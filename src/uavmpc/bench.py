@@ -1,5 +1,7 @@
 """Benchmarks that print numbers and compare against a reference measured in the same run.
 
+``uavmpc bench loop`` times the full single-UAV loop (see :func:`bench_loop`).
+
 ``uavmpc bench tracker`` flies the virtual UAV over a demanding reference (random far waypoints,
 50 m steps, limits halved and restored) three times on the same scenario:
 
@@ -195,7 +197,65 @@ def bench_tracker(
     }
 
 
+def bench_loop(duration_s: float = 60.0, repeats: int = 3, airframe: str = "f550",
+               progress: Callable[[str], None] = print) -> dict[str, Any]:
+    """The full single-UAV loop (tracker + SE(3) + attitude + plant) on the demanding reference.
+
+    ``realtime_factor`` is simulated time over wall time of the whole loop (median of
+    ``repeats`` runs, one core); ``stage_us`` splits one tick by stage in a separate, timed run.
+    """
+    from uavmpc.flight import demanding_reference, fly, summarize
+    from uavmpc.onboard import OnboardStack
+    from uavmpc.plant import Airframe
+    from uavmpc.plant.multirotor import Multirotor
+
+    af = Airframe.packaged(airframe)
+    ref = demanding_reference()
+    fly(af, ref, 1.0)  # load the compiled kernels (numba cache) before timing
+    factors, rmse = [], []
+    for i in range(repeats):
+        s = summarize(fly(af, ref, duration_s), af)
+        factors.append(s["realtime_factor"])
+        rmse.append(s["tracking_rmse_m"])
+        progress(f"run {i + 1}/{repeats}: {s['realtime_factor']:.1f}× real time")
+    start = tuple(ref.points[0, :3])
+    plant = Multirotor(af, position_m=start, rotors_at_hover=True)
+    stack = OnboardStack(af, position_m=start)
+    stack.set_mission(ref)
+    ticks = round(duration_s / stack.period_s)
+    spent = np.zeros(3)
+    state = plant.state()
+    for _ in range(ticks):
+        t0 = time.perf_counter()
+        out = stack.tracker.step()
+        t1 = time.perf_counter()
+        target = stack.controller.update(out.command, state, stack.period_s)
+        t2 = time.perf_counter()
+        state = plant.step(target, stack.period_s)
+        t3 = time.perf_counter()
+        spent += (t1 - t0, t2 - t1, t3 - t2)
+    per_tick = spent / ticks * 1e6
+    return {
+        "airframe": airframe,
+        "duration_s": duration_s,
+        "repeats": repeats,
+        "realtime_factor": round(float(np.median(factors)), 1),
+        "realtime_factors": [round(f, 1) for f in factors],
+        "tracking_rmse_m": round(float(np.median(rmse)), 4),
+        "stage_us": {"tracker": round(float(per_tick[0]), 1),
+                     "se3": round(float(per_tick[1]), 1),
+                     "attitude_and_plant": round(float(per_tick[2]), 1)},
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+    }
+
+
 def main_tracker(ticks: int, seed: int) -> int:
     result = bench_tracker(ticks, seed)
     print(json.dumps(result))
+    return 0
+
+
+def main_loop(duration_s: float, repeats: int, airframe: str) -> int:
+    print(json.dumps(bench_loop(duration_s, repeats, airframe)))
     return 0
