@@ -37,3 +37,11 @@ def test_bench_tracker_prints_one_json_object_last(capsys) -> None:
 def test_bad_cli_values_exit_with_a_message(argv, capsys) -> None:
     assert main(argv) == 2
     assert "must be" in capsys.readouterr().err
+
+
+def test_bench_loop_reports_realtime_factor_and_stages(capsys) -> None:
+    assert main(["bench", "loop", "--duration", "2", "--repeats", "1"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["realtime_factor"] > 1.0
+    assert set(result["stage_us"]) == {"tracker", "se3", "attitude_and_plant"}
+    assert result["tracking_rmse_m"] < 0.3
