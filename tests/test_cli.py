@@ -7,8 +7,8 @@ import pytest
 from uavmpc.cli import main
 
 
-def test_demo_writes_figure_and_summary(tmp_path, capsys) -> None:
-    assert main(["demo", "--out", str(tmp_path)]) == 0
+def test_tracker_demo_writes_figure_and_summary(tmp_path, capsys) -> None:
+    assert main(["tracker-demo", "--out", str(tmp_path)]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert (tmp_path / "step_50m.png").stat().st_size > 10_000
     assert summary["overshoot_m"] <= 0.05
@@ -32,11 +32,20 @@ def test_bench_tracker_prints_one_json_object_last(capsys) -> None:
 
 
 @pytest.mark.parametrize(
-    "argv", [["demo", "--duration", "-1"], ["bench", "tracker", "--ticks", "0"]]
+    "argv", [["tracker-demo", "--duration", "-1"], ["bench", "tracker", "--ticks", "0"],
+             ["run", "swap_through_static", "--loss", "1.5"]]
 )
 def test_bad_cli_values_exit_with_a_message(argv, capsys) -> None:
     assert main(argv) == 2
-    assert "must be" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "must be" in err or "link.loss" in err
+
+
+def test_demo_flies_the_swap_without_collision(tmp_path, capsys) -> None:
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "no collision" in out and "reached its goal" in out
+    assert json.loads((tmp_path / "summary.json").read_text())["collisions"] == []
 
 
 def test_bench_loop_reports_realtime_factor_and_stages(capsys) -> None:

@@ -1,4 +1,4 @@
-"""Command line: ``uavmpc demo``, ``uavmpc bench tracker``."""
+"""Command line: ``uavmpc --help`` lists the commands."""
 
 from __future__ import annotations
 
@@ -10,7 +10,79 @@ from pathlib import Path
 import numpy as np
 
 
+def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
+                  duration: float | None, loss: float | None, latency: float | None,
+                  wind: float = 0.0) -> dict:
+    import dataclasses
+
+    from uavmpc import scenarios
+    from uavmpc.log import FlightRecorder
+    from uavmpc.plots import plot_world
+    from uavmpc.world import COLLISION_DISTANCE_M, World
+
+    sc = scenarios.load(scenario)
+    link = sc.link
+    if loss is not None:
+        link = dataclasses.replace(link, loss=loss)
+    if latency is not None:
+        link = dataclasses.replace(link, latency_s=latency)
+    link = scenarios.LinkSettings.from_dict(dataclasses.asdict(link))  # validate overrides
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
+            "latency_s": link.latency_s}
+    with FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta) as rec:
+        world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
+                      recorder=rec)
+        result = world.run(duration)
+    summary = result.summary()
+    summary["link"] = dataclasses.asdict(link)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    figs = plot_world(result.t_s, result.positions_m, result.min_distance_m, result.uav_ids,
+                      f"{sc.name} ({'with' if avoidance else 'without'} avoidance)",
+                      COLLISION_DISTANCE_M)
+    for fig, name in zip(figs, ("top_view.png", "altitude.png", "min_distance.png"),
+                         strict=True):
+        fig.savefig(out / name, dpi=110)
+    return summary
+
+
+def _print_world_summary(s: dict, out: Path) -> None:
+    verdict = (f"{len(s['collisions'])} collision(s)" if s["collisions"]
+               else "no collision")
+    print(f"{s['scenario']}, {'with' if s['avoidance'] else 'without'} avoidance, seed "
+          f"{s['seed']}: {verdict}; closest approach {s['min_distance_m']:.2f} m "
+          f"(collision < 1 m); {s['realtime_factor']:.0f}× real time")
+    for c in s["collisions"][:5]:
+        print(f"  collision at t = {c['t']:.2f} s: {c['a']} and {c['b']}, "
+              f"{c['distance_m']:.2f} m apart")
+    for uav, u in s["uavs"].items():
+        print(f"  {uav}: climbed up to {u['max_z_offset_m']:.0f} m to avoid, avoiding for "
+              f"{u['avoidance_active_s']:.1f} s, {'reached' if u['reached_goal'] else 'MISSED'} "
+              f"its goal, tracking RMSE {u['tracking_rmse_m']:.3f} m")
+    m = s["messages"]
+    print(f"  link: {m['sent']} predictions sent, {m['delivered']} delivered, "
+          f"{m['dropped']} dropped")
+    print(f"wrote {out}/summary.json, flight.mcap, top_view.png, altitude.png, min_distance.png")
+
+
 def _demo(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    s = _run_scenario("swap_through_static", out, avoidance=True, seed=args.seed,
+                      duration=None, loss=None, latency=None)
+    _print_world_summary(s, out)
+    return 0 if not s["collisions"] else 1
+
+
+def _run(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance, seed=args.seed,
+                      duration=args.duration, loss=args.loss, latency=args.latency,
+                      wind=args.wind)
+    _print_world_summary(s, out)
+    return 0
+
+
+def _tracker_demo(args: argparse.Namespace) -> int:
     from uavmpc.plots import plot_axis_response
     from uavmpc.reference import Reference
     from uavmpc.tracker import MpcTracker
@@ -98,10 +170,25 @@ def build_parser() -> argparse.ArgumentParser:
         description="Multi-UAV MPC tracking, control and collision avoidance.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="fly the tracker demo (a 50 m step) and plot it")
+    demo = sub.add_parser(
+        "demo", help="three UAVs swap through a hovering one, with collision avoidance")
     demo.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    demo.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
+    demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(func=_demo)
+    run = sub.add_parser("run", help="fly a scenario (built-in name or TOML file)")
+    run.add_argument("scenario", help="swap_through_static, converge_center, or a .toml file")
+    run.add_argument("--no-avoidance", action="store_true", help="fly without avoidance")
+    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--duration", type=float, default=None, help="simulated seconds")
+    run.add_argument("--out", default="out/run", help="output folder (default out/run)")
+    run.add_argument("--loss", type=float, default=None, help="message loss probability")
+    run.add_argument("--latency", type=float, default=None, help="link latency [s]")
+    run.add_argument("--wind", type=float, default=0.0, help="mean wind along x [m/s]")
+    run.set_defaults(func=_run)
+    tdemo = sub.add_parser("tracker-demo", help="the virtual UAV flies a 50 m step; plot it")
+    tdemo.add_argument("--out", default="out/tracker-demo", help="output folder")
+    tdemo.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
+    tdemo.set_defaults(func=_tracker_demo)
     track = sub.add_parser(
         "track", help="one UAV flies a demanding reference in closed loop; figure + summary")
     track.add_argument("--airframe", default="f550",
@@ -124,14 +211,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from uavmpc.config import ConfigError
+
     args = build_parser().parse_args(argv)
-    if getattr(args, "duration", 1.0) <= 0:
+    duration = getattr(args, "duration", 1.0)
+    if duration is not None and not duration > 0:
         print("uavmpc: --duration must be > 0", file=sys.stderr)
         return 2
     if getattr(args, "ticks", 1) < 1:
         print("uavmpc: --ticks must be ≥ 1", file=sys.stderr)
         return 2
-    return int(args.func(args))
+    try:
+        return int(args.func(args))
+    except ConfigError as exc:
+        print(f"uavmpc: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -63,3 +63,43 @@ def plot_tracking(
     fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def plot_world(t_s: np.ndarray, positions_m: np.ndarray, min_distance_m: np.ndarray,
+               uav_ids: list[str], title: str,
+               collision_m: float = 1.0) -> tuple[Figure, Figure, Figure]:
+    """Top view of the paths, altitude vs time, minimum pairwise distance vs time."""
+    top, ax = plt.subplots(figsize=(7, 6))
+    for i, uav in enumerate(uav_ids):
+        line = ax.plot(positions_m[:, i, 0], positions_m[:, i, 1], label=uav)[0]
+        ax.plot(*positions_m[0, i, :2], "o", color=line.get_color())
+        ax.plot(*positions_m[-1, i, :2], "s", color=line.get_color())
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{title}: top view (o start, ■ end)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    top.tight_layout()
+
+    alt, ax = plt.subplots(figsize=(8, 4))
+    for i, uav in enumerate(uav_ids):
+        ax.plot(t_s, positions_m[:, i, 2], label=uav)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("altitude z [m]")
+    ax.set_title(f"{title}: altitude")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    alt.tight_layout()
+
+    dist, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(t_s, min_distance_m, label="closest pair")
+    ax.axhline(collision_m, color="r", ls="--", label=f"collision ({collision_m:g} m)")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("min pairwise distance [m]")
+    ax.set_ylim(bottom=0.0)
+    ax.set_title(f"{title}: minimum distance between any two UAVs")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    dist.tight_layout()
+    return top, alt, dist

@@ -1,0 +1,115 @@
+"""The proximity condition (SPEC §5.2), compared at the receiver's own prediction times.
+
+The reference implementation compared its prediction with a received one index to index,
+although the received one is up to ~1 s old: point i of a 0.7 s old message describes where the
+other UAV will be 0.7 s *earlier* than our point i. Here the other prediction is first
+re-sampled at our prediction times by linear interpolation in time, then the cylinder test is
+applied point by point.
+
+Outside the other prediction's time span:
+
+- before its first time: its first point is held (only happens with clock disagreement; the
+  first point is the other UAV's state when it sent the message);
+- after its last time: its last segment is extrapolated at constant velocity for at most
+  ``extrapolate_s`` (the message age makes our horizon end up to the timeout later than
+  theirs; holding the last point would make a UAV that is still moving look as if it stopped,
+  and miss the conflicts that it would cause). Beyond that the points are "unknown" and never
+  count as a conflict.
+
+Everything is vectorised over points and over senders (arrays ``(k, m)``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
+                extrapolate_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Re-sample k predictions of n points each at m times.
+
+    Args:
+        other_times_s: (k, n) strictly increasing times of each prediction (s), n ≥ 2.
+        other_positions_m: (k, n, 3) positions (m).
+        at_times_s: (m,) times to sample at (s), on the same clock.
+        extrapolate_s: how long after a prediction's last time it is extrapolated (s, ≥ 0).
+
+    Returns:
+        positions: (k, m, 3) sampled positions (m).
+        known: (k, m) False where the sample lies more than ``extrapolate_s`` after the end.
+    """
+    times = np.asarray(other_times_s, dtype=float)
+    pos = np.asarray(other_positions_m, dtype=float)
+    at = np.asarray(at_times_s, dtype=float)
+    n = times.shape[1]
+    # Index of the segment [j, j+1] holding each sample; clipped to the first/last segment so
+    # that samples outside the span use the first/last segment (held/extrapolated below).
+    # A (k, m, n) comparison is cheaper than k searchsorted calls for n ≈ 40.
+    count = (times[:, None, :] <= at[None, :, None]).sum(axis=2)
+    j = np.clip(count - 1, 0, n - 2)
+    t0 = np.take_along_axis(times, j, axis=1)
+    t1 = np.take_along_axis(times, j + 1, axis=1)
+    p0 = np.take_along_axis(pos, j[..., None], axis=1)
+    p1 = np.take_along_axis(pos, (j + 1)[..., None], axis=1)
+    # w < 0 only before the first time: clamp to hold the first point. w > 1 only after the
+    # last time: left as is, that is the constant-velocity extrapolation of the last segment.
+    w = np.maximum((at[None, :] - t0) / (t1 - t0), 0.0)
+    out = p0 + w[..., None] * (p1 - p0)
+    known = at[None, :] <= times[:, -1:] + extrapolate_s
+    return out, known
+
+
+def align(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
+          extrapolate_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`align_batch` for one prediction: (n,), (n, 3) → positions (m, 3), known (m,)."""
+    out, known = align_batch(np.asarray(other_times_s)[None], np.asarray(other_positions_m)[None],
+                             at_times_s, extrapolate_s)
+    return out[0], known[0]
+
+
+def cylinder_conflicts(own_positions_m: np.ndarray, other_positions_m: np.ndarray,
+                       radius_m: float, height_m: float) -> np.ndarray:
+    """The proximity condition at corresponding points (SPEC §5.2).
+
+    Args:
+        own_positions_m: (m, 3).
+        other_positions_m: (m, 3) or (k, m, 3), already aligned in time with ours.
+        radius_m: R_p, horizontal radius of the cylinder (m).
+        height_m: H_p, full height of the cylinder (m); the vertical test is |Δz| ≤ H_p / 2.
+
+    Returns:
+        (m,) or (k, m) bool: ‖Δxy‖ ≤ R_p and |Δz| ≤ H_p / 2.
+    """
+    d = np.asarray(other_positions_m, dtype=float) - np.asarray(own_positions_m, dtype=float)
+    horizontal = d[..., 0] ** 2 + d[..., 1] ** 2 <= radius_m**2
+    return horizontal & (np.abs(d[..., 2]) <= 0.5 * height_m)
+
+
+def conflict_points(own_times_s: np.ndarray, own_positions_m: np.ndarray,
+                    other_times_s: np.ndarray, other_positions_m: np.ndarray, *,
+                    radius_m: float = 5.0, height_m: float = 5.99,
+                    extrapolate_s: float = 1.0) -> np.ndarray:
+    """Which of our prediction points conflict with another UAV's prediction.
+
+    Args:
+        own_times_s: (m,) our prediction times (s).
+        own_positions_m: (m, 3) our positions (m), already offset by the z offset in force.
+        other_times_s: (n,) the other prediction's times (s), on our clock.
+        other_positions_m: (n, 3) the other prediction's positions (m).
+        radius_m, height_m: the cylinder (SPEC §5.2).
+        extrapolate_s: see the module docstring.
+
+    Returns:
+        (m,) bool, True where the points conflict.
+    """
+    aligned, known = align(other_times_s, other_positions_m, own_times_s, extrapolate_s)
+    return known & cylinder_conflicts(own_positions_m, aligned, radius_m, height_m)
+
+
+def first_conflict_time(own_times_s: np.ndarray, conflicts: np.ndarray) -> float | None:
+    """The earliest of ``own_times_s`` (m,) where ``conflicts`` (m,) or (k, m) holds, or None."""
+    c = np.asarray(conflicts, dtype=bool)
+    if c.ndim == 2:
+        c = c.any(axis=0)
+    idx = np.flatnonzero(c)
+    return float(np.asarray(own_times_s)[idx[0]]) if idx.size else None

@@ -1,0 +1,330 @@
+"""Conflict resolution strategies (SPEC §5.3) behind one small contract.
+
+A :class:`ResolutionStrategy` turns the newest messages of the others plus our own nominal
+prediction into an :class:`AvoidanceDecision`: a z offset for the reference, and the limits to
+fly with. :class:`HeightOffsetStrategy` is the reference design's "reshape": the UAV that must
+yield climbs in steps of Δz until its prediction is clear, the other keeps its altitude and only
+slows down.
+
+Note on flags: :attr:`AvoidanceDecision.avoiding` says "currently avoiding" (diagnostics, logs).
+The flag a UAV *broadcasts* (:attr:`~uavmpc.comms.PredictionMessage.avoiding`) means "I run
+collision avoidance and will yield" and must stay up whenever a strategy runs, conflict or not:
+a UAV that broadcast its down flag while quiet would look non-cooperative to everyone.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from uavmpc.avoidance.proximity import align_batch
+from uavmpc.comms.message import PredictionMessage
+from uavmpc.config import ConfigError, positive, reject_unknown
+
+#: Sanity bounds: beyond any multirotor scenario, small enough to catch unit mistakes.
+MAX_DISTANCE_M = 1000.0
+MAX_TIME_S = 600.0
+MAX_SPEED_MPS = 100.0
+MAX_ACCEL_MPS2 = 100.0
+#: Relative slack for "offset is a multiple of Δz that fits under the ceiling" (round-off).
+_EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class AvoidanceParams:
+    """Parameters of the height-offset strategy (SPEC §5.2–5.3). SI units.
+
+    Attributes:
+        radius_m: R_p, horizontal radius of the conflict cylinder.
+        height_m: H_p, full height of the conflict cylinder (conflict if |Δz| ≤ H_p / 2).
+        dz_m: Δz, one height correction; must exceed H_p / 2 so one step resolves one conflict.
+        timeout_s: messages older than this are ignored; also how long a received prediction is
+            extrapolated past its end (its age shifts its end before ours).
+        max_offset_m: ceiling of the accumulated z offset; reaching it is reported.
+        release_rate_mps: speed at which the offset is released once conflict-free.
+        release_hysteresis_s: conflict-free time before the release starts and limits are
+            restored (so that a conflict flickering with packet loss does not make it oscillate).
+        horizontal_scale: factor on the horizontal speed/acceleration limits while avoiding,
+            in (0, 1].
+        climb_speed_mps, climb_accel_mps2: ascend limits while avoiding (the reference
+            implementation lifted them to 5 m/s and 3 m/s² so that a climbing UAV can get out of
+            the way of another climbing one).
+        time_reference: "stamp" (synchronised clocks) or "receive" (the message's
+            ``received_s`` replaces its stamp: fallback for unsynchronised clocks, off by the
+            link latency).
+    """
+
+    radius_m: float = 5.0
+    height_m: float = 5.99
+    dz_m: float = 3.0
+    timeout_s: float = 1.0
+    max_offset_m: float = 30.0
+    release_rate_mps: float = 2.0
+    release_hysteresis_s: float = 2.0
+    horizontal_scale: float = 0.5
+    climb_speed_mps: float = 5.0
+    climb_accel_mps2: float = 3.0
+    time_reference: str = "stamp"
+
+    def __post_init__(self) -> None:
+        p = "avoidance"
+        for name in ("radius_m", "height_m", "dz_m", "max_offset_m"):
+            positive(getattr(self, name), f"{p}.{name}", upper=MAX_DISTANCE_M)
+        positive(self.timeout_s, f"{p}.timeout_s", upper=MAX_TIME_S)
+        positive(self.release_hysteresis_s, f"{p}.release_hysteresis_s", upper=MAX_TIME_S,
+                 allow_zero=True)
+        positive(self.release_rate_mps, f"{p}.release_rate_mps", upper=MAX_SPEED_MPS)
+        positive(self.climb_speed_mps, f"{p}.climb_speed_mps", upper=MAX_SPEED_MPS)
+        positive(self.climb_accel_mps2, f"{p}.climb_accel_mps2", upper=MAX_ACCEL_MPS2)
+        positive(self.horizontal_scale, f"{p}.horizontal_scale", upper=1.0)
+        for f in fields(self):
+            if f.name != "time_reference":
+                object.__setattr__(self, f.name, float(getattr(self, f.name)))
+        if self.dz_m <= 0.5 * self.height_m:
+            raise ConfigError(
+                f"{p}.dz_m: must be > height_m / 2 = {0.5 * self.height_m} so that one "
+                f"correction resolves one conflict, got {self.dz_m}")
+        if self.max_offset_m < self.dz_m:
+            raise ConfigError(
+                f"{p}.max_offset_m: must be ≥ dz_m = {self.dz_m} (else no correction fits), "
+                f"got {self.max_offset_m}")
+        if self.time_reference not in ("stamp", "receive"):
+            raise ConfigError(
+                f"{p}.time_reference: must be 'stamp' or 'receive', got {self.time_reference!r}")
+
+    @classmethod
+    def from_dict(cls, table: dict[str, Any], prefix: str = "avoidance") -> AvoidanceParams:
+        """From a TOML table; missing fields take their defaults, unknown ones are errors."""
+        if not isinstance(table, dict):
+            raise ConfigError(f"{prefix}: must be a table")
+        reject_unknown(table, {f.name for f in fields(cls)}, prefix)
+        return cls(**table)
+
+
+@dataclass(frozen=True)
+class AvoidanceDecision:
+    """What the avoidance asks of the tracker for the next period.
+
+    Attributes:
+        z_offset_m: add to the desired trajectory's z (m, ≥ 0).
+        avoiding: currently avoiding (a conflict, within the hysteresis after one, or an offset
+            not yet released). For diagnostics and logs; see the module note on the broadcast
+            flag.
+        conflicts: ids of the UAVs in conflict with our prediction at the offset in force when
+            the update began (what triggered this decision).
+        yielding_to: those of ``conflicts`` we must yield to (higher priority or flag down).
+        unresolved: UAVs we must yield to still in conflict at ``z_offset_m`` (the ceiling).
+        first_conflict_s: time from now to the earliest conflict in ``conflicts`` (s), or None.
+        horizontal_scale: factor on the nominal horizontal limits (1.0 = nominal).
+        climb_speed_mps, climb_accel_mps2: lifted ascend limits, or None for nominal.
+        ceiling_hit: the offset could not be raised as needed because of ``max_offset_m``.
+    """
+
+    z_offset_m: float = 0.0
+    avoiding: bool = False
+    conflicts: tuple[str, ...] = ()
+    yielding_to: tuple[str, ...] = ()
+    unresolved: tuple[str, ...] = ()
+    first_conflict_s: float | None = None
+    horizontal_scale: float = 1.0
+    climb_speed_mps: float | None = None
+    climb_accel_mps2: float | None = None
+    ceiling_hit: bool = False
+
+
+@runtime_checkable
+class ResolutionStrategy(Protocol):
+    """The contract of a conflict-resolution strategy (one instance per UAV, may keep state)."""
+
+    def update(self, now_s: float, own_id: str, own_priority: int,
+               own_prediction_times: np.ndarray, own_prediction_positions: np.ndarray,
+               others: Mapping[str, PredictionMessage]) -> AvoidanceDecision:
+        """Decide for the next period.
+
+        Args:
+            now_s: current time (s), non-decreasing between calls.
+            own_id, own_priority: this UAV (lower priority number = higher priority).
+            own_prediction_times: (m,) absolute times (s).
+            own_prediction_positions: (m, 3) where the UAV would be WITHOUT any z offset (m):
+                e.g. the desired trajectory at those times, or the tracker's prediction minus
+                the offset in force.
+            others: newest message per sender (may contain stale ones and our own).
+        """
+        ...
+
+
+@dataclass(frozen=True, eq=False)
+class _Encounters:
+    """The others, aligned with our prediction (k senders, m points)."""
+
+    ids: tuple[str, ...]
+    must_yield: np.ndarray  # (k,) bool
+    near_xy: np.ndarray  # (k, m) bool: known and horizontally within R_p
+    dz_m: np.ndarray  # (k, m) our z (without offset) minus theirs
+
+    def conflicts(self, offset_m: float | np.ndarray, half_height_m: float) -> np.ndarray:
+        """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets."""
+        off = np.asarray(offset_m, dtype=float)[..., None, None]
+        return self.near_xy & (np.abs(self.dz_m + off) <= half_height_m)
+
+    def below(self, offset_m: float, half_height_m: float) -> np.ndarray:
+        """(k, m) points in conflict at SOME offset in [0, offset_m]: the way down.
+
+        |dz + o| ≤ h for some o ∈ [0, z]  ⇔  −h − z ≤ dz ≤ h (an exact interval test).
+        """
+        return self.near_xy & (self.dz_m >= -half_height_m - offset_m) & (
+            self.dz_m <= half_height_m)
+
+
+class HeightOffsetStrategy:
+    """The reference design's reshape (SPEC §5.3), one instance per UAV.
+
+    Each :meth:`update`:
+
+    1. ignores our own messages and those stamped more than ``timeout_s`` away from now (stale
+       or from a faulty clock), aligns the others'
+       predictions with ours in time and checks the cylinder along the whole horizon with our
+       prediction raised by the current offset;
+    2. while a conflict remains with a UAV we must yield to (lower priority number, or flag
+       down; equal numbers, which a valid set-up never has, are broken by id), raises the offset
+       by Δz — up to ``max_offset_m``, else reports ``ceiling_hit``. Conflicts with UAVs that
+       must yield to us never change our offset: they climb;
+    3. after ``release_hysteresis_s`` without any conflict — at the current offset nor at any
+       offset down to 0, so that it never descends into a conflict, nor back onto the UAV it
+       climbed over — lowers the offset at ``release_rate_mps`` (using the time between
+       updates). A UAV found on the way down holds the offset and restarts the hysteresis.
+
+    The horizontal limits stay tightened (and the ascend limits lifted) until the release
+    starts; :attr:`AvoidanceDecision.avoiding` stays up until the offset is back to 0.
+    """
+
+    def __init__(self, params: AvoidanceParams | None = None) -> None:
+        self.params = params if params is not None else AvoidanceParams()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the offset and the conflict history (e.g. after landing)."""
+        self.z_offset_m = 0.0
+        self._last_conflict_s: float | None = None
+        self._last_update_s: float | None = None
+
+    def update(self, now_s: float, own_id: str, own_priority: int,
+               own_prediction_times: np.ndarray, own_prediction_positions: np.ndarray,
+               others: Mapping[str, PredictionMessage]) -> AvoidanceDecision:
+        prm = self.params
+        half_h = 0.5 * prm.height_m
+        times = np.asarray(own_prediction_times, dtype=float)
+        own = np.asarray(own_prediction_positions, dtype=float)
+        if times.ndim != 1 or own.shape != (times.shape[0], 3):
+            raise ValueError(
+                f"own prediction: times (m,) and positions (m, 3) expected, got {times.shape} "
+                f"and {own.shape}")
+        enc = self._encounters(now_s, own_id, own_priority, times, own, others)
+
+        c_start = enc.conflicts(self.z_offset_m, half_h)  # (k, m)
+        hit_start = c_start.any(axis=1)
+        yield_hit = hit_start & enc.must_yield
+        ceiling_hit = False
+        if yield_hit.any():
+            self.z_offset_m, ceiling_hit = self._climb(enc, half_h)
+        c_end = enc.conflicts(self.z_offset_m, half_h)
+        unresolved = c_end.any(axis=1) & enc.must_yield
+        # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
+        # in force, and none anywhere on the way down to 0 either. Climbing over a UAV removes
+        # the conflict but not the reason for the offset; without this, the offset would be
+        # released on top of it and re-raised as soon as the conflict reappeared.
+        if hit_start.any() or c_end.any() or enc.below(self.z_offset_m, half_h).any():
+            self._last_conflict_s = now_s
+        else:
+            self._release(now_s)
+        self._last_update_s = now_s
+
+        recent = (self._last_conflict_s is not None
+                  and now_s - self._last_conflict_s < prm.release_hysteresis_s)
+        limits_tight = bool(hit_start.any() or c_end.any() or recent)
+        first = np.flatnonzero(c_start.any(axis=0))
+        return AvoidanceDecision(
+            z_offset_m=self.z_offset_m,
+            avoiding=limits_tight or self.z_offset_m > 0.0,
+            conflicts=tuple(i for i, h in zip(enc.ids, hit_start, strict=True) if h),
+            yielding_to=tuple(i for i, h in zip(enc.ids, yield_hit, strict=True) if h),
+            unresolved=tuple(i for i, h in zip(enc.ids, unresolved, strict=True) if h),
+            first_conflict_s=float(times[first[0]] - now_s) if first.size else None,
+            horizontal_scale=prm.horizontal_scale if limits_tight else 1.0,
+            climb_speed_mps=prm.climb_speed_mps if limits_tight else None,
+            climb_accel_mps2=prm.climb_accel_mps2 if limits_tight else None,
+            ceiling_hit=ceiling_hit,
+        )
+
+    def _encounters(self, now_s: float, own_id: str, own_priority: int, times: np.ndarray,
+                    own: np.ndarray, others: Mapping[str, PredictionMessage]) -> _Encounters:
+        prm = self.params
+        msgs: list[PredictionMessage] = []
+        shifted: list[np.ndarray] = []
+        for sender, msg in others.items():
+            if sender == own_id or msg.uav_id == own_id:
+                continue
+            ref = msg.stamp_s
+            if prm.time_reference == "receive" and msg.received_s is not None:
+                ref = msg.received_s
+            if abs(now_s - ref) > prm.timeout_s:
+                # Stale: the other may have gone silent, its plan is no evidence. Stamped
+                # further ahead than that: a clock fault, equally unusable (the inbox normally
+                # rejects those already).
+                continue
+            msgs.append(msg)
+            # With the receive-time fallback the prediction is moved onto our clock: its stamp
+            # is taken to be the moment we received it (error: the link latency).
+            shifted.append(msg.times_s + (ref - msg.stamp_s))
+        k, m = len(msgs), times.shape[0]
+        aligned = np.empty((k, m, 3))
+        known = np.zeros((k, m), dtype=bool)
+        # Senders are batched by prediction length (normally all have the same m).
+        by_len: dict[int, list[int]] = {}
+        for i, msg in enumerate(msgs):
+            by_len.setdefault(msg.points, []).append(i)
+        for idx in by_len.values():
+            pos, kn = align_batch(np.stack([shifted[i] for i in idx]),
+                                  np.stack([msgs[i].positions_m for i in idx]), times,
+                                  prm.timeout_s)
+            aligned[idx] = pos
+            known[idx] = kn
+        d = aligned - own[None]
+        near_xy = known & (d[..., 0] ** 2 + d[..., 1] ** 2 <= prm.radius_m**2)
+        must_yield = np.array(
+            [(not msg.avoiding) or msg.priority < own_priority
+             or (msg.priority == own_priority and msg.uav_id < own_id) for msg in msgs],
+            dtype=bool)
+        return _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, -d[..., 2])
+
+    def _climb(self, enc: _Encounters, half_h: float) -> tuple[float, bool]:
+        """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to; (offset, ceiling)."""
+        prm = self.params
+        steps = math.floor((prm.max_offset_m - self.z_offset_m) / prm.dz_m + _EPS)
+        if steps < 1:
+            return self.z_offset_m, True
+        candidates = self.z_offset_m + prm.dz_m * np.arange(1, steps + 1)
+        sub = _Encounters(enc.ids, enc.must_yield[enc.must_yield],
+                          enc.near_xy[enc.must_yield], enc.dz_m[enc.must_yield])
+        blocked = sub.conflicts(candidates, half_h).any(axis=(1, 2))
+        free = np.flatnonzero(~blocked)
+        if free.size:
+            return float(candidates[free[0]]), False
+        return float(candidates[-1]), True
+
+    def _release(self, now_s: float) -> None:
+        """Lower the offset at the release rate once the hysteresis has passed. Only called
+        when the whole way down is clear of every known UAV, so no step can land in a conflict
+        however long the time between updates."""
+        prm = self.params
+        if self.z_offset_m <= 0.0 or self._last_conflict_s is None:
+            return
+        start = self._last_conflict_s + prm.release_hysteresis_s
+        if now_s < start:
+            return
+        since = start if self._last_update_s is None else max(self._last_update_s, start)
+        self.z_offset_m = max(0.0, self.z_offset_m - prm.release_rate_mps * (now_s - since))

@@ -1,0 +1,256 @@
+"""The prediction message every UAV broadcasts at 2 Hz (SPEC §5.1), and its wire format.
+
+The link is lossy, unconfirmed and shared with whatever else is on the air, so a receiver must
+assume any byte string can arrive. :func:`decode` therefore either returns a fully valid
+:class:`PredictionMessage` or raises :class:`InvalidMessageError` naming the problem; it never
+raises anything else (a fuzz test holds it to that).
+
+Wire format (version 1), all little-endian, no padding::
+
+    offset  size        field
+    0       4           magic b"UAVP"
+    4       1           version (uint8, = 1)
+    5       1           flags (uint8; bit 0 = avoiding, other bits must be 0)
+    6       1           id length n (uint8, 1..32)
+    7       2           m, number of prediction points (uint16, 2..200)
+    9       4           priority (int32; lower number = higher priority)
+    13      8           stamp_s (float64, absolute send time)
+    21      n           uav_id, ASCII [A-Za-z0-9_-]
+    21+n    8 m         times_s (float64)
+    21+n+8m 24 m        positions_m (float64, row-major (m, 3), ENU)
+
+float64 throughout keeps the round trip bit-exact and absolute stamps (≈1.7e9 s of GNSS/Unix
+time) at µs resolution. A 40-point message is 21 + n + 1280 bytes.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: The schema version this code writes and the only one it reads.
+SCHEMA_VERSION = 1
+MAGIC = b"UAVP"
+#: Bounds on the number of prediction points (our tracker sends 40).
+MIN_POINTS = 2
+MAX_POINTS = 200
+#: Positions farther than this from the origin (per axis) are a unit or frame bug, not a UAV.
+MAX_ABS_POSITION_M = 1.0e5
+MAX_ID_LEN = 32
+#: Priorities travel as int32.
+PRIORITY_RANGE = (-(2**31), 2**31 - 1)
+
+_HEADER = struct.Struct("<4sBBBHid")
+_FLAG_AVOIDING = 0x01
+_ID_RE = re.compile(r"[A-Za-z0-9_-]{1,32}")
+_F64 = np.dtype("<f8")
+#: Largest valid message: anything longer is rejected before any parsing work.
+MAX_MESSAGE_BYTES = _HEADER.size + MAX_ID_LEN + 32 * MAX_POINTS
+
+
+class InvalidMessageError(ValueError):
+    """Bytes or fields that do not form a usable prediction message (the text names why)."""
+
+
+@dataclass(frozen=True, eq=False)
+class PredictionMessage:
+    """One UAV's broadcast prediction (SPEC §5.1). Construction validates every field.
+
+    Attributes:
+        version: schema version (:data:`SCHEMA_VERSION`).
+        uav_id: sender id, 1–32 characters of ``[A-Za-z0-9_-]``.
+        priority: unique integer; a LOWER number means a HIGHER priority.
+        stamp_s: absolute time the message was sent (s, sender's clock).
+        times_s: (m,) absolute times of the prediction points, strictly increasing (s).
+        positions_m: (m, 3) predicted positions, ENU world frame (m).
+        avoiding: this UAV runs collision avoidance and will yield to higher priorities. A UAV
+            whose flag is down is non-cooperative: everyone yields to it.
+        received_s: local metadata, never sent: the receiver's clock when the message arrived
+            (set by the receiving inbox; used by the receive-time fallback for unsynchronised
+            clocks). ``None`` when unknown.
+
+    Arrays are stored as read-only float64 copies, so a message cannot change after validation.
+    """
+
+    version: int
+    uav_id: str
+    priority: int
+    stamp_s: float
+    times_s: np.ndarray
+    positions_m: np.ndarray
+    avoiding: bool
+    received_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.version, bool) or not isinstance(self.version, int):
+            raise InvalidMessageError(f"version: must be an integer, got {self.version!r}")
+        if self.version != SCHEMA_VERSION:
+            raise InvalidMessageError(
+                f"version: unsupported schema version {self.version} (expected {SCHEMA_VERSION})")
+        _check_id(self.uav_id)
+        if isinstance(self.priority, bool) or not isinstance(self.priority, int | np.integer):
+            raise InvalidMessageError(f"priority: must be an integer, got {self.priority!r}")
+        if not PRIORITY_RANGE[0] <= int(self.priority) <= PRIORITY_RANGE[1]:
+            raise InvalidMessageError(f"priority: {self.priority} does not fit in int32")
+        object.__setattr__(self, "priority", int(self.priority))
+        object.__setattr__(self, "stamp_s", _finite(self.stamp_s, "stamp_s"))
+        if self.received_s is not None:
+            object.__setattr__(self, "received_s", _finite(self.received_s, "received_s"))
+        if not isinstance(self.avoiding, bool | np.bool_):
+            raise InvalidMessageError(f"avoiding: must be a bool, got {self.avoiding!r}")
+        object.__setattr__(self, "avoiding", bool(self.avoiding))
+        times = _float_array(self.times_s, "times_s")
+        pos = _float_array(self.positions_m, "positions_m")
+        _check_arrays(times, pos)
+        object.__setattr__(self, "times_s", times)
+        object.__setattr__(self, "positions_m", pos)
+
+    @property
+    def points(self) -> int:
+        """m, the number of prediction points."""
+        return int(self.times_s.shape[0])
+
+
+def from_prediction(prediction: Any, *, uav_id: str, priority: int, stamp_s: float,
+                    avoiding: bool = True) -> PredictionMessage:
+    """A message from a tracker :class:`~uavmpc.tracker.Prediction` (uses ``times_s`` and
+    ``position_m`` only: others need where, not how)."""
+    return PredictionMessage(SCHEMA_VERSION, uav_id, priority, stamp_s,
+                             prediction.times_s, prediction.position_m, avoiding)
+
+
+def encode(msg: PredictionMessage) -> bytes:
+    """The wire bytes of ``msg`` (see the module docstring). ``received_s`` is not sent."""
+    uid = msg.uav_id.encode("ascii")
+    header = _HEADER.pack(MAGIC, msg.version, _FLAG_AVOIDING if msg.avoiding else 0, len(uid),
+                          msg.points, msg.priority, msg.stamp_s)
+    return b"".join((header, uid, msg.times_s.astype(_F64).tobytes(),
+                     msg.positions_m.astype(_F64).tobytes()))
+
+
+def decode(data: bytes) -> PredictionMessage:
+    """Parse and validate wire bytes; raises :class:`InvalidMessageError` naming the problem."""
+    if not isinstance(data, bytes | bytearray | memoryview):
+        raise InvalidMessageError(f"data: expected bytes, got {type(data).__name__}")
+    data = bytes(data)
+    if len(data) < _HEADER.size:
+        raise InvalidMessageError(
+            f"truncated: {len(data)} bytes, shorter than the {_HEADER.size}-byte header")
+    if len(data) > MAX_MESSAGE_BYTES:
+        raise InvalidMessageError(
+            f"oversized: {len(data)} bytes, more than the {MAX_MESSAGE_BYTES}-byte maximum")
+    magic, version, flags, id_len, m, priority, stamp = _HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise InvalidMessageError(f"magic: expected {MAGIC!r}, got {magic!r}")
+    if version != SCHEMA_VERSION:
+        raise InvalidMessageError(
+            f"version: unsupported schema version {version} (expected {SCHEMA_VERSION})")
+    if flags & ~_FLAG_AVOIDING:
+        raise InvalidMessageError(f"flags: unknown bits set in 0x{flags:02x}")
+    if not 1 <= id_len <= MAX_ID_LEN:
+        raise InvalidMessageError(f"uav_id: length {id_len} outside [1, {MAX_ID_LEN}]")
+    if not MIN_POINTS <= m <= MAX_POINTS:
+        raise InvalidMessageError(f"points: m={m} outside [{MIN_POINTS}, {MAX_POINTS}]")
+    expected = _HEADER.size + id_len + 32 * m
+    if len(data) < expected:
+        raise InvalidMessageError(
+            f"truncated: {len(data)} bytes, expected {expected} for m={m} and an id of {id_len}")
+    if len(data) > expected:
+        raise InvalidMessageError(
+            f"oversized: {len(data)} bytes, expected {expected} for m={m} and an id of {id_len}")
+    start = _HEADER.size
+    try:
+        uav_id = data[start:start + id_len].decode("ascii")
+    except UnicodeDecodeError:
+        raise InvalidMessageError("uav_id: not ASCII") from None
+    start += id_len
+    times = np.frombuffer(data, dtype=_F64, count=m, offset=start)
+    pos = np.frombuffer(data, dtype=_F64, count=3 * m, offset=start + 8 * m).reshape(m, 3)
+    return PredictionMessage(version, uav_id, priority, stamp, times, pos,
+                             bool(flags & _FLAG_AVOIDING))
+
+
+def validate_on_receipt(msg: PredictionMessage, now_s: float, max_future_s: float = 0.5,
+                        max_age_s: float = 1.0) -> PredictionMessage:
+    """Reject a message stamped in the future (beyond a clock tolerance) or too old to use.
+
+    Only meaningful with synchronised clocks (SPEC §5.1: GNSS time); with the receive-time
+    fallback the sender's stamps are on another clock and must not be checked against ``now_s``.
+
+    Args:
+        msg: a decoded message.
+        now_s: the receiver's clock (s).
+        max_future_s: allowed clock disagreement (s); stamps later than ``now_s + max_future_s``
+            are rejected: they would otherwise win "newest per sender" forever.
+        max_age_s: messages older than this (s) are rejected as stale (the avoidance timeout).
+
+    Returns:
+        ``msg`` unchanged, so that calls can be chained.
+    """
+    if not math.isfinite(now_s):
+        raise ValueError(f"now_s: must be finite, got {now_s}")
+    ahead = msg.stamp_s - now_s
+    if ahead > max_future_s:
+        raise InvalidMessageError(
+            f"future-stamped: stamp_s={msg.stamp_s} is {ahead:.3f} s ahead of now_s={now_s} "
+            f"(tolerance {max_future_s} s)")
+    if -ahead > max_age_s:
+        raise InvalidMessageError(
+            f"stale: stamp_s={msg.stamp_s} is {-ahead:.3f} s old (max_age_s {max_age_s} s)")
+    return msg
+
+
+def _check_id(uav_id: Any) -> None:
+    if not isinstance(uav_id, str) or _ID_RE.fullmatch(uav_id) is None:
+        raise InvalidMessageError(
+            f"uav_id: must be 1–{MAX_ID_LEN} characters of [A-Za-z0-9_-], got {uav_id!r}")
+
+
+def _finite(value: Any, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
+        raise InvalidMessageError(f"{field}: must be a number, got {value!r}")
+    out = float(value)
+    if not math.isfinite(out):
+        raise InvalidMessageError(f"{field}: must be finite, got {out}")
+    return out
+
+
+def _float_array(value: Any, field: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)  # a copy: the caller may reuse its buffer
+    except (TypeError, ValueError):
+        raise InvalidMessageError(f"{field}: not numeric") from None
+    arr.flags.writeable = False
+    return arr
+
+
+def _check_arrays(times: np.ndarray, pos: np.ndarray) -> None:
+    if times.ndim != 1:
+        raise InvalidMessageError(f"times_s: must be 1-D, got shape {times.shape}")
+    m = times.shape[0]
+    if not MIN_POINTS <= m <= MAX_POINTS:
+        raise InvalidMessageError(f"points: m={m} outside [{MIN_POINTS}, {MAX_POINTS}]")
+    if pos.shape != (m, 3):
+        raise InvalidMessageError(f"positions_m: must have shape ({m}, 3), got {pos.shape}")
+    if not np.all(np.isfinite(times)):
+        bad = int(np.flatnonzero(~np.isfinite(times))[0])
+        raise InvalidMessageError(f"times_s[{bad}]: non-finite value {times[bad]}")
+    if not np.all(np.isfinite(pos)):
+        bad = int(np.flatnonzero(~np.isfinite(pos).all(axis=1))[0])
+        raise InvalidMessageError(f"positions_m[{bad}]: non-finite value {pos[bad].tolist()}")
+    steps = np.diff(times)
+    if np.any(steps <= 0.0):
+        i = int(np.flatnonzero(steps <= 0.0)[0])
+        raise InvalidMessageError(
+            f"times_s: must increase strictly, times_s[{i}]={times[i]} then "
+            f"times_s[{i + 1}]={times[i + 1]}")
+    if np.any(np.abs(pos) > MAX_ABS_POSITION_M):
+        bad = int(np.flatnonzero((np.abs(pos) > MAX_ABS_POSITION_M).any(axis=1))[0])
+        raise InvalidMessageError(
+            f"positions_m[{bad}]: {pos[bad].tolist()} beyond the absurd-position bound "
+            f"{MAX_ABS_POSITION_M:g} m")

@@ -1,0 +1,376 @@
+"""Collision avoidance (SPEC §5.2–5.3): proximity in time, and the height-offset strategy."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from uavmpc.avoidance import (
+    AvoidanceDecision,
+    AvoidanceParams,
+    HeightOffsetStrategy,
+    ResolutionStrategy,
+    align,
+    align_batch,
+    conflict_points,
+    cylinder_conflicts,
+    first_conflict_time,
+)
+from uavmpc.comms import PredictionMessage
+from uavmpc.config import ConfigError
+
+#: The tracker's horizon: 0.01 s then 39 × 0.2 s.
+REL = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
+NOW = 1000.0
+P = AvoidanceParams()
+UP = np.array([0.0, 0.0, 1.0])
+UP3 = 3.0 * UP
+
+
+def line(t: np.ndarray, start: tuple[float, float, float],
+         velocity: tuple[float, float, float], t0: float = NOW) -> np.ndarray:
+    """(m, 3) positions of a straight-line flight through ``start`` at ``t0``."""
+    return np.asarray(start) + (t - t0)[:, None] * np.asarray(velocity)
+
+
+def msg(uav_id: str, priority: int, positions: np.ndarray, stamp: float = NOW,
+        avoiding: bool = True, times: np.ndarray | None = None,
+        received_s: float | None = None) -> PredictionMessage:
+    t = stamp + REL if times is None else times
+    return PredictionMessage(1, uav_id, priority, stamp, t, positions, avoiding, received_s)
+
+
+def hover(xyz: tuple[float, float, float]) -> np.ndarray:
+    return np.tile(np.asarray(xyz, dtype=float), (REL.size, 1))
+
+
+# ---------------------------------------------------------------- proximity
+
+
+def test_crossing_straight_lines_conflict_only_in_the_analytic_window() -> None:
+    t = NOW + REL
+    a = line(t, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0))  # east, at (0, 0) at NOW + 4
+    b = line(t, (0.0, -20.0, 10.0), (0.0, 5.0, 0.0))  # north, same place, same time
+    c = conflict_points(t, a, t, b)
+    # Distance 5√2·|t − 4| ≤ 5  ⇔  |t − 4| ≤ 1/√2.
+    expected = np.abs(REL - 4.0) <= 1.0 / np.sqrt(2.0)
+    np.testing.assert_array_equal(c, expected)
+    assert first_conflict_time(t, c) == pytest.approx(NOW + REL[expected][0])
+    # 3 m of height difference is outside the half height (2.995 m): no conflict at all.
+    assert not conflict_points(t, a, t, b + UP3).any()
+    assert first_conflict_time(t, conflict_points(t, a, t, b + UP3)) is None
+
+
+def test_cylinder_boundaries_are_inclusive() -> None:
+    own = np.zeros((4, 3))
+    other = np.array([[5.0, 0, 0], [5.0001, 0, 0], [0, 0, 2.995], [0, 0, -2.996]])
+    np.testing.assert_array_equal(cylinder_conflicts(own, other, 5.0, 5.99),
+                                  [True, False, True, False])
+
+
+def test_old_prediction_is_aligned_in_time_where_index_to_index_misses_the_conflict() -> None:
+    """Head-on at 5 m/s each (meet at NOW + 4 s); the other climbs at 4 m/s through our height.
+
+    Its message is 0.7 s old. Aligned in time, the climb crosses our height while we are
+    horizontally within R_p (t ∈ [3.5, 4.5]): a conflict. Compared index to index, its plan
+    looks 0.7 s late and the crossing falls outside the horizontal window: no conflict.
+    """
+    t = NOW + REL
+    own = line(t, (-20.0, 0.0, 30.0), (5.0, 0.0, 0.0))
+    stamp = NOW - 0.7
+    t_other = stamp + REL
+
+    def other_at(tt: np.ndarray) -> np.ndarray:
+        return np.c_[20.0 - 5.0 * (tt - NOW), 0.0 * tt, 30.0 + 4.0 * (tt - NOW - 4.95)]
+
+    aligned = conflict_points(t, own, t_other, other_at(t_other))
+    truth = cylinder_conflicts(own, other_at(t), P.radius_m, P.height_m)
+    index_to_index = cylinder_conflicts(own, other_at(t_other), P.radius_m, P.height_m)
+    assert truth.any()
+    np.testing.assert_array_equal(aligned, truth)
+    assert not index_to_index.any()
+
+
+def test_old_level_head_on_gives_the_true_first_conflict_time() -> None:
+    t = NOW + REL
+    own = line(t, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0))
+    t_other = NOW - 0.7 + REL
+    other = line(t_other, (20.0, 0.0, 10.0), (-5.0, 0.0, 0.0))
+    # True: distance 40 − 10 t ≤ 5 from t = 3.5 s; first sample ≥ 3.5 is 3.61 s.
+    assert first_conflict_time(t, conflict_points(t, own, t_other, other)) - NOW == (
+        pytest.approx(3.61))
+    # Index to index it would be ≥ 3.85 s: 0.35 s (3.5 m of closing) too late.
+    idx = cylinder_conflicts(own, other, 5.0, 5.99)
+    assert first_conflict_time(t, idx) - NOW == pytest.approx(4.01)
+
+
+def test_outside_the_span_first_point_is_held_and_the_end_is_extrapolated_then_unknown() -> None:
+    times = np.array([10.0, 11.0, 12.0])
+    pos = np.array([[0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0]])
+    at = np.array([9.0, 10.5, 12.0, 12.5, 13.0, 13.01])
+    out, known = align(times, pos, at, extrapolate_s=1.0)
+    np.testing.assert_allclose(out[:, 0], [0.0, 0.5, 3.0, 4.0, 5.0, 5.02])
+    np.testing.assert_array_equal(known, [True, True, True, True, True, False])
+    # Unknown points never count as a conflict, even if the extrapolation passes through us.
+    own = np.c_[out[:, 0], np.zeros(6), np.zeros(6)]
+    np.testing.assert_array_equal(
+        conflict_points(at, own, times, pos, extrapolate_s=1.0), known)
+
+
+def test_batched_alignment_equals_per_sender_interpolation() -> None:
+    rng = np.random.default_rng(3)
+    k, n = 7, 40
+    times = np.sort(rng.uniform(0.0, 8.0, (k, n)), axis=1) + rng.uniform(-1, 1, (k, 1))
+    pos = rng.normal(0.0, 50.0, (k, n, 3))
+    at = np.linspace(0.5, 7.5, 40)  # inside every span is not guaranteed: clamp-before only
+    at = np.clip(at, times[:, 0].max(), times[:, -1].min())
+    out, known = align_batch(times, pos, at, 1.0)
+    assert known.all()
+    for i in range(k):
+        for ax in range(3):
+            np.testing.assert_allclose(out[i, :, ax], np.interp(at, times[i], pos[i, :, ax]),
+                                       rtol=1e-12, atol=1e-9)
+
+
+def test_conflict_only_at_the_horizon_end_is_detected() -> None:
+    t = NOW + REL
+    # They close at 10 m/s and come within R_p = 5 m exactly at the last point (7.81 s).
+    own = line(t, (-(5.0 * 7.81 + 2.5), 0.0, 10.0), (5.0, 0.0, 0.0))
+    other = line(t, (5.0 * 7.81 + 2.5, 0.0, 10.0), (-5.0, 0.0, 0.0))
+    c = conflict_points(t, own, t, other)
+    assert c[-1] and not c[:-1].any()
+    d = HeightOffsetStrategy().update(NOW, "b", 2, t, own, {"a": msg("a", 1, other)})
+    assert d.conflicts == ("a",) and d.z_offset_m == P.dz_m
+    assert d.first_conflict_s == pytest.approx(REL[-1])
+
+
+# ---------------------------------------------------------------- strategy
+
+
+def head_on(z_other: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    t = NOW + REL
+    return (line(t, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0)),
+            line(t, (20.0, 0.0, z_other), (-5.0, 0.0, 0.0)))
+
+
+def test_equal_altitudes_lower_priority_climbs_one_dz_higher_priority_only_slows() -> None:
+    a, b = head_on()
+    t = NOW + REL
+    hi, lo = HeightOffsetStrategy(), HeightOffsetStrategy()
+    d_hi = hi.update(NOW, "a", 1, t, a, {"b": msg("b", 2, b)})
+    d_lo = lo.update(NOW, "b", 2, t, b, {"a": msg("a", 1, a)})
+    assert d_hi.first_conflict_s == pytest.approx(3.61)
+    assert replace(d_hi, first_conflict_s=None) == AvoidanceDecision(
+        z_offset_m=0.0, avoiding=True, conflicts=("b",),
+        horizontal_scale=0.5, climb_speed_mps=5.0, climb_accel_mps2=3.0)
+    assert d_lo.z_offset_m == 3.0 and d_lo.yielding_to == ("a",) and d_lo.unresolved == ()
+    assert d_lo.avoiding and d_lo.horizontal_scale == 0.5 and not d_lo.ceiling_hit
+    # Next round the others see b's raised prediction: no conflict left for either.
+    d_hi = hi.update(NOW + 0.5, "a", 1, t, a, {"b": msg("b", 2, b + UP3)})
+    d_lo = lo.update(NOW + 0.5, "b", 2, t, b, {"a": msg("a", 1, a)})
+    assert d_hi.conflicts == () and d_hi.z_offset_m == 0.0
+    assert d_lo.conflicts == () and d_lo.z_offset_m == 3.0
+
+
+def test_three_way_conflict_stacks_offsets_by_priority() -> None:
+    """Priorities 1, 2, 3 converge on one point at one height → offsets 0, Δz, 2Δz."""
+    angles = {"u1": 0.0, "u2": 2 * np.pi / 3, "u3": 4 * np.pi / 3}  # 120° apart
+    prio = {"u1": 1, "u2": 2, "u3": 3}
+
+    def nominal(u: str, t: np.ndarray) -> np.ndarray:  # all reach the origin at NOW + 4 s
+        a = angles[u]
+        return line(t, (-20 * np.cos(a), -20 * np.sin(a), 10.0),
+                    (5 * np.cos(a), 5 * np.sin(a), 0.0))
+
+    strat = {u: HeightOffsetStrategy() for u in angles}
+    offsets = dict.fromkeys(angles, 0.0)
+    history = []
+    for rnd in range(4):  # everyone broadcasts, then every UAV decides on what it received
+        now = NOW + 0.5 * rnd
+        t = now + REL
+        inbox = {u: msg(u, prio[u], nominal(u, t) + offsets[u] * UP, stamp=now)
+                 for u in angles}
+        for u in angles:
+            offsets[u] = strat[u].update(now, u, prio[u], t, nominal(u, t), inbox).z_offset_m
+        history.append(dict(offsets))
+    # Round 1: 2 and 3 both climb one Δz; round 2: 3 sees 2 at its new height and climbs again.
+    assert history[0] == {"u1": 0.0, "u2": 3.0, "u3": 3.0}
+    assert history[-1] == {"u1": 0.0, "u2": 3.0, "u3": 6.0}
+
+
+def test_uav_with_its_flag_down_is_yielded_to_whatever_its_priority() -> None:
+    a, b = head_on()
+    t = NOW + REL
+    d = HeightOffsetStrategy().update(NOW, "a", 1, t, a, {"x": msg("x", 9, b, avoiding=False)})
+    assert d.z_offset_m == 3.0 and d.yielding_to == ("x",)
+    # Same UAV with its flag up: priority 1 does not yield to 9.
+    d = HeightOffsetStrategy().update(NOW, "a", 1, t, a, {"x": msg("x", 9, b)})
+    assert d.z_offset_m == 0.0 and d.conflicts == ("x",) and d.yielding_to == ()
+
+
+def test_stale_and_own_messages_are_ignored() -> None:
+    a, b = head_on()
+    t = NOW + REL
+    s = HeightOffsetStrategy()
+    old = msg("a", 1, b, stamp=NOW - 1.05)
+    assert s.update(NOW, "b", 2, t, a, {"a": old}).conflicts == ()
+    assert s.update(NOW, "b", 2, t, a, {"b": msg("b", 1, b)}).conflicts == ()
+    fresh = msg("a", 1, b, stamp=NOW - 0.95)
+    assert s.update(NOW, "b", 2, t, a, {"a": fresh}).conflicts == ("a",)
+
+
+def test_receive_time_fallback_aligns_on_the_receivers_clock() -> None:
+    a, _ = head_on()
+    t = NOW + REL
+    skew = 5000.0  # the sender's clock is far off: its stamps are useless here
+    other_t = NOW - 0.7 + REL
+    b = line(other_t, (20.0, 0.0, 10.0), (-5.0, 0.0, 0.0))
+    m = msg("a", 1, b, stamp=NOW - 0.7 + skew, times=other_t + skew, received_s=NOW - 0.7)
+    stamp_mode = HeightOffsetStrategy().update(NOW, "b", 2, t, a, {"a": m})
+    assert stamp_mode.conflicts == ()  # by its stamp it is from the future, far off
+    recv = HeightOffsetStrategy(AvoidanceParams(time_reference="receive"))
+    d = recv.update(NOW, "b", 2, t, a, {"a": m})
+    assert d.conflicts == ("a",) and d.first_conflict_s == pytest.approx(3.61)
+    # Staleness also uses the receive time.
+    assert recv.update(NOW + 1.0, "b", 2, t + 1.0, a, {"a": m}).conflicts == ()
+
+
+def run_release(strategy: HeightOffsetStrategy, conflict_until: float, flicker: bool,
+                dt: float = 0.1, t_end: float = 12.0) -> list[tuple[float, AvoidanceDecision]]:
+    """A hovering higher-priority UAV sits in our path until ``conflict_until`` (s after NOW);
+    with ``flicker`` every other message is lost (its last message then goes stale)."""
+    own = hover((0.0, 0.0, 10.0))
+    out = []
+    last_msg: PredictionMessage | None = None
+    for k in range(round(t_end / dt) + 1):
+        now = NOW + k * dt
+        rel = now - NOW
+        if rel < conflict_until and not (flicker and k % 12 >= 6):
+            last_msg = msg("h", 1, hover((1.0, 0.0, 10.0)), stamp=now)
+        if rel >= conflict_until:
+            last_msg = msg("h", 1, hover((40.0, 0.0, 10.0)), stamp=now)  # moved away
+        others = {} if last_msg is None else {"h": last_msg}
+        out.append((rel, strategy.update(now, "o", 2, now + REL, own, others)))
+    return out
+
+
+def test_release_waits_for_the_hysteresis_then_is_rate_limited() -> None:
+    hist = run_release(HeightOffsetStrategy(), conflict_until=3.0, flicker=False)
+    z = np.array([d.z_offset_m for _, d in hist])
+    rel = np.array([r for r, _ in hist])
+    assert z.max() == 3.0
+    # Climbing over the hovering UAV ends the conflict, but it stays under us until it leaves
+    # at 3.0 s: last seen at 2.9 s, so the offset is held until 4.9 s …
+    assert np.all(z[(rel > 0.05) & (rel <= 4.9 + 1e-9)] == 3.0)
+    # … then released at 2 m/s: 0.2 m per 0.1 s update, down to 0 in 1.5 s.
+    after = (rel > 4.9 + 1e-9) & (rel < 6.4 - 1e-9)
+    np.testing.assert_allclose(z[after], 3.0 - 2.0 * (rel[after] - 4.9), atol=1e-9)
+    assert np.all(np.diff(z[rel > 1.0]) <= 1e-12)  # monotone: no oscillation
+    final = hist[-1][1]
+    assert final == AvoidanceDecision()  # nominal: no offset, not avoiding, nominal limits
+    # Limits were restored when the release began, the flag stays up until the offset is 0.
+    d_mid = dict(hist)[rel[after][2]]
+    assert d_mid.horizontal_scale == 1.0 and d_mid.climb_speed_mps is None and d_mid.avoiding
+
+
+def test_flickering_conflict_does_not_make_the_offset_oscillate() -> None:
+    """Messages lost 0.6 s in every 1.2 s: the conflict disappears (stale) and comes back;
+    the hysteresis keeps the offset and the tightened limits steady until it really ends."""
+    hist = run_release(HeightOffsetStrategy(AvoidanceParams(timeout_s=0.3)),
+                       conflict_until=6.0, flicker=True)
+    stale_gaps = [r for r, d in hist if 0.5 < r < 6.0 and not d.conflicts]
+    assert stale_gaps  # the flicker is real: some updates saw no conflict
+    in_conflict_phase = [d for r, d in hist if 0.05 < r < 6.0]
+    assert all(d.z_offset_m == 3.0 and d.horizontal_scale == 0.5 for d in in_conflict_phase)
+    z = np.array([d.z_offset_m for _, d in hist])
+    assert np.all(np.diff(z[1:]) <= 1e-12) and z[-1] == 0.0
+
+
+def test_release_does_not_descend_into_a_uav_on_the_way_down() -> None:
+    t = NOW + REL
+    own = hover((0.0, 0.0, 10.0))
+    s = HeightOffsetStrategy()
+    s.update(NOW, "o", 5, t, own, {"a": msg("a", 1, hover((0, 0, 10.0)))})
+    s.update(NOW + 0.1, "o", 5, t + 0.1, own, {"a": msg("a", 1, hover((0, 0, 13.0)),
+                                                       stamp=NOW + 0.1)})
+    assert s.z_offset_m == 6.0
+    # The higher-priority UAV leaves; a lower-priority one hovers in our path at nominal + 2 m:
+    # no conflict at +6 m (Δz = 4 m), but there would be one on the way down.
+    low = hover((1.0, 0.0, 12.0))
+    for k in range(2, 80):
+        now = NOW + 0.1 * k
+        d = s.update(now, "o", 5, now + REL, own, {"l": msg("l", 9, low, stamp=now)})
+        assert d.conflicts == () and d.z_offset_m == 6.0 and d.horizontal_scale == 0.5
+    # It leaves too: release after the hysteresis, down to 0.
+    away = hover((100.0, 0.0, 12.0))
+    zs = []
+    for k in range(80, 160):
+        now = NOW + 0.1 * k
+        zs.append(s.update(now, "o", 5, now + REL, own,
+                           {"l": msg("l", 9, away, stamp=now)}).z_offset_m)
+    assert zs[19] == 6.0 and zs[21] < 6.0 and zs[-1] == 0.0
+
+
+def test_release_stops_when_a_uav_appears_below() -> None:
+    own = hover((0.0, 0.0, 10.0))
+    s = HeightOffsetStrategy(AvoidanceParams(release_hysteresis_s=0.0))
+    s.update(NOW, "o", 5, NOW + REL, own, {"a": msg("a", 1, hover((0, 0, 10.0)))})
+    s.update(NOW + 0.1, "o", 5, NOW + 0.1 + REL, own, {})  # hysteresis 0: release starts
+    s.update(NOW + 0.6, "o", 5, NOW + 0.6 + REL, own, {})
+    assert s.z_offset_m == pytest.approx(3.0 - 2.0 * 0.6)
+    # A lower-priority UAV pops up 2.5 m under our nominal height: outside the cylinder now
+    # (Δz = 4.3 m) but inside it at offset 0. The release holds at the current offset.
+    low = msg("l", 9, hover((0.0, 0.0, 7.5)), stamp=NOW + 1.0)
+    for now in (NOW + 1.0, NOW + 1.5):
+        d = s.update(now, "o", 5, now + REL, own, {"l": low})
+        assert d.z_offset_m == pytest.approx(1.8) and d.conflicts == ()
+
+
+def test_ceiling_is_reported_and_offset_bounded() -> None:
+    t = NOW + REL
+    own = hover((0.0, 0.0, 10.0))
+    params = AvoidanceParams(max_offset_m=7.0)  # room for two corrections (6 m), not three
+    others = {f"h{i}": msg(f"h{i}", i, hover((0.5, 0.0, 10.0 + 3.0 * i))) for i in range(3)}
+    d = HeightOffsetStrategy(params).update(NOW, "o", 9, t, own, others)
+    assert d.ceiling_hit and d.z_offset_m == 6.0 and d.unresolved == ("h2",)
+    assert d.yielding_to == ("h0",)
+    # With room (default 30 m) the stack is cleared at 9 m.
+    d = HeightOffsetStrategy().update(NOW, "o", 9, t, own, others)
+    assert not d.ceiling_hit and d.z_offset_m == 9.0 and d.unresolved == ()
+
+
+def test_offsets_accumulate_in_multiples_of_dz() -> None:
+    t = NOW + REL
+    own = hover((0.0, 0.0, 10.0))
+    s = HeightOffsetStrategy()
+    zs = []
+    for i, z in enumerate((10.0, 13.0, 16.0)):  # the higher-priority UAV keeps following us
+        d = s.update(NOW + 0.5 * i, "o", 2, t + 0.5 * i, own,
+                     {"h": msg("h", 1, hover((0, 0, z)), stamp=NOW + 0.5 * i)})
+        zs.append(d.z_offset_m)
+    assert zs == [3.0, 6.0, 9.0]
+
+
+def test_params_are_validated_with_named_fields() -> None:
+    with pytest.raises(ConfigError, match=r"avoidance\.dz_m: must be > height_m / 2"):
+        AvoidanceParams(dz_m=2.9)
+    with pytest.raises(ConfigError, match=r"avoidance\.radius_m"):
+        AvoidanceParams(radius_m=-1.0)
+    with pytest.raises(ConfigError, match=r"avoidance\.horizontal_scale"):
+        AvoidanceParams(horizontal_scale=1.5)
+    with pytest.raises(ConfigError, match="time_reference"):
+        AvoidanceParams(time_reference="gps")
+    with pytest.raises(ConfigError, match="max_offset_m: must be ≥ dz_m"):
+        AvoidanceParams(max_offset_m=2.0)
+    with pytest.raises(ConfigError, match=r"avoidance\.radius: unknown field"):
+        AvoidanceParams.from_dict({"radius": 5.0})
+    assert AvoidanceParams.from_dict({"dz_m": 4}).dz_m == 4.0
+
+
+def test_strategy_honours_the_protocol_and_rejects_bad_shapes() -> None:
+    s = HeightOffsetStrategy()
+    assert isinstance(s, ResolutionStrategy)
+    with pytest.raises(ValueError, match=r"positions \(m, 3\)"):
+        s.update(NOW, "o", 1, NOW + REL, np.zeros((40, 2)), {})

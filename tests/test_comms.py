@@ -1,0 +1,290 @@
+"""Prediction messages on the wire, and the simulated lossy link (SPEC §5.1)."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from uavmpc.avoidance import HeightOffsetStrategy
+from uavmpc.comms import (
+    Inbox,
+    InvalidMessageError,
+    PredictionMessage,
+    SimulatedLink,
+    Transport,
+    decode,
+    encode,
+    validate_on_receipt,
+)
+from uavmpc.comms.message import MAX_MESSAGE_BYTES
+
+REL = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
+NOW = 1.7e9  # GNSS/Unix-like absolute time: stamps must survive at full precision
+
+
+def make(uav_id: str = "uav_1", priority: int = 3, stamp: float = NOW, avoiding: bool = True,
+         m: int = 40, seed: int = 0) -> PredictionMessage:
+    rng = np.random.default_rng(seed)
+    times = stamp + np.cumsum(rng.uniform(0.01, 0.3, m))
+    return PredictionMessage(1, uav_id, priority, stamp, times,
+                             rng.normal(0.0, 100.0, (m, 3)), avoiding)
+
+
+VALID = encode(make())
+HDR = 21  # bytes before the id
+ID_LEN = len("uav_1")
+T0 = HDR + ID_LEN  # offset of times_s
+P0 = T0 + 8 * 40  # offset of positions_m
+
+
+def patched(data: bytes, offset: int, fmt: str, value: object) -> bytes:
+    out = bytearray(data)
+    struct.pack_into(fmt, out, offset, value)
+    return bytes(out)
+
+
+# ---------------------------------------------------------------- message
+
+
+def test_round_trip_is_bit_exact() -> None:
+    for msg in (make(), make("A-b_9" * 6 + "zz", -(2**31), avoiding=False, m=2, seed=1),
+                make("x", 2**31 - 1, m=200, seed=2)):
+        data = encode(msg)
+        back = decode(data)
+        assert (back.version, back.uav_id, back.priority, back.avoiding) == (
+            msg.version, msg.uav_id, msg.priority, msg.avoiding)
+        assert struct.pack("<d", back.stamp_s) == struct.pack("<d", msg.stamp_s)
+        assert back.times_s.tobytes() == msg.times_s.tobytes()
+        assert back.positions_m.tobytes() == msg.positions_m.tobytes()
+        assert encode(back) == data
+    assert len(VALID) == HDR + ID_LEN + 32 * 40
+
+
+@given(st.lists(st.floats(-1e5, 1e5, allow_nan=False), min_size=6, max_size=600),
+       st.floats(-1e10, 1e10, allow_nan=False), st.booleans())
+@settings(max_examples=200, deadline=None)
+def test_round_trip_property(values: list[float], stamp: float, avoiding: bool) -> None:
+    m = len(values) // 3
+    pos = np.array(values[: 3 * m]).reshape(m, 3)
+    if not 2 <= m <= 200:
+        return
+    msg = PredictionMessage(1, "p", 7, stamp, np.arange(m) * 0.2 + stamp, pos, avoiding)
+    back = decode(encode(msg))
+    assert back.positions_m.tobytes() == pos.tobytes() and back.stamp_s == stamp
+
+
+@pytest.mark.parametrize(
+    ("data", "match"),
+    [
+        (b"", "truncated: 0 bytes"),
+        (VALID[:10], "truncated: 10 bytes, shorter than the 21-byte header"),
+        (VALID[:-1], "truncated: 1305 bytes, expected 1306"),
+        (VALID + b"\0", "oversized: 1307 bytes, expected 1306"),
+        (VALID * 7, "oversized: .* more than the"),
+        (b"XXXX" + VALID[4:], "magic"),
+        (patched(VALID, 4, "<B", 2), "version: unsupported schema version 2"),
+        (patched(VALID, 4, "<B", 0), "version: unsupported schema version 0"),
+        (patched(VALID, 5, "<B", 0x81), "flags: unknown bits"),
+        (patched(VALID, 6, "<B", 0), r"uav_id: length 0 outside \[1, 32\]"),
+        (patched(VALID, 6, "<B", 33), r"uav_id: length 33"),
+        (patched(VALID, 7, "<H", 1), r"points: m=1 outside \[2, 200\]"),
+        (patched(VALID, 7, "<H", 201), r"points: m=201 outside \[2, 200\]"),
+        (patched(VALID, HDR, "<B", ord(" ")), "uav_id: must be"),
+        (patched(VALID, HDR, "<B", 0xC3), "uav_id: not ASCII"),
+        (patched(VALID, 13, "<d", float("nan")), "stamp_s: must be finite"),
+        (patched(VALID, T0 + 8 * 5, "<d", float("inf")), r"times_s\[5\]: non-finite"),
+        (patched(VALID, P0 + 8 * 7, "<d", float("nan")), r"positions_m\[2\]: non-finite"),
+        (patched(VALID, T0 + 8 * 3, "<d", NOW), r"times_s: must increase strictly, times_s\[2\]"),
+        (patched(VALID, P0 + 8 * 4, "<d", 2e5), r"positions_m\[1\]: .* absurd-position"),
+    ],
+)
+def test_malformed_bytes_are_rejected_naming_the_problem(data: bytes, match: str) -> None:
+    with pytest.raises(InvalidMessageError, match=match):
+        decode(data)
+
+
+def test_constructor_validates_too() -> None:
+    t = NOW + REL
+    with pytest.raises(InvalidMessageError, match="uav_id"):
+        PredictionMessage(1, "a" * 33, 1, NOW, t, np.zeros((40, 3)), True)
+    with pytest.raises(InvalidMessageError, match=r"positions_m: must have shape \(40, 3\)"):
+        PredictionMessage(1, "a", 1, NOW, t, np.zeros((40, 2)), True)
+    with pytest.raises(InvalidMessageError, match="priority: must be an integer"):
+        PredictionMessage(1, "a", 1.5, NOW, t, np.zeros((40, 3)), True)
+    with pytest.raises(InvalidMessageError, match="version: unsupported"):
+        PredictionMessage(2, "a", 1, NOW, t, np.zeros((40, 3)), True)
+    # The message keeps its own read-only copy: the sender may reuse its buffers.
+    pos = np.zeros((40, 3))
+    msg = PredictionMessage(1, "a", 1, NOW, t, pos, True)
+    pos[0, 0] = 99.0
+    assert msg.positions_m[0, 0] == 0.0 and not msg.positions_m.flags.writeable
+
+
+def test_future_stamped_and_stale_messages_are_rejected_on_receipt() -> None:
+    msg = make(stamp=NOW)
+    assert validate_on_receipt(msg, NOW - 0.4) is msg  # within the clock tolerance
+    with pytest.raises(InvalidMessageError, match=r"future-stamped: .* 0\.600 s ahead"):
+        validate_on_receipt(msg, NOW - 0.6)
+    with pytest.raises(InvalidMessageError, match=r"stale: .* 1\.500 s old"):
+        validate_on_receipt(msg, NOW + 1.5)
+    assert validate_on_receipt(msg, NOW + 1.5, max_age_s=2.0) is msg
+
+
+@given(st.binary(max_size=MAX_MESSAGE_BYTES + 64))
+@settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_fuzz_random_bytes_only_raise_invalid_message(data: bytes) -> None:
+    for candidate in (data, b"UAVP\x01" + data):  # the second passes the magic/version gate
+        try:
+            decode(candidate)
+        except InvalidMessageError:
+            pass
+
+
+@given(st.lists(st.tuples(st.integers(0, len(VALID) - 1), st.integers(0, 255)),
+                min_size=1, max_size=8),
+       st.integers(0, len(VALID) + 16), st.binary(max_size=16))
+@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_fuzz_mutated_valid_messages_only_raise_invalid_message(
+        edits: list[tuple[int, int]], cut: int, tail: bytes) -> None:
+    data = bytearray(VALID)
+    for pos, value in edits:
+        data[pos] = value
+    mutated = bytes(data[:cut]) + tail
+    try:
+        msg = decode(mutated)
+    except InvalidMessageError:
+        return
+    # Whatever survives is a fully valid message that re-encodes to the same bytes.
+    assert encode(msg) == mutated
+    assert np.all(np.diff(msg.times_s) > 0) and np.all(np.abs(msg.positions_m) <= 1e5)
+
+
+# ---------------------------------------------------------------- link
+
+
+def test_loss_rate_matches_with_a_seed() -> None:
+    link = SimulatedLink(["a", "b"], loss=0.3, seed=11)
+    for k in range(5000):
+        link.publish(b"%d" % k, "a", 0.01 * k)
+    got = link.receive("b", 1e9)
+    assert link.stats.sent == 5000
+    assert link.stats.dropped / 5000 == pytest.approx(0.3, abs=0.03)
+    assert link.stats.delivered == len(got) == 5000 - link.stats.dropped
+    assert link.stats.in_flight == 0
+    assert link.receive("a", 1e9) == []  # a sender does not hear itself
+
+
+def test_latency_and_jitter_stay_in_bounds_and_fill_the_interval() -> None:
+    fixed, jitter = 0.05, 0.1
+    link = SimulatedLink(["a", "b"], latency_s=fixed, jitter_s=jitter, seed=5)
+    n = 2000
+    for k in range(n):
+        link.publish(k.to_bytes(2, "little"), "a", 10.0)
+    assert link.receive("b", 10.0 + fixed - 1e-9) == []
+    delays = np.full(n, np.nan)
+    for step in range(1, 101):  # poll every 1 ms
+        t = 10.0 + fixed + step * jitter / 100
+        for data in link.receive("b", t):
+            delays[int.from_bytes(data, "little")] = t - 10.0
+    assert not np.isnan(delays).any()  # all arrived by fixed + jitter
+    assert delays.min() >= fixed and delays.max() <= fixed + jitter + 1e-9
+    assert np.mean(delays) == pytest.approx(fixed + jitter / 2, abs=0.005)
+    assert np.std(delays) == pytest.approx(jitter / np.sqrt(12), rel=0.1)
+
+
+def trace(seed: int) -> list[tuple[str, float, bytes]]:
+    link = SimulatedLink(["a", "b", "c"], latency_s=0.02, jitter_s=0.2, loss=0.4, seed=seed)
+    out = []
+    for k in range(300):
+        t = 0.05 * k
+        link.publish(b"a%d" % k, "a", t)
+        link.publish(b"c%d" % k, "c", t)
+        for r in ("a", "b", "c"):
+            out += [(r, t, d) for d in link.receive(r, t)]
+    return out
+
+
+def test_link_is_deterministic_per_seed() -> None:
+    assert trace(1) == trace(1)
+    assert trace(1) != trace(2)
+    # Jitter larger than the publish period reorders some messages.
+    b_from_a = [int(d[1:]) for r, _, d in trace(1) if r == "b" and d.startswith(b"a")]
+    assert b_from_a != sorted(b_from_a)
+
+
+def test_range_limit_uses_positions_at_publish_time() -> None:
+    where = {"a": np.zeros(3), "b": np.array([60.0, 0, 0]), "c": np.array([0, 150.0, 0])}
+    link = SimulatedLink(["a", "b", "c", "silent"], range_m=100.0,
+                         position_of=lambda u: where.get(u), seed=0)
+    link.publish(b"1", "a", 0.0)
+    assert link.receive("b", 1.0) == [b"1"]
+    assert link.receive("c", 1.0) == []
+    assert link.receive("silent", 1.0) == []  # no position known: out of range
+    assert link.stats.dropped_range == 2 and link.stats.dropped == 0
+    where["c"] = np.array([0, 99.0, 0])
+    link.publish(b"2", "a", 2.0)
+    assert link.receive("c", 3.0) == [b"2"]
+    with pytest.raises(ValueError, match="position_of"):
+        SimulatedLink(range_m=10.0)
+
+
+def test_link_rejects_bad_parameters() -> None:
+    for kwargs, match in (({"loss": 1.5}, "loss"), ({"latency_s": -0.1}, "latency_s"),
+                          ({"jitter_s": float("nan")}, "jitter_s")):
+        with pytest.raises(ValueError, match=match):
+            SimulatedLink(**kwargs)
+    assert isinstance(SimulatedLink(), Transport)
+
+
+# ---------------------------------------------------------------- inbox
+
+
+def test_inbox_keeps_newest_per_sender_and_counts_rejections() -> None:
+    inbox = Inbox("me")
+    now = NOW + 0.1
+    assert inbox.accept(encode(make("a", stamp=NOW)), now) is not None
+    assert inbox.accept(encode(make("a", stamp=NOW - 0.2)), now) is None  # reordered, older
+    assert inbox.accept(encode(make("me", stamp=NOW)), now) is None  # our own echo
+    assert inbox.accept(VALID[:-3], now) is None
+    assert inbox.accept(patched(VALID, 4, "<B", 9), now) is None
+    assert inbox.accept(encode(make("b", stamp=NOW + 5.0)), now) is None  # future-stamped
+    assert inbox.accept(encode(make("c", stamp=NOW - 3.0)), now) is None  # stale
+    assert set(inbox.latest) == {"a"} and inbox.latest["a"].stamp_s == NOW
+    assert inbox.superseded == 1 and inbox.accepted == 1
+    assert inbox.rejected == {"truncated": 1, "version": 1, "future-stamped": 1, "stale": 1}
+    assert inbox.rejected_total == 4
+
+
+def test_inbox_receive_mode_ignores_foreign_clocks_and_records_receive_time() -> None:
+    inbox = Inbox("me", time_reference="receive")
+    msg = inbox.accept(encode(make("a", stamp=NOW + 3600.0)), 12.5)  # an hour off: fine
+    assert msg is not None and msg.received_s == 12.5
+
+
+def test_lossy_link_to_strategy_end_to_end() -> None:
+    """Two UAVs head-on over a 30 % lossy, jittery link: the lower priority still climbs."""
+    link = SimulatedLink(["a", "b"], latency_s=0.01, jitter_s=0.05, loss=0.3, seed=4)
+    inboxes = {u: Inbox(u) for u in "ab"}
+    strat = {u: HeightOffsetStrategy() for u in "ab"}
+    prio = {"a": 1, "b": 2}
+    start = {"a": (-30.0, 0.0, 10.0), "b": (30.0, 0.0, 10.0)}
+    vel = {"a": (5.0, 0.0, 0.0), "b": (-5.0, 0.0, 0.0)}
+    offsets = {"a": 0.0, "b": 0.0}
+    for k in range(40):  # 4 s at 10 Hz, broadcast at 2 Hz
+        now = 0.1 * k
+        times = now + REL
+        nominal = {u: np.asarray(start[u]) + times[:, None] * np.asarray(vel[u]) for u in "ab"}
+        if k % 5 == 0:
+            for u in "ab":
+                sent = PredictionMessage(1, u, prio[u], now, times,
+                                         nominal[u] + [0.0, 0.0, offsets[u]], True)
+                link.publish(encode(sent), u, now)
+        for u in "ab":
+            others = inboxes[u].poll(link, now)
+            offsets[u] = strat[u].update(now, u, prio[u], times, nominal[u], others).z_offset_m
+    assert offsets == {"a": 0.0, "b": 3.0}
+    assert link.stats.sent == 16 and link.stats.delivered + link.stats.dropped == 16
