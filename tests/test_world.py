@@ -142,3 +142,21 @@ def test_bad_scenario_files_name_the_field(tmp_path, edit, match: str) -> None:
 def test_cli_reports_bad_scenarios_without_a_traceback(tmp_path, capsys) -> None:
     assert main(["run", str(tmp_path / "nope.toml")]) == 2
     assert "neither a built-in scenario" in capsys.readouterr().err
+
+
+class _NeverYield:
+    """A strategy that flags itself cooperative but never does anything: no avoidance at all."""
+
+    def __init__(self, params) -> None:
+        self.params = params
+
+    def update(self, now_s, own_id, own_priority, times, positions, others):
+        from uavmpc.avoidance import AvoidanceDecision
+
+        return AvoidanceDecision()  # the defaults: no offset, nominal limits
+
+
+def test_the_resolution_strategy_is_pluggable() -> None:
+    world = World(scenarios.load("swap_through_static"), strategy=_NeverYield)
+    assert all(isinstance(u.stack.avoidance, _NeverYield) for u in world.uavs)
+    assert world.run(15.0).collisions  # the strategy, not the plumbing, avoids collisions

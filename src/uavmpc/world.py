@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
+from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy, ResolutionStrategy
 from uavmpc.comms.link import Inbox, SimulatedLink
 from uavmpc.comms.message import encode, from_prediction
 from uavmpc.config import ConfigError
@@ -110,8 +111,10 @@ class World:
         avoidance: run collision avoidance on every UAV (else: none, flags down).
         seed: fixes the link's randomness and the wind.
         link: overrides the scenario's link settings.
-        wind: optional wind model factory ``seed -> Wind`` (each UAV its own gusts).
+        wind_mps: mean wind along x (each UAV its own seeded gusts, σ = 0.3 × mean).
         recorder: optional MCAP recorder.
+        strategy: makes each UAV's conflict-resolution strategy from the scenario's avoidance
+            parameters (any :class:`~uavmpc.avoidance.ResolutionStrategy`).
     """
 
     def __init__(
@@ -123,6 +126,7 @@ class World:
         link: LinkSettings | None = None,
         wind_mps: float = 0.0,
         recorder: FlightRecorder | None = None,
+        strategy: Callable[[AvoidanceParams], ResolutionStrategy] = HeightOffsetStrategy,
     ) -> None:
         self.scenario = scenario
         self.avoidance = avoidance
@@ -155,9 +159,9 @@ class World:
                             seed=seed * 1000 + i)
             plant = Multirotor(af, position_m=spec.start_m, yaw_rad=spec.heading_rad, wind=wind,
                                rotors_at_hover=spec.start_m[2] > 0.0)
-            strategy = HeightOffsetStrategy(params) if avoidance else None
             stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
-                                 uav_id=spec.uav_id, priority=spec.priority, avoidance=strategy)
+                                 uav_id=spec.uav_id, priority=spec.priority,
+                                 avoidance=strategy(params) if avoidance else None)
             stack.set_mission(spec.mission)
             inbox = Inbox(spec.uav_id, max_age_s=params.timeout_s)
             # Each UAV broadcasts at its own phase, spread over the period.
