@@ -102,7 +102,8 @@ def test_same_seed_same_flight_and_log_is_readable(tmp_path) -> None:
             assert topics[f"/{uav}/{topic}"], (uav, topic)
         assert len(topics[f"/{uav}/prediction"][0]["poses"]) == 40
     assert any(m["z_offset_m"] > 0 for m in topics["/uav3/status"])
-    assert topics["/link"]
+    events = {m["event"] for m in topics["/link"]}
+    assert {"sent", "delivered"} <= events
     # same command again: the same flight
     assert main(["run", "converge_center", "--seed", "7", "--duration", "25", "--loss", "0.3",
                  "--latency", "0.2", "--out", str(tmp_path / "again")]) == 0

@@ -192,7 +192,7 @@ class World:
         for k in range(ticks):
             now = self.t_s
             for i, u in enumerate(self.uavs):
-                others = u.inbox.poll(self.link, now)
+                others = self._receive(u, now)
                 out = u.stack.tick(states[i], others if u.stack.avoidance is not None else None)
                 states[i] = u.plant.step(out.target, self.period_s)
                 self._bookkeeping(u, out, states[i])
@@ -249,6 +249,18 @@ class World:
             u.max_limit_excess = max(u.max_limit_excess, excess)
             if excess > LIMIT_TOL:
                 u.limit_violations += 1
+
+    def _receive(self, u: _Uav, now: float) -> Any:
+        if self.recorder is None:
+            return u.inbox.poll(self.link, now)
+        for data in self.link.receive(u.uav_id, now):
+            rejected_before = u.inbox.rejected_total
+            msg = u.inbox.accept(data, now)
+            if msg is not None:
+                self.recorder.link(now, "delivered", msg.uav_id, u.uav_id, msg.stamp_s)
+            elif u.inbox.rejected_total > rejected_before:
+                self.recorder.link(now, "rejected", "?", u.uav_id, detail=f"{len(data)} bytes")
+        return u.inbox.latest
 
     def _broadcast(self, u: _Uav, out: Any, now: float) -> None:
         msg = from_prediction(out.tracker.prediction, uav_id=u.uav_id, priority=u.stack.priority,
