@@ -17,6 +17,7 @@ import numpy as np
 
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, GnssNoise, Wind
+from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import Reference
 from uavmpc.tracker import TrackerConfig
@@ -138,8 +139,7 @@ def fly(
     wall = time.perf_counter() - wall0
     m = k + 1
     q = quat_log[:m]
-    heading = np.arctan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]),
-                         1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+    heading = heading_of(q)
     # body z in world z is 1 − 2(x² + y²)
     tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1.0, 1.0)))
     return FlightLog(

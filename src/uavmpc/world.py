@@ -23,6 +23,7 @@ from uavmpc.config import ConfigError
 from uavmpc.log import FlightRecorder
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, Wind
+from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.scenarios import LinkSettings, Scenario
 
@@ -296,10 +297,7 @@ class World:
             last = u.stack.last_output
             if last is None:
                 continue
-            q = s.attitude_wxyz
-            heading = math.atan2(2.0 * (q[0] * q[3] + q[1] * q[2]),
-                                 1.0 - 2.0 * (q[2] ** 2 + q[3] ** 2))
-            rec.pose(u.uav_id, "state", self.t_s, s.position_m, heading)
+            rec.pose(u.uav_id, "state", self.t_s, s.position_m, float(heading_of(s.attitude_wxyz)))
             c = last.command
             rec.pose(u.uav_id, "command", self.t_s, c.position_m, c.heading_rad)
             ref = u.stack.tracker.reference

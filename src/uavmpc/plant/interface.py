@@ -71,6 +71,13 @@ class Plant(Protocol):
         ...
 
 
+def heading_of(q: np.ndarray) -> np.ndarray | float:
+    """Heading (yaw about world z) [rad] of quaternions ``(w, x, y, z)``, shape (..., 4)."""
+    q = np.asarray(q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
     """(3, 3) rotation matrix of a unit quaternion ``(w, x, y, z)``."""
     w, x, y, z = q

@@ -36,7 +36,7 @@ import numpy as np
 
 from uavmpc.control.attitude import AttitudeController, Mixer, pack_gains
 from uavmpc.plant.airframe import G_MPS2, Airframe
-from uavmpc.plant.interface import AttitudeTarget, VehicleState
+from uavmpc.plant.interface import AttitudeTarget, VehicleState, quat_to_rot
 from uavmpc.plant.kernels import N_RIGID, run_substeps
 from uavmpc.plant.wind import Wind
 
@@ -49,15 +49,7 @@ __all__ = ["N_RIGID", "Backend", "Multirotor", "ground_numpy", "rhs_numpy"]
 # --------------------------------------------------------------------------------------------
 
 
-def _rot(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+_rot = quat_to_rot  # the same matrix as the contract's; one definition
 
 
 def rhs_numpy(x: np.ndarray, cmd: np.ndarray, af: Airframe, wind: np.ndarray) -> np.ndarray:
