@@ -198,3 +198,33 @@ def test_tightened_vertical_limits_apply_to_climb_and_descent() -> None:
     down = fly(tracker, 1000)
     assert up[:, 2, 1].max() == pytest.approx(1.0, abs=1e-6)
     assert down[:, 2, 1].min() == pytest.approx(-0.5, abs=1e-6)
+
+
+def test_stepping_trackers_together_equals_stepping_them_alone() -> None:
+    from uavmpc.tracker.tracker import step_trackers
+
+    def make() -> list[MpcTracker]:
+        out = []
+        for i, goal in enumerate([(50.0, 0.0, 10.0, 3.0), (-20.0, 30.0, 2.0, -3.0),
+                                  (0.0, 0.0, 10.0, 0.0)]):
+            t = MpcTracker(position_m=(0.0, 0.0, 10.0))
+            t.set_reference(Reference.goto(*goal))
+            if i == 1:
+                t.set_z_offset(3.0)
+            out.append(t)
+        return out
+
+    together, alone = make(), make()
+    for k in range(400):
+        if k == 200:  # one of them tightens its limits mid-flight (braking envelope)
+            together[0].set_limits(together[0].limits.scaled(0.5))
+            alone[0].set_limits(alone[0].limits.scaled(0.5))
+        outs = step_trackers(together)
+        for t, o in zip(alone, outs, strict=True):
+            ref = t.step()
+            # equal up to the summation order a BLAS may pick for a different matrix shape
+            np.testing.assert_allclose(o.prediction.position_m, ref.prediction.position_m,
+                                       rtol=0, atol=1e-9)
+            assert o.braking == ref.braking and o.qp_solves == ref.qp_solves
+    for a, b in zip(together, alone, strict=True):
+        np.testing.assert_allclose(a.state, b.state, rtol=0, atol=1e-9)

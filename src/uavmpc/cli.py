@@ -207,6 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)
+    from uavmpc.campaign import build_parser_campaign
+
+    build_parser_campaign(sub)
     return parser
 
 

@@ -84,12 +84,21 @@ class OnboardStack:
              others: Mapping[str, object] | None = None) -> OnboardOutput:
         """One control period: reshape the reference if needed, advance the virtual UAV, then
         steer the real UAV towards it. ``others``: the newest prediction message per sender."""
+        self.reshape(others)
+        return self.control(self.tracker.step(), estimate)
+
+    # The two halves of :meth:`tick`, for a world that steps the trackers of many UAVs at once
+    # (:func:`uavmpc.tracker.tracker.step_trackers`) in between.
+    def reshape(self, others: Mapping[str, object] | None) -> None:
+        """Avoidance (every AVOIDANCE_PERIOD_S): z offset and limits for the next tracker step."""
         if self.avoidance is not None and self._last is not None and others is not None:
             now = self.tracker.time_s
             if now >= self._next_avoidance_s - 1e-9:
                 self._next_avoidance_s = now + AVOIDANCE_PERIOD_S
                 self._avoid(now, others)
-        out = self.tracker.step()
+
+    def control(self, out: TrackerOutput, estimate: VehicleState) -> OnboardOutput:
+        """SE(3) control towards the tracker's new command."""
         self._last = out
         target = self.controller.update(out.command, estimate, self.period_s)
         return OnboardOutput(out, target)

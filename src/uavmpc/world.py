@@ -26,6 +26,7 @@ from uavmpc.plant import Airframe, Wind
 from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.scenarios import LinkSettings, Scenario
+from uavmpc.tracker.tracker import step_trackers
 
 COLLISION_DISTANCE_M = 1.0
 #: A UAV has reached its goal when it ends within this 3-D distance of it.
@@ -190,11 +191,16 @@ class World:
         next_log = 0.0
         wall0 = time.perf_counter()
         states = [u.plant.state() for u in self.uavs]
+        trackers = [u.stack.tracker for u in self.uavs]
         for k in range(ticks):
             now = self.t_s
-            for i, u in enumerate(self.uavs):
+            for u in self.uavs:
                 others = self._receive(u, now)
-                out = u.stack.tick(states[i], others if u.stack.avoidance is not None else None)
+                u.stack.reshape(others if u.stack.avoidance is not None else None)
+            # All trackers in one batch (same results as one by one, fewer array calls).
+            tracked = step_trackers(trackers)
+            for i, u in enumerate(self.uavs):
+                out = u.stack.control(tracked[i], states[i])
                 states[i] = u.plant.step(out.target, self.period_s)
                 self._bookkeeping(u, out, states[i])
                 if now >= u.next_broadcast_s - 1e-9:

@@ -298,7 +298,11 @@ class MpcTracker:
 
     def step(self) -> TrackerOutput:
         """Advance the virtual UAV by one tick and return the command and the prediction."""
-        m, tau = self._m, self.config.tau_s
+        return step_trackers([self])[0]
+
+    def _begin(self) -> _Tick:
+        """First half of a tick: the reference over the horizon and the bounds in force."""
+        tau = self.config.tau_s
         s0 = self._state
         if abs(s0[3, 0]) > HEADING_RECENTER_RAD:
             s0[3, 0] -= 2.0 * np.pi * np.round(s0[3, 0] / (2.0 * np.pi))
@@ -326,9 +330,13 @@ class MpcTracker:
                              brake_s[:, :1, 1] + tau * brake_s[:, :1, 2]])
             lower = np.minimum(lower, env)
             upper = np.maximum(upper, env)
-        # Unconstrained optimum first: when it respects every bound it is the QP's solution.
-        f, lower_qp, upper_qp, u_all, excess = build_qp(
-            self._qp_data, rel, r_rel, self._u_prev, self._v_lo, self._v_hi, lower, upper)
+        return _Tick(times, p0, rel, r_rel, lower, upper, braking, brake_u)
+
+    def _finish(self, tick: _Tick, f: np.ndarray, lower_qp: np.ndarray, upper_qp: np.ndarray,
+                u_all: np.ndarray, excess: np.ndarray) -> TrackerOutput:
+        """Second half: solve the axes whose unconstrained optimum breaks a bound, advance."""
+        m = self._m
+        rel, brake_u = tick.rel, tick.brake_u
         need_qp = [i for i, e in enumerate(excess.tolist()) if not e <= 0.0]  # NaN too
         fallback: list[int] = []
         iterations = 0
@@ -356,11 +364,11 @@ class MpcTracker:
             u_all[fallback] = brake_u[fallback]
 
         plan = (rel @ self._free_t + u_all @ self._forced_t).reshape(N_AXES, m, 3)
-        plan[:, :, 0] += p0[:, None]
+        plan[:, :, 0] += tick.p0[:, None]
         new_state = plan[:, 0, :].copy()
         self._state = new_state
         self._u_prev = u_all[:, 0].copy()
-        self._t = float(times[0])
+        self._t = float(tick.times[0])
 
         hd = new_state[3]
         command = TrackerCommand(
@@ -374,12 +382,60 @@ class MpcTracker:
         )
         xyz = plan[:3]
         prediction = Prediction(
-            times_s=times,
+            times_s=tick.times,
             position_m=xyz[:, :, 0].T.copy(),
             velocity_mps=xyz[:, :, 1].T.copy(),
             acceleration_mps2=xyz[:, :, 2].T.copy(),
             heading_rad=plan[3, :, 0].copy(),
             heading_rate_radps=plan[3, :, 1].copy(),
         )
-        return TrackerOutput(command, prediction, tuple(fallback), braking, len(need_qp),
+        return TrackerOutput(command, prediction, tuple(fallback), tick.braking, len(need_qp),
                              iterations)
+
+
+@dataclass(frozen=True, eq=False)
+class _Tick:
+    """What the first half of a tick hands to the second (per tracker, 4 axes)."""
+
+    times: np.ndarray
+    p0: np.ndarray
+    rel: np.ndarray
+    r_rel: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    braking: bool
+    brake_u: np.ndarray | None
+
+
+def step_trackers(trackers: list[MpcTracker]) -> list[TrackerOutput]:
+    """Step several trackers at once: each does its own per-UAV work, and the QP data of all
+    their axes is built in one set of array products (the per-tick cost that dominates a world
+    of many UAVs). ``[t.step() for t in trackers]`` gives the same results, tick for tick;
+    ``MpcTracker.step`` is this function with one tracker.
+    """
+    if not trackers:
+        return []
+    first = trackers[0]
+    if any(t.config != first.config for t in trackers[1:]):  # different matrices: one by one
+        return [step_trackers([t])[0] for t in trackers]
+    ticks = [t._begin() for t in trackers]
+    if len(trackers) == 1:
+        t, k = first, ticks[0]
+        built = build_qp(t._qp_data, k.rel, k.r_rel, t._u_prev, t._v_lo, t._v_hi, k.lower,
+                         k.upper)
+        return [t._finish(k, *built)]
+    built = build_qp(
+        first._qp_data,
+        np.concatenate([k.rel for k in ticks]),
+        np.concatenate([k.r_rel for k in ticks]),
+        np.concatenate([t._u_prev for t in trackers]),
+        np.concatenate([t._v_lo for t in trackers]),
+        np.concatenate([t._v_hi for t in trackers]),
+        np.concatenate([k.lower for k in ticks]),
+        np.concatenate([k.upper for k in ticks]),
+    )
+    outs = []
+    for i, (t, k) in enumerate(zip(trackers, ticks, strict=True)):
+        rows = slice(N_AXES * i, N_AXES * (i + 1))
+        outs.append(t._finish(k, *(b[rows] for b in built)))
+    return outs

@@ -1,0 +1,688 @@
+"""Statistical campaigns (SPEC §7): many seeded random_walk trials, resumable, in parallel.
+
+A campaign lives in one folder ``DIR``:
+
+- ``campaign.json``: the parameters that define the trials (UAVs, area, avoidance, link, wind,
+  trial length, seed). Re-running with other parameters in the same folder is refused.
+- ``trials.jsonl``: one JSON line per finished trial, appended (flushed and fsynced) as soon as
+  the trial ends. Re-running the same command skips the trials already there, so a crash or
+  Ctrl-C loses nothing but the trials in flight.
+- ``report.json``, ``report.md``, ``ttc_cdf.png``, ``min_distance_hist.png``: the aggregate.
+
+Trial ``i`` draws its seeds from ``numpy.random.SeedSequence(seed, spawn_key=(i,))`` (the same
+as ``SeedSequence(seed).spawn(n)[i]``): one for the scenario's starts and waypoints, one for the
+world (link and wind). The report aggregates the trials sorted by index, so it is bit-identical
+(apart from ``wall_s``) for any number of workers and any interruption pattern.
+
+Without avoidance a trial runs until its first collision or ``cap_s`` simulated seconds (the
+world is run in chunks and stopped at the first collision; chunked runs are bit-identical to one
+run). With avoidance a trial flies ``trial_s`` seconds and records its collisions and the
+minimal distance between any two UAVs.
+
+Percentiles of the time to first collision are those of the empirical CDF (``inverted_cdf``: a
+percentile is a sample value) over all trials, a trial without collision counting as "later
+than its length" (right-censored). A percentile that falls among censored trials is reported as
+``null`` (``report.md`` shows ``> cap``); all are ``null`` when no trial collided.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uavmpc.config import ConfigError
+
+FORMAT = 1
+PERCENTILES = (50, 75, 95, 99)
+#: Without avoidance, the world is run this many simulated seconds at a time between checks
+#: for a collision.
+CHUNK_S = 5.0
+CAMPAIGN_FILE = "campaign.json"
+TRIALS_FILE = "trials.jsonl"
+
+
+class CampaignError(ConfigError):
+    """A campaign that cannot run as asked (the message says why and what to do)."""
+
+
+@dataclass(frozen=True)
+class TrialJob:
+    """Everything a worker needs to fly one trial (picklable)."""
+
+    index: int
+    scenario_seed: int
+    world_seed: int
+    uavs: int
+    area_m: float
+    height_m: float
+    avoidance: bool
+    loss: float
+    latency_s: float
+    jitter_s: float
+    wind_mps: float
+    duration_s: float
+
+
+def trial_seeds(seed: int, index: int) -> tuple[int, int]:
+    """(scenario seed, world seed) of trial ``index`` of a campaign seeded ``seed``."""
+    words = np.random.SeedSequence(int(seed), spawn_key=(int(index),)).generate_state(
+        2, np.uint32)
+    return int(words[0]), int(words[1])
+
+
+def run_trial(job: TrialJob) -> dict[str, Any]:
+    """Fly one trial; returns its JSON record."""
+    from uavmpc.scenarios import LinkSettings
+    from uavmpc.scenarios.random_walk import random_walk
+    from uavmpc.world import World
+
+    wall0 = time.perf_counter()
+    link = LinkSettings(latency_s=job.latency_s, jitter_s=job.jitter_s, loss=job.loss)
+    sc = random_walk(job.uavs, job.area_m, job.height_m, job.duration_s, job.scenario_seed,
+                     link=link)
+    world = World(sc, avoidance=job.avoidance, seed=job.world_seed, link=link,
+                  wind_mps=job.wind_mps)
+    if job.avoidance:
+        res = world.run(job.duration_s)
+        collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
+        dmin = float(res.min_distance_m.min())
+        sim_s = res.duration_s
+    else:  # run in chunks, stop at the first collision
+        collisions, dmin, sim_s = [], math.inf, 0.0
+        total = round(job.duration_s / world.period_s)
+        chunk = max(1, round(CHUNK_S / world.period_s))
+        done = 0
+        while done < total and not collisions:
+            k = min(chunk, total - done)
+            res = world.run(k * world.period_s)
+            done += k
+            collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
+            d = res.min_distance_m
+            if collisions:  # the trial ends at the first collision
+                d = d[res.t_s <= collisions[0][0] + 1e-9]
+            dmin = min(dmin, float(d.min()))
+        sim_s = done * world.period_s
+        if collisions:  # flight time ends at the first collision
+            sim_s = collisions[0][0]
+    first = collisions[0] if collisions else None
+    return {
+        "index": job.index,
+        "scenario_seed": job.scenario_seed,
+        "world_seed": job.world_seed,
+        "sim_s": sim_s,
+        "collisions": len(collisions),
+        "first_collision_s": first[0] if first else None,
+        "first_collision_pair": [first[1], first[2]] if first else None,
+        "min_distance_m": dmin,
+        "wall_s": time.perf_counter() - wall0,
+    }
+
+
+# ---------------------------------------------------------------------------- executors
+class _Serial:
+    """Runs trials in this process, one at a time (workers = 1)."""
+
+    capacity = 1
+
+    def __init__(self) -> None:
+        self._queue: list[TrialJob] = []
+
+    def submit(self, job: TrialJob) -> None:
+        self._queue.append(job)
+
+    def pending(self) -> int:
+        return len(self._queue)
+
+    def wait(self) -> list[dict[str, Any]]:
+        return [run_trial(self._queue.pop(0))]
+
+    def close(self, cancel: bool = False) -> None:
+        self._queue.clear()
+
+
+class _Pool:
+    """A local process pool."""
+
+    def __init__(self, workers: int) -> None:
+        self.capacity = 2 * workers
+        self._ex = cf.ProcessPoolExecutor(max_workers=workers)
+        self._futures: set[cf.Future] = set()
+
+    def submit(self, job: TrialJob) -> None:
+        self._futures.add(self._ex.submit(run_trial, job))
+
+    def pending(self) -> int:
+        return len(self._futures)
+
+    def wait(self) -> list[dict[str, Any]]:
+        done, self._futures = cf.wait(self._futures, return_when=cf.FIRST_COMPLETED)
+        return [f.result() for f in done]
+
+    def close(self, cancel: bool = False) -> None:
+        self._ex.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+class _Ray:
+    """A Ray cluster (``address``: 'auto', 'local' for a fresh local one, or ray://host:port)."""
+
+    def __init__(self, address: str) -> None:
+        try:
+            import ray
+        except ImportError:
+            raise CampaignError(
+                "--ray needs Ray, which is not installed: pip install 'uavmpc[cluster]'"
+            ) from None
+        self._ray = ray
+        if not ray.is_initialized():
+            ray.init(address=None if address == "local" else address,
+                     ignore_reinit_error=True, log_to_driver=False)
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.capacity = 2 * max(cpus, 1)
+        self._remote = ray.remote(num_cpus=1)(run_trial)
+        self._refs: list[Any] = []
+
+    def submit(self, job: TrialJob) -> None:
+        self._refs.append(self._remote.remote(job))
+
+    def pending(self) -> int:
+        return len(self._refs)
+
+    def wait(self) -> list[dict[str, Any]]:
+        done, self._refs = self._ray.wait(self._refs, num_returns=1)
+        return list(self._ray.get(done))
+
+    def close(self, cancel: bool = False) -> None:
+        if cancel:
+            for ref in self._refs:
+                self._ray.cancel(ref, force=True)
+        self._refs = []
+
+
+# ------------------------------------------------------------------------------ storage
+def _check_parameters(out: Path, params: dict[str, Any]) -> None:
+    path = out / CAMPAIGN_FILE
+    if path.exists():
+        try:
+            stored = json.loads(path.read_text())["parameters"]
+        except (ValueError, KeyError, TypeError) as exc:
+            raise CampaignError(f"{path}: unreadable campaign file ({exc})") from None
+        if stored != params:
+            diff = ", ".join(f"{k}: {stored.get(k)!r} there, {params.get(k)!r} now"
+                             for k in sorted(set(stored) | set(params))
+                             if stored.get(k) != params.get(k))
+            raise CampaignError(
+                f"{out} holds a campaign with other parameters ({diff}); use another --out "
+                f"folder, or the same parameters to continue it")
+        return
+    from uavmpc import __version__
+
+    path.write_text(json.dumps({"format": FORMAT, "version": __version__,
+                                "parameters": params}, indent=2) + "\n")
+
+
+def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
+    """The finished trials of the campaign in ``out_dir`` (a torn last line is dropped)."""
+    path = Path(out_dir) / TRIALS_FILE
+    if not path.exists():
+        return {}
+    data = path.read_bytes()
+    end = data.rfind(b"\n") + 1
+    if end < len(data):  # a crash mid-write: drop the partial line so appends stay valid
+        with open(path, "r+b") as f:
+            f.truncate(end)
+        data = data[:end]
+    trials: dict[int, dict[str, Any]] = {}
+    for n, line in enumerate(data.decode().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+            i = int(rec["index"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise CampaignError(f"{path}:{n}: not a trial record ({exc})") from None
+        if (rec.get("scenario_seed"), rec.get("world_seed")) != trial_seeds(seed, i):
+            raise CampaignError(f"{path}:{n}: trial {i} has seeds that do not derive from "
+                                f"the campaign seed {seed}; the file belongs elsewhere")
+        trials.setdefault(i, rec)
+    return trials
+
+
+def _append(f: Any, rec: dict[str, Any]) -> None:
+    f.write(json.dumps(rec) + "\n")
+    f.flush()
+    os.fsync(f.fileno())
+
+
+# ------------------------------------------------------------------------------ progress
+class _Progress:
+    def __init__(self, enabled: bool, stream: Any = None) -> None:
+        self.enabled = enabled
+        self.stream = stream if stream is not None else sys.stderr
+        self.t0 = time.perf_counter()
+        self.width = 0
+
+    def show(self, done: int, total: int | None, sim_h: float, new: int) -> None:
+        if not self.enabled:
+            return
+        el = time.perf_counter() - self.t0
+        tot = f"{total}" if total is not None else "?"
+        eta = "?"
+        if new > 0 and total is not None:
+            eta = _hms(el / new * max(total - done, 0))
+        frac = done / total if total else 0.0
+        bar = "#" * int(20 * min(frac, 1.0))
+        line = (f"\r[{bar:<20}] {done}/{tot} trials, {sim_h:.2f} h simulated, "
+                f"{_hms(el)} elapsed, ETA {eta}")
+        self.width = max(self.width, len(line))
+        self.stream.write(line.ljust(self.width))
+        self.stream.flush()
+
+    def end(self) -> None:
+        if self.enabled:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _hms(seconds: float) -> str:
+    s = round(seconds)
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+# ------------------------------------------------------------------------------ selection
+def _selected(trials: dict[int, dict[str, Any]], n_trials: int | None,
+              target_s: float | None) -> tuple[list[dict[str, Any]], bool]:
+    """The trials the report covers (an index prefix) and whether that prefix is complete."""
+    out: list[dict[str, Any]] = []
+    total = 0.0
+    i = 0
+    while True:
+        if n_trials is not None and i >= n_trials:
+            return out, True
+        if target_s is not None and total >= target_s - 1e-9:
+            return out, True
+        rec = trials.get(i)
+        if rec is None:
+            return out, False
+        out.append(rec)
+        total += rec["sim_s"]
+        i += 1
+
+
+def _execute(out: Path, jobs: Callable[[int], TrialJob], trials: dict[int, dict[str, Any]],
+             n_trials: int | None, target_s: float | None, max_trial_s: float, executor: Any,
+             progress: _Progress) -> None:
+    """Runs the missing trials until the selection is complete."""
+    in_flight: set[int] = set()
+    nxt = 0
+    new = 0
+
+    def status() -> None:
+        sel, _ = _selected(trials, n_trials, target_s)
+        sim_h = sum(r["sim_s"] for r in sel) / 3600.0
+        total = n_trials
+        if total is None and target_s is not None:
+            mean = (sum(r["sim_s"] for r in trials.values()) / len(trials)) if trials else 0
+            total = max(len(sel), math.ceil(target_s / mean)) if mean > 0 else None
+        progress.show(len(sel), total, sim_h, new)
+
+    def want_more() -> bool:
+        if n_trials is not None:
+            return nxt < n_trials
+        # hours: submit while the done prefix plus in-flight trials at their longest might
+        # still fall short of the target
+        assert target_s is not None
+        bound = sum(trials[i]["sim_s"] if i in trials else max_trial_s for i in range(nxt))
+        return bound < target_s - 1e-9
+
+    status()
+    with open(out / TRIALS_FILE, "a") as f:
+        try:
+            while True:
+                while executor.pending() < executor.capacity and want_more():
+                    if nxt not in trials:
+                        executor.submit(jobs(nxt))
+                        in_flight.add(nxt)
+                    nxt += 1
+                if not executor.pending():
+                    break
+                for rec in executor.wait():
+                    in_flight.discard(rec["index"])
+                    trials[rec["index"]] = rec
+                    _append(f, rec)
+                    new += 1
+                    status()
+        except BaseException:
+            executor.close(cancel=True)
+            progress.end()
+            raise
+    executor.close()
+    progress.end()
+
+
+# ------------------------------------------------------------------------------ report
+def _percentiles(times: list[float | None]) -> dict[str, float | None] | None:
+    if not any(t is not None for t in times):
+        return None
+    x = np.array([math.inf if t is None else t for t in times])
+    out = {}
+    for q in PERCENTILES:
+        v = float(np.percentile(x, q, method="inverted_cdf"))
+        out[f"p{q}"] = v if math.isfinite(v) else None
+    return out
+
+
+def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
+              wall_s: float) -> dict[str, Any]:
+    """The report dictionary of the trials ``selected`` (sorted by index)."""
+    from uavmpc import __version__
+
+    avoidance = params["avoidance"]
+    length = params["trial_s" if avoidance else "cap_s"]
+    firsts = [r["first_collision_s"] for r in selected]
+    dmins = np.array([r["min_distance_m"] for r in selected])
+    with_collision = sum(1 for t in firsts if t is not None)
+    return {
+        "scenario": "random_walk",
+        "version": __version__,
+        "seed": params["seed"],
+        "avoidance": avoidance,
+        "parameters": params,
+        "trials": len(selected),
+        "simulated_hours": float(sum(r["sim_s"] for r in selected) / 3600.0),
+        "collisions": int(sum(r["collisions"] for r in selected)),
+        "trials_with_collision": with_collision,
+        "trials_censored": len(selected) - with_collision,
+        "censored_at_s": length,
+        "time_to_first_collision_s": _percentiles(firsts),
+        "min_distance_m": float(dmins.min()) if dmins.size else None,
+        "min_distance_per_trial_m": (
+            {f"p{q}": float(np.percentile(dmins, q, method="inverted_cdf"))
+             for q in (1, 5, 50)} if dmins.size else None),
+        "wall_s": wall_s,
+        "trial_wall_s": float(sum(r["wall_s"] for r in selected)),
+    }
+
+
+def _fmt_ttc(report: dict[str, Any], key: str) -> str:
+    p = report["time_to_first_collision_s"]
+    if p is None:
+        return "no collision"
+    v = p[key]
+    return f"{v:.1f} s" if v is not None else f"> {report['censored_at_s']:g} s"
+
+
+def markdown_table(*reports: dict[str, Any]) -> str:
+    """One table: a column without avoidance, one with; each report fills its own column
+    (give one report, or one of each to merge two campaigns)."""
+    cols: dict[bool, dict[str, Any] | None] = {False: None, True: None}
+    for r in reports:
+        cols[bool(r["avoidance"])] = r
+
+    def cell(avoid: bool, f: Callable[[dict[str, Any]], str]) -> str:
+        r = cols[avoid]
+        return f(r) if r is not None else "–"
+
+    rows: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
+        ("trials", lambda r: str(r["trials"])),
+        ("simulated hours", lambda r: f"{r['simulated_hours']:.2f}"),
+        ("collisions", lambda r: str(r["collisions"])),
+        ("trials with a collision", lambda r: f"{r['trials_with_collision']} / {r['trials']}"),
+    ]
+    rows += [(f"time to first collision, {q} %", lambda r, q=q: _fmt_ttc(r, f"p{q}"))
+             for q in PERCENTILES]
+    rows += [
+        ("min. distance between UAVs", lambda r: f"{r['min_distance_m']:.2f} m"),
+        ("UAVs / area", lambda r: f"{r['parameters']['uavs']} / "
+                                  f"{r['parameters']['area_m']:g} m"),
+        ("trial length", lambda r: f"{r['censored_at_s']:g} s"),
+        ("link loss / latency", lambda r: f"{r['parameters']['loss']:g} / "
+                                          f"{r['parameters']['latency_s']:g} s"),
+        ("wind", lambda r: f"{r['parameters']['wind_mps']:g} m/s"),
+        ("seed", lambda r: str(r["seed"])),
+    ]
+    lines = ["| random_walk | without avoidance | with avoidance |", "|---|---|---|"]
+    lines += [f"| {name} | {cell(False, f)} | {cell(True, f)} |" for name, f in rows]
+    return "\n".join(lines) + "\n"
+
+
+def report_markdown(*reports: dict[str, Any]) -> str:
+    head = ("# random_walk campaign\n\nA collision is a 3-D distance between centres below "
+            "1 m. Percentiles are those of the empirical CDF over all trials; a trial without "
+            "collision counts as later than its length (\"> …\").\n\n")
+    return head + markdown_table(*reports)
+
+
+def merge_reports(*paths: str | Path, out: str | Path | None = None) -> str:
+    """Merge the report.json of a campaign without and one with avoidance into one table."""
+    reports = [json.loads((Path(p) / "report.json" if Path(p).is_dir() else Path(p))
+                          .read_text()) for p in paths]
+    text = report_markdown(*reports)
+    if out is not None:
+        Path(out).write_text(text)
+    return text
+
+
+def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) -> None:
+    from uavmpc.plots import plt
+
+    title = f"random_walk, {'with' if report['avoidance'] else 'without'} avoidance"
+    n = len(selected)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    times = np.sort([r["first_collision_s"] for r in selected
+                     if r["first_collision_s"] is not None])
+    if times.size:
+        levels = np.arange(times.size + 1) / n
+        ax.step(np.r_[0.0, times, report["censored_at_s"]], np.r_[levels, levels[-1]],
+                where="post")
+        ax.set_xlim(0.0, report["censored_at_s"])
+    else:
+        ax.text(0.5, 0.5, f"no collision in {n} trials", transform=ax.transAxes,
+                ha="center", va="center")
+    ax.set_ylim(0.0, 1.0)
+    ax.set_xlabel("time to first collision [s]")
+    ax.set_ylabel("fraction of trials")
+    ax.set_title(f"{title}: empirical CDF ({n} trials, censored at "
+                 f"{report['censored_at_s']:g} s)")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / "ttc_cdf.png", dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    d = np.array([r["min_distance_m"] for r in selected])
+    if d.size:
+        ax.hist(d, bins=min(50, max(5, n // 4)))
+    ax.axvline(1.0, color="r", ls=":", label="collision (1 m)")
+    ax.set_xlabel("minimal distance between any two UAVs in a trial [m]")
+    ax.set_ylabel("trials")
+    ax.set_title(f"{title}: per-trial minimal distance")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / "min_distance_hist.png", dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ the runner
+def run_campaign(
+    out_dir: str | Path,
+    *,
+    uavs: int = 5,
+    avoidance: bool = True,
+    hours: float | None = None,
+    trials: int | None = None,
+    seed: int = 0,
+    workers: int | None = None,
+    loss: float = 0.0,
+    latency: float = 0.05,
+    jitter: float = 0.02,
+    wind: float = 0.0,
+    trial_s: float = 600.0,
+    cap_s: float = 600.0,
+    area_m: float = 100.0,
+    height_m: float = 10.0,
+    ray_address: str | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
+
+    Stops after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest
+    prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
+    ``trial_s``; without, until its first collision or ``cap_s``.
+    """
+    from uavmpc.scenarios import LinkSettings
+
+    if (hours is None) == (trials is None):
+        raise CampaignError("give exactly one of hours (--hours) or trials (--trials)")
+    if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int)
+                               or trials < 1):
+        raise CampaignError(f"trials: must be an integer ≥ 1, got {trials!r}")
+    if hours is not None and not (math.isfinite(hours) and hours > 0):
+        raise CampaignError(f"hours: must be > 0, got {hours}")
+    if isinstance(uavs, bool) or not isinstance(uavs, int) or not 2 <= uavs <= 1000:
+        raise CampaignError(f"uavs: must be an integer in [2, 1000], got {uavs!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise CampaignError(f"seed: must be a non-negative integer, got {seed!r}")
+    for name, v in (("trial_s", trial_s), ("cap_s", cap_s), ("area_m", area_m),
+                    ("height_m", height_m)):
+        if not (math.isfinite(v) and v > 0):
+            raise CampaignError(f"{name}: must be > 0, got {v}")
+    if not (math.isfinite(wind) and wind >= 0):
+        raise CampaignError(f"wind: must be ≥ 0, got {wind}")
+    link = LinkSettings.from_dict({"loss": loss, "latency_s": latency, "jitter_s": jitter})
+    if workers is None:
+        workers = os.cpu_count() or 1
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise CampaignError(f"workers: must be an integer ≥ 1, got {workers!r}")
+
+    length = float(trial_s if avoidance else cap_s)
+    params = {
+        "scenario": "random_walk", "uavs": uavs, "area_m": float(area_m),
+        "height_m": float(height_m), "avoidance": bool(avoidance), "seed": seed,
+        "loss": link.loss, "latency_s": link.latency_s, "jitter_s": link.jitter_s,
+        "wind_mps": float(wind),
+    }
+    # only the length that applies defines the trials
+    params["trial_s" if avoidance else "cap_s"] = length
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _check_parameters(out, params)
+    done = load_trials(out, seed)
+
+    def job(i: int) -> TrialJob:
+        s, w = trial_seeds(seed, i)
+        return TrialJob(i, s, w, uavs, float(area_m), float(height_m), bool(avoidance),
+                        link.loss, link.latency_s, link.jitter_s, float(wind), length)
+
+    target_s = None if hours is None else float(hours) * 3600.0
+    wall0 = time.perf_counter()
+    if _selected(done, trials, target_s)[1]:
+        executor = None
+    elif ray_address is not None:
+        executor = _Ray(ray_address)
+    elif workers == 1:
+        executor = _Serial()
+    else:
+        executor = _Pool(workers)
+    if executor is not None:
+        _execute(out, job, done, trials, target_s, length, executor, _Progress(progress))
+    selected, complete = _selected(done, trials, target_s)
+    assert complete
+    report = aggregate(selected, params, time.perf_counter() - wall0)
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    (out / "report.md").write_text(report_markdown(report))
+    _figures(out, selected, report)
+    return report
+
+
+def iter_trials(out_dir: str | Path) -> Iterator[dict[str, Any]]:
+    """The trial records of a campaign folder, in file order."""
+    path = Path(out_dir) / TRIALS_FILE
+    if path.exists():
+        for line in path.read_text().splitlines():
+            if line.strip():
+                yield json.loads(line)
+
+
+# ------------------------------------------------------------------------------ CLI glue
+def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
+    """Adds ``campaign random-walk ...`` to the CLI's subparsers; sets ``func``."""
+    p = subparsers.add_parser(
+        "campaign", help="statistical campaign: many seeded random_walk trials (resumable)")
+    p.add_argument("kind", choices=["random-walk"], help="the campaign's scenario")
+    p.add_argument("--uavs", type=int, default=5, help="UAVs per trial (default 5)")
+    p.add_argument("--avoidance", action=argparse.BooleanOptionalAction, default=True,
+                   help="fly with collision avoidance (default) or without")
+    stop = p.add_mutually_exclusive_group(required=True)
+    stop.add_argument("--hours", type=float, help="total simulated flight hours")
+    stop.add_argument("--trials", type=int, help="number of trials")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: CPU count)")
+    p.add_argument("--out", default=None,
+                   help="campaign folder (default out/campaign-{with,without}-avoidance); "
+                        "re-run the same command to continue it")
+    p.add_argument("--loss", type=float, default=0.0, help="message loss probability")
+    p.add_argument("--latency", type=float, default=0.05, help="link latency [s]")
+    p.add_argument("--wind", type=float, default=0.0, help="mean wind along x [m/s]")
+    p.add_argument("--trial-s", type=float, default=600.0,
+                   help="with avoidance: simulated seconds per trial (default 600)")
+    p.add_argument("--cap-s", type=float, default=600.0,
+                   help="without avoidance: stop a trial without collision after this")
+    p.add_argument("--area", type=float, default=100.0, help="side of the square area [m]")
+    p.add_argument("--ray", default=None, metavar="ADDRESS",
+                   help="run on Ray ('auto', 'local' or ray://host:port); "
+                        "pip install 'uavmpc[cluster]'")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=campaign_command)
+    return p
+
+
+def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
+    return run_campaign(out, uavs=args.uavs, avoidance=args.avoidance, hours=args.hours,
+                        trials=args.trials, seed=args.seed, workers=args.workers,
+                        loss=args.loss, latency=args.latency, wind=args.wind,
+                        trial_s=args.trial_s, cap_s=args.cap_s, area_m=args.area,
+                        ray_address=args.ray, progress=not args.no_progress)
+
+
+def campaign_command(args: argparse.Namespace) -> int:
+    out = args.out or f"out/campaign-{'with' if args.avoidance else 'without'}-avoidance"
+    try:
+        r = _run_from_args(out, args)
+    except KeyboardInterrupt:
+        n = sum(1 for _ in iter_trials(out))
+        print(f"\ninterrupted: {n} finished trial(s) are saved in {out}/{TRIALS_FILE}; run "
+              f"the same command again to continue", file=sys.stderr)
+        return 130
+    ttc = r["time_to_first_collision_s"]
+    pct = ", ".join(f"{k} {_fmt_ttc(r, k)}" for k in ttc) if ttc else "none"
+    print(f"random_walk, {'with' if r['avoidance'] else 'without'} avoidance: {r['trials']} "
+          f"trials, {r['simulated_hours']:.2f} h simulated, {r['collisions']} collision(s), "
+          f"closest approach {r['min_distance_m']:.2f} m; time to first collision: {pct}")
+    print(f"wrote {out}/report.json, report.md, ttc_cdf.png, min_distance_hist.png")
+    return 0 if (not r["avoidance"] or r["collisions"] == 0) else 1
+
+
+__all__ = [
+    "CampaignError",
+    "TrialJob",
+    "aggregate",
+    "build_parser_campaign",
+    "load_trials",
+    "markdown_table",
+    "merge_reports",
+    "run_campaign",
+    "run_trial",
+    "trial_seeds",
+]

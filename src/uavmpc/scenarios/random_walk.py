@@ -1,0 +1,108 @@
+"""random_walk: the statistical protocol's scenario (SPEC §6–7).
+
+N UAVs start at distinct random points of a square area (centred on the origin, side
+``area_m``), all at one height, and each flies to uniformly random waypoints in the area, one
+after another, at the Table I limits (8.3 m/s, 2.5 m/s²). All fly at the same height, so without
+avoidance they eventually collide (a 3-D distance between centres below 1 m).
+
+How a waypoint sequence becomes one :class:`~uavmpc.reference.Reference`: the world gives each
+UAV a single reference for the whole run (``UavSpec.mission``), so the sequence is written as a
+piecewise-constant sampled trajectory. Waypoint ``k`` is held from its switch time ``T_k`` until
+``T_{k+1} - STEP_S``; the reference then steps to waypoint ``k + 1`` at ``T_{k+1}`` (two stamps
+per waypoint; the reference interpolates linearly between stamps, so the step is a ramp of
+``STEP_S``, one tracker period, which the tracker sees as a step). Each waypoint is held for
+``distance / 8.3 + 2 · 8.3 / 2.5 + DWELL_S`` seconds: the time to fly there at top speed, plus
+the time to accelerate to top speed and brake again, plus a dwell. The tracker makes the step
+flyable. Waypoints are drawn until the sequence covers ``duration_s``; the last is held after.
+
+Seeding: ``numpy.random.SeedSequence(seed).spawn(n_uavs + 1)``; child 0 draws the starts, child
+``i + 1`` draws UAV ``i``'s waypoints (so a UAV's waypoints do not depend on how many UAVs fly).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from uavmpc.config import ConfigError
+from uavmpc.reference import Reference
+from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
+
+#: Table I limits used to time the waypoints.
+SPEED_MPS = 8.3
+ACCEL_MPS2 = 2.5
+#: Time spent at each waypoint once reached (nominally).
+DWELL_S = 2.0
+#: Length of the step between two waypoints (one tracker period; the reference needs ≥ 1 ms
+#: between stamps, and a 10 ms gap stays clear of that limit under floating-point rounding).
+STEP_S = 0.01
+#: Smallest horizontal distance between two starts.
+MIN_START_SEPARATION_M = 3.0
+
+
+def hold_time_s(distance_m: float) -> float:
+    """How long a waypoint ``distance_m`` away is held."""
+    return distance_m / SPEED_MPS + 2.0 * SPEED_MPS / ACCEL_MPS2 + DWELL_S
+
+
+def _starts(rng: np.random.Generator, n: int, half: float) -> np.ndarray:
+    starts: list[np.ndarray] = []
+    for _ in range(1000 * n):
+        p = rng.uniform(-half, half, size=2)
+        if all(np.linalg.norm(p - q) >= MIN_START_SEPARATION_M for q in starts):
+            starts.append(p)
+            if len(starts) == n:
+                return np.array(starts)
+    raise ConfigError(
+        f"random_walk: cannot place {n} UAVs {MIN_START_SEPARATION_M} m apart in a "
+        f"{2 * half:g} m square")
+
+
+def waypoint_mission(start_xy: np.ndarray, rng: np.random.Generator, half: float,
+                     height_m: float, duration_s: float) -> tuple[Reference, np.ndarray]:
+    """The mission of one UAV and its waypoints (W, 2)."""
+    times: list[float] = []
+    points: list[list[float]] = []
+    waypoints = []
+    t = 0.0
+    here = np.asarray(start_xy, dtype=float)
+    while True:
+        w = rng.uniform(-half, half, size=2)
+        if times:  # end of the previous hold, then the step
+            times.append(t - STEP_S)
+            points.append(points[-1])
+        times.append(t)
+        points.append([float(w[0]), float(w[1]), height_m, 0.0])
+        waypoints.append(w)
+        t += hold_time_s(float(np.linalg.norm(w - here)))
+        here = w
+        if t >= duration_s:
+            break
+    return Reference(np.array(times), np.array(points)), np.array(waypoints)
+
+
+def random_walk(n_uavs: int = 5, area_m: float = 100.0, height_m: float = 10.0,
+                duration_s: float = 600.0, seed: int = 0, *,
+                link: LinkSettings | None = None) -> Scenario:
+    """The random_walk scenario (see the module docstring)."""
+    if isinstance(n_uavs, bool) or not isinstance(n_uavs, int) or not 1 <= n_uavs <= 1000:
+        raise ConfigError(f"uavs: must be an integer in [1, 1000], got {n_uavs!r}")
+    for name, v in (("area_m", area_m), ("duration_s", duration_s)):
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"{name}: must be > 0, got {v}")
+    if not (math.isfinite(height_m) and 0 < height_m <= 1e4):
+        raise ConfigError(f"height_m: must be > 0, got {height_m}")
+    half = 0.5 * float(area_m)
+    children = np.random.SeedSequence(int(seed)).spawn(n_uavs + 1)
+    starts = _starts(np.random.default_rng(children[0]), n_uavs, half)
+    uavs = []
+    for i in range(n_uavs):
+        rng = np.random.default_rng(children[i + 1])
+        mission, wps = waypoint_mission(starts[i], rng, half, float(height_m), float(duration_s))
+        goal = (float(wps[-1, 0]), float(wps[-1, 1]), float(height_m))
+        uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550",
+                            (float(starts[i, 0]), float(starts[i, 1]), float(height_m)), 0.0,
+                            mission, goal))
+    return Scenario("random_walk", float(duration_s), tuple(uavs),
+                    link if link is not None else LinkSettings())

@@ -1,0 +1,209 @@
+"""The statistical protocol (SPEC §7): random_walk and resumable, deterministic campaigns.
+
+Kept short: 3 UAVs in a 30 m area, trials of 20–40 simulated seconds.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uavmpc.campaign import (
+    CampaignError,
+    load_trials,
+    merge_reports,
+    run_campaign,
+    run_trial,
+    trial_seeds,
+)
+from uavmpc.config import ConfigError
+from uavmpc.scenarios.random_walk import MIN_START_SEPARATION_M, STEP_S, hold_time_s, random_walk
+
+SMALL = {"uavs": 3, "area_m": 30.0, "progress": False}
+
+
+def test_random_walk_is_seeded_and_valid() -> None:
+    a = random_walk(5, 100.0, 10.0, 300.0, seed=7)
+    b = random_walk(5, 100.0, 10.0, 300.0, seed=7)
+    c = random_walk(5, 100.0, 10.0, 300.0, seed=8)
+    assert len(a.uavs) == 5 and a.duration_s == 300.0
+    for ua, ub in zip(a.uavs, b.uavs, strict=True):
+        assert ua.start_m == ub.start_m
+        assert np.array_equal(ua.mission.times_s, ub.mission.times_s)
+        assert np.array_equal(ua.mission.points, ub.mission.points)
+    assert a.uavs[0].start_m != c.uavs[0].start_m
+    starts = np.array([u.start_m for u in a.uavs])
+    assert np.all(starts[:, 2] == 10.0)
+    d = np.linalg.norm(starts[:, None] - starts[None], axis=2)
+    assert d[np.triu_indices(5, 1)].min() >= MIN_START_SEPARATION_M
+    assert len({u.priority for u in a.uavs}) == 5
+    for u in a.uavs:
+        m = u.mission
+        assert np.all(np.abs(m.points[:, :2]) <= 50.0) and np.all(m.points[:, 2] == 10.0)
+        assert np.all(np.abs(np.array(u.start_m[:2])) <= 50.0)
+        assert m.times_s[0] == 0.0
+        # two stamps per waypoint: a hold, then a step of STEP_S
+        wps = m.points[::2, :2]
+        assert np.allclose(m.points[1::2], m.points[0:-1:2])
+        assert np.allclose(m.times_s[2::2] - m.times_s[1::2], STEP_S)
+        legs = np.linalg.norm(np.diff(np.vstack([u.start_m[:2], wps]), axis=0), axis=1)
+        assert np.allclose(np.diff(m.times_s[::2]), [hold_time_s(x) for x in legs[:-1]])
+        assert m.times_s[-1] < 300.0 <= m.times_s[-1] + hold_time_s(legs[-1])
+        # the reference holds a waypoint, then steps to the next
+        mid = 0.5 * (m.times_s[0] + m.times_s[1])
+        assert np.allclose(m.sample(np.array([mid]))[0, :2], wps[0])
+    with pytest.raises(ConfigError, match="cannot place"):
+        random_walk(50, 5.0, 10.0, 60.0, seed=0)
+
+
+def test_trial_seeds_are_derived_from_the_campaign_seed() -> None:
+    assert trial_seeds(0, 3) == trial_seeds(0, 3)
+    assert trial_seeds(0, 3) != trial_seeds(0, 4) != trial_seeds(1, 4)
+    child = np.random.SeedSequence(5).spawn(3)[2]
+    assert trial_seeds(5, 2) == tuple(int(x) for x in child.generate_state(2, np.uint32))
+
+
+def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) -> None:
+    r = run_campaign(tmp_path, avoidance=False, trials=3, cap_s=40.0, workers=1, **SMALL)
+    recs = sorted(load_trials(tmp_path, 0).values(), key=lambda x: x["index"])
+    assert r["trials"] == 3 and r["collisions"] >= 1
+    hit = [x for x in recs if x["first_collision_s"] is not None]
+    assert len(hit) == r["trials_with_collision"] >= 1
+    for x in hit:  # the flight ends at the first collision
+        assert x["collisions"] == 1 and x["sim_s"] == x["first_collision_s"] < 40.0
+        assert x["min_distance_m"] < 1.0
+    ttc = r["time_to_first_collision_s"]
+    assert ttc is not None and ttc["p50"] is not None and 0.0 < ttc["p50"] < 40.0
+    assert r["simulated_hours"] == pytest.approx(sum(x["sim_s"] for x in recs) / 3600.0)
+    # a single collided trial flown in one piece collides at the same time
+    from uavmpc.scenarios.random_walk import random_walk as rw
+    from uavmpc.world import World
+
+    x = hit[0]
+    res = World(rw(3, 30.0, 10.0, 40.0, x["scenario_seed"]), avoidance=False,
+                seed=x["world_seed"]).run(x["first_collision_s"] + 0.1)
+    assert res.collisions[0].t == x["first_collision_s"]
+
+
+def test_with_avoidance_no_collision(tmp_path: Path) -> None:
+    r = run_campaign(tmp_path, avoidance=True, trials=3, trial_s=20.0, workers=1, **SMALL)
+    assert r["trials"] == 3 and r["collisions"] == 0
+    assert r["time_to_first_collision_s"] is None
+    assert r["min_distance_m"] > 1.0
+    assert r["simulated_hours"] == pytest.approx(3 * 20.0 / 3600.0)
+    for name in ("report.json", "report.md", "ttc_cdf.png", "min_distance_hist.png",
+                 "campaign.json", "trials.jsonl"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    md = (tmp_path / "report.md").read_text()
+    assert "| random_walk | without avoidance | with avoidance |" in md
+    assert "| collisions | – | 0 |" in md
+    assert "time to first collision, 99 %" in md
+    on_disk = json.loads((tmp_path / "report.json").read_text())
+    assert on_disk == json.loads(json.dumps(r))
+    for key in ("trials", "simulated_hours", "collisions", "time_to_first_collision_s",
+                "min_distance_m", "wall_s", "seed", "parameters"):
+        assert key in on_disk
+
+
+def test_hours_stop_rule(tmp_path: Path) -> None:
+    r = run_campaign(tmp_path, avoidance=True, hours=50.0 / 3600.0, trial_s=20.0, workers=1,
+                     **SMALL)
+    assert r["trials"] == 3 and r["simulated_hours"] == pytest.approx(60.0 / 3600.0)
+
+
+def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> None:
+    kw = dict(avoidance=False, cap_s=20.0, workers=1, seed=3, **SMALL)
+    run_campaign(tmp_path, trials=2, **kw)
+    assert len((tmp_path / "trials.jsonl").read_text().splitlines()) == 2
+    # a crash mid-write leaves a torn line: it is dropped and the trial re-run
+    with open(tmp_path / "trials.jsonl", "a") as f:
+        f.write('{"index": 2, "scen')
+    import uavmpc.campaign as campaign
+
+    flown: list[int] = []
+
+    def spy(job):
+        flown.append(job.index)
+        return run_trial(job)
+
+    monkeypatch.setattr(campaign, "run_trial", spy)
+    r = run_campaign(tmp_path, trials=4, **kw)
+    assert flown == [2, 3]
+    assert r["trials"] == 4
+    lines = (tmp_path / "trials.jsonl").read_text().splitlines()
+    assert [json.loads(x)["index"] for x in lines] == [0, 1, 2, 3]
+    # the same, done again: nothing to fly, same report
+    flown.clear()
+    again = run_campaign(tmp_path, trials=4, **kw)
+    assert flown == []
+    assert {**again, "wall_s": 0} == {**r, "wall_s": 0}
+    # fewer trials than done: the report covers the first ones
+    assert run_campaign(tmp_path, trials=1, **kw)["trials"] == 1
+
+
+def test_changed_parameters_are_refused(tmp_path: Path) -> None:
+    run_campaign(tmp_path, avoidance=False, trials=1, cap_s=10.0, workers=1, **SMALL)
+    with pytest.raises(CampaignError, match=r"other parameters \(loss: 0\.0 there, 0\.2 now"):
+        run_campaign(tmp_path, avoidance=False, trials=2, cap_s=10.0, workers=1, loss=0.2,
+                     **SMALL)
+    with pytest.raises(CampaignError, match="avoidance"):
+        run_campaign(tmp_path, avoidance=True, trials=2, trial_s=10.0, workers=1, **SMALL)
+    assert len((tmp_path / "trials.jsonl").read_text().splitlines()) == 1
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({}, "exactly one of hours"),
+    ({"trials": 2, "hours": 1.0}, "exactly one of hours"),
+    ({"trials": 0}, "trials"),
+    ({"trials": 1, "uavs": 1}, "uavs"),
+    ({"trials": 1, "loss": 1.0}, "loss"),
+    ({"trials": 1, "workers": 0}, "workers"),
+    ({"trials": 1, "cap_s": -1.0}, "cap_s"),
+])
+def test_bad_parameters(tmp_path: Path, kw: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        run_campaign(tmp_path, **{"progress": False, **kw})
+
+
+def test_same_seed_same_report_with_1_or_2_workers(tmp_path: Path) -> None:
+    kw = dict(avoidance=False, trials=4, cap_s=20.0, seed=11, **SMALL)
+    one = run_campaign(tmp_path / "one", workers=1, **kw)
+    two = run_campaign(tmp_path / "two", workers=2, **kw)
+    one.pop("wall_s"), two.pop("wall_s")
+    one.pop("trial_wall_s"), two.pop("trial_wall_s")
+    assert json.dumps(one) == json.dumps(two)
+
+
+def test_merge_reports_fills_both_columns(tmp_path: Path) -> None:
+    run_campaign(tmp_path / "a", avoidance=False, trials=1, cap_s=10.0, workers=1, **SMALL)
+    run_campaign(tmp_path / "b", avoidance=True, trials=1, trial_s=10.0, workers=1, **SMALL)
+    md = merge_reports(tmp_path / "a", tmp_path / "b", out=tmp_path / "both.md")
+    row = next(x for x in md.splitlines() if x.startswith("| trials |"))
+    assert row == "| trials | 1 | 1 |"
+    assert (tmp_path / "both.md").read_text() == md
+
+
+def test_ray_path(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    r = run_campaign(tmp_path, avoidance=False, trials=2, cap_s=10.0, ray_address="local",
+                     **SMALL)
+    ref = run_campaign(tmp_path / "ref", avoidance=False, trials=2, cap_s=10.0, workers=1,
+                       **SMALL)
+    assert r["time_to_first_collision_s"] == ref["time_to_first_collision_s"]
+
+
+def test_ray_missing_is_a_clear_error(tmp_path: Path, monkeypatch) -> None:
+    import builtins
+
+    real = builtins.__import__
+
+    def no_ray(name, *a, **k):
+        if name == "ray":
+            raise ImportError("No module named 'ray'")
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    with pytest.raises(CampaignError, match=r"pip install 'uavmpc\[cluster\]'"):
+        run_campaign(tmp_path, avoidance=False, trials=1, cap_s=10.0, ray_address="auto",
+                     **SMALL)
