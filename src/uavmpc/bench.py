@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import platform
 import time
 from collections.abc import Callable, Iterator
@@ -250,9 +251,39 @@ def bench_loop(duration_s: float = 60.0, repeats: int = 3, airframe: str = "f550
     }
 
 
+def bench_world(sizes: tuple[int, ...] = (5, 20, 100), duration_s: float = 20.0,
+                avoidance: bool = True, progress: Callable[[str], None] = print
+                ) -> dict[str, Any]:
+    """The per-core real-time factor of one random_walk world of N UAVs (full pipeline at
+    100 Hz, plants at 500 Hz, avoidance on), for each N in ``sizes``. The area grows with N so
+    the density stays that of the protocol (5 UAVs in 100 m × 100 m)."""
+    from uavmpc.scenarios.random_walk import random_walk
+    from uavmpc.world import World
+
+    rows = []
+    World(random_walk(2, duration_s=1.0), avoidance=avoidance).run(0.5)  # load compiled kernels
+    for n in sizes:
+        area = 100.0 * math.sqrt(n / 5.0)
+        world = World(random_walk(n, area_m=area, duration_s=duration_s, seed=1),
+                      avoidance=avoidance, seed=1)
+        result = world.run(duration_s)
+        factor = result.duration_s / result.wall_s
+        rows.append({"uavs": n, "area_m": round(area, 1), "realtime_factor": round(factor, 2),
+                     "uav_seconds_per_wall_second": round(factor * n, 1),
+                     "collisions": len(result.collisions)})
+        progress(f"{n} UAVs: {factor:.1f}× real time ({factor * n:.0f} UAV-seconds per second)")
+    return {"duration_s": duration_s, "avoidance": avoidance, "worlds": rows,
+            "python": platform.python_version(), "machine": platform.machine()}
+
+
 def main_tracker(ticks: int, seed: int) -> int:
     result = bench_tracker(ticks, seed)
     print(json.dumps(result))
+    return 0
+
+
+def main_world(duration_s: float) -> int:
+    print(json.dumps(bench_world(duration_s=duration_s)))
     return 0
 
 

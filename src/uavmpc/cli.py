@@ -155,12 +155,14 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavmpc.bench import main_loop, main_tracker
+    from uavmpc.bench import main_loop, main_tracker, main_world
 
     if args.what == "tracker":
         return main_tracker(args.ticks, args.seed)
     if args.what == "loop":
         return main_loop(args.duration, args.repeats, args.airframe)
+    if args.what == "world":
+        return main_world(args.duration if args.duration != 60.0 else 20.0)
     raise AssertionError(args.what)
 
 
@@ -199,11 +201,13 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--out", default="out/track", help="output folder (default out/track)")
     track.set_defaults(func=_track)
     bench = sub.add_parser("bench", help="benchmarks; the last line printed is JSON")
-    bench.add_argument("what", choices=["tracker", "loop"],
-                       help="tracker: one MpcTracker vs Clarabel; loop: the full one-UAV loop")
+    bench.add_argument("what", choices=["tracker", "loop", "world"],
+                       help="tracker: one MpcTracker vs Clarabel; loop: the full one-UAV loop; "
+                            "world: random_walk worlds of 5, 20 and 100 UAVs")
     bench.add_argument("--ticks", type=int, default=3000, help="tracker ticks (≥ 2000 advised)")
     bench.add_argument("--seed", type=int, default=1)
-    bench.add_argument("--duration", type=float, default=60.0, help="loop: simulated seconds")
+    bench.add_argument("--duration", type=float, default=60.0,
+                       help="loop, world: simulated seconds (world default 20)")
     bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)
