@@ -100,7 +100,8 @@ class TrackerConfig:
         q_position, q_velocity, q_acceleration, q_input, q_input_rate: QP weights (SPEC §2.3;
             the velocity term tracks the reference's own velocity, clipped to the limits).
         limits: the nominal dynamic limits.
-        solver: "daqp" (default) or "clarabel".
+        solver: "daqp" (default), "clarabel" (reference) or "batchqp" (our compiled dual
+            active-set solver, uavmpc.tracker.batchqp).
         iter_limit: solver iteration limit (a failure beyond it triggers the safe fallback).
     """
 
@@ -130,8 +131,9 @@ class TrackerConfig:
         positive(self.q_acceleration, "weights.acceleration", allow_zero=True)
         positive(self.q_input, "weights.input")
         positive(self.q_input_rate, "weights.input_rate", allow_zero=True)
-        if self.solver not in ("daqp", "clarabel"):
-            raise ConfigError(f"solver.name: must be 'daqp' or 'clarabel', got {self.solver!r}")
+        if self.solver not in ("daqp", "clarabel", "batchqp"):
+            raise ConfigError(
+                f"solver.name: must be 'daqp', 'clarabel' or 'batchqp', got {self.solver!r}")
         if isinstance(self.iter_limit, bool) or not isinstance(self.iter_limit, int) or (
             self.iter_limit < 1
         ):

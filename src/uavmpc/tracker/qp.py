@@ -186,4 +186,8 @@ def make_solver(name: str, model: CondensedModel, iter_limit: int = 1000) -> Axi
         return DaqpSolver(model, iter_limit)
     if name == "clarabel":
         return ClarabelSolver(model)
-    raise ValueError(f"unknown QP solver {name!r} (known: daqp, clarabel)")
+    if name == "batchqp":
+        from uavmpc.tracker.batchqp import BatchAxisSolver
+
+        return BatchAxisSolver(model, iter_limit=iter_limit)
+    raise ValueError(f"unknown QP solver {name!r} (known: daqp, clarabel, batchqp)")
