@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,67 @@ def _run(args: argparse.Namespace) -> int:
                       duration=args.duration, loss=args.loss, latency=args.latency,
                       wind=args.wind)
     _print_world_summary(s, out)
+    return 0
+
+
+def _node(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    import numpy as np
+
+    from uavmpc.comms.zenoh_link import ZenohTransport
+    from uavmpc.node import Node, parse_mission, run_node
+    from uavmpc.plant import Airframe
+    from uavmpc.reference import InvalidReferenceError, Reference
+
+    airframe = Airframe.from_toml(args.airframe) if args.airframe.endswith(".toml") else (
+        Airframe.packaged(args.airframe))
+    key = None
+    if args.key_file:
+        from uavmpc.comms.auth import load_key
+
+        key = load_key(args.key_file)
+    mission = None
+    try:
+        if args.mission_file:
+            data = json.loads(Path(args.mission_file).read_text())
+            mission = Reference(np.asarray(data["times_s"], dtype=float),
+                                np.asarray(data["points"], dtype=float),
+                                bool(data.get("loop", False)))
+        elif args.goto:
+            mission = parse_mission(json.dumps({"goto": args.goto}).encode(), time.time())
+    except (OSError, KeyError, ValueError, InvalidReferenceError) as exc:
+        print(f"uavmpc node: bad mission: {exc}", file=sys.stderr)
+        return 2
+    with ZenohTransport(args.id, swarm=args.swarm, listen=args.listen or [],
+                        connect=args.connect or []) as transport:
+        node = Node(args.id, args.priority, airframe, transport, start_m=args.start,
+                    heading_rad=args.heading, avoidance=not args.no_avoidance, key=key)
+        if mission is not None:
+            node.set_mission(mission)
+        stats = run_node(node, args.duration)
+    print(json.dumps(dataclasses.asdict(stats)), flush=True)
+    return 0
+
+
+def _swarm(args: argparse.Namespace) -> int:
+    from uavmpc import scenarios
+    from uavmpc.swarm import run_swarm
+
+    out = Path(args.out)
+    s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
+                  duration_s=args.duration, key_file=args.key_file)
+    verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
+    closest = s["min_distance_m"]
+    print(f"{s['scenario']} as {len(s['uavs'])} node processes over Zenoh: {verdict}; closest "
+          f"approach {closest if closest is None else round(closest, 2)} m")
+    for uav, u in s["uavs"].items():
+        node = u["node"]
+        print(f"  {uav}: climbed {u['max_z_offset_m']:.0f} m, "
+              f"{'reached' if u['reached_goal'] else 'MISSED'} its goal; "
+              f"tick period p50 {node.get('period_p50_ms', float('nan')):.2f} ms, "
+              f"p99 {node.get('period_p99_ms', float('nan')):.2f} ms")
+    print(f"wrote {out}/summary.json, flight.mcap, min_distance.png")
     return 0
 
 
@@ -187,6 +249,30 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--latency", type=float, default=None, help="link latency [s]")
     run.add_argument("--wind", type=float, default=0.0, help="mean wind along x [m/s]")
     run.set_defaults(func=_run)
+    node = sub.add_parser("node", help="one UAV's onboard stack in real time over Zenoh")
+    node.add_argument("--id", required=True, help="UAV id ([A-Za-z0-9_-], ≤ 32)")
+    node.add_argument("--priority", type=int, required=True, help="lower = higher priority")
+    node.add_argument("--airframe", default="f550", help="f550, x500 or a TOML file")
+    node.add_argument("--connect", action="append", help="peer endpoint, e.g. tcp/10.0.0.2:7447")
+    node.add_argument("--listen", action="append", help="own endpoint, e.g. tcp/0.0.0.0:7447")
+    node.add_argument("--swarm", default="default", help="swarm name (key prefix)")
+    node.add_argument("--start", type=float, nargs=3, default=[0.0, 0.0, 5.0],
+                      metavar=("X", "Y", "Z"), help="start position [m] (simulated plant)")
+    node.add_argument("--heading", type=float, default=0.0, help="start heading [rad]")
+    node.add_argument("--goto", type=float, nargs=4, metavar=("X", "Y", "Z", "HEADING"),
+                      help="initial mission: fly to this point")
+    node.add_argument("--mission-file", help="initial mission: JSON {times_s, points, loop}")
+    node.add_argument("--no-avoidance", action="store_true")
+    node.add_argument("--key-file", help="shared key: sign predictions, drop unsigned ones")
+    node.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    node.set_defaults(func=_node)
+    swarm = sub.add_parser("swarm", help="a scenario as one node process per UAV on loopback")
+    swarm.add_argument("scenario", help="swap_through_static, converge_center or a TOML file")
+    swarm.add_argument("--out", default="out/swarm", help="output folder (default out/swarm)")
+    swarm.add_argument("--no-avoidance", action="store_true")
+    swarm.add_argument("--duration", type=float, default=None, help="seconds after the start")
+    swarm.add_argument("--key-file", help="shared key file given to every node")
+    swarm.set_defaults(func=_swarm)
     tdemo = sub.add_parser("tracker-demo", help="the virtual UAV flies a 50 m step; plot it")
     tdemo.add_argument("--out", default="out/tracker-demo", help="output folder")
     tdemo.add_argument("--duration", type=float, default=20.0, help="simulated seconds")

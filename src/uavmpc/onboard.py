@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
+
 from uavmpc.control import Se3Controller
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.reference import Reference
@@ -105,10 +107,19 @@ class OnboardStack:
 
     def _avoid(self, now: float, others: Mapping[str, object]) -> None:
         pred = self._last.prediction  # type: ignore[union-attr]
-        # The strategy offsets our prediction by its own z offset; hand it the plan without
-        # the offset the tracker is already flying, so the offset is not counted twice.
+        # The strategy shifts our plan by candidate offsets; hand it the plan without the part
+        # of the current offset the virtual UAV has already climbed at each predicted point
+        # (plan minus mission reference, clipped to [0, offset]). Subtracting the whole offset
+        # would put the early, still-climbing points below the mission and make the strategy
+        # climb again and again for a conflict the climb in progress already resolves.
         own = pred.position_m.copy()
-        own[:, 2] -= self.tracker.z_offset_m
+        offset = self.tracker.z_offset_m
+        mission = self.tracker.reference
+        if offset and mission is not None:
+            nominal_z = mission.sample(pred.times_s)[:, 2]
+            own[:, 2] -= np.clip(own[:, 2] - nominal_z, 0.0, offset)
+        elif offset:
+            own[:, 2] -= offset
         decision = self.avoidance.update(  # type: ignore[attr-defined]
             now, self.uav_id, self.priority, pred.times_s, own, others)
         self.decision = decision

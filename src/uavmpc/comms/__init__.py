@@ -1,5 +1,6 @@
 """Communication between UAVs (SPEC §5.1): the prediction message, its wire format, transports."""
 
+from uavmpc.comms.auth import load_key, sign, verify
 from uavmpc.comms.link import Inbox, LinkStats, SimulatedLink, Transport
 from uavmpc.comms.message import (
     SCHEMA_VERSION,
@@ -10,6 +11,7 @@ from uavmpc.comms.message import (
     from_prediction,
     validate_on_receipt,
 )
+from uavmpc.comms.zenoh_link import Subscription, ZenohStats, ZenohTransport
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -18,9 +20,15 @@ __all__ = [
     "LinkStats",
     "PredictionMessage",
     "SimulatedLink",
+    "Subscription",
     "Transport",
+    "ZenohStats",
+    "ZenohTransport",
     "decode",
     "encode",
     "from_prediction",
+    "load_key",
+    "sign",
     "validate_on_receipt",
+    "verify",
 ]

@@ -19,6 +19,7 @@ from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
+from uavmpc.comms.auth import check_key, verify
 from uavmpc.comms.message import (
     InvalidMessageError,
     PredictionMessage,
@@ -195,13 +196,21 @@ class Inbox:
             stamps are only compared with the same sender's stamps; ``received_s`` is set on
             every kept message for the avoidance's receive-time fallback).
         max_future_s, max_age_s: see :func:`~uavmpc.comms.message.validate_on_receipt`.
+        key: the swarm's shared key (:mod:`uavmpc.comms.auth`): when set, only messages signed
+            with it are accepted (others are counted as ``"unsigned message"`` or ``"forged
+            message (bad signature)"``); senders then publish ``sign(encode(msg), key)``.
     """
 
     def __init__(self, own_id: str, *, time_reference: Literal["stamp", "receive"] = "stamp",
-                 max_future_s: float = 0.5, max_age_s: float = 1.0) -> None:
+                 max_future_s: float = 0.5, max_age_s: float = 1.0,
+                 key: bytes | None = None) -> None:
         if time_reference not in ("stamp", "receive"):
             raise ValueError(
                 f"time_reference: must be 'stamp' or 'receive', got {time_reference!r}")
+        if key is not None:
+            check_key(key)
+            key = bytes(key)
+        self.key = key
         self.own_id = own_id
         self.time_reference = time_reference
         self.max_future_s = max_future_s
@@ -227,8 +236,11 @@ class Inbox:
         return self._latest
 
     def accept(self, data: bytes, now_s: float) -> PredictionMessage | None:
-        """Decode, validate and keep one message; ``None`` if rejected or not newer."""
+        """Verify (with a key), decode, validate and keep one message; ``None`` if rejected or
+        not newer."""
         try:
+            if self.key is not None:
+                data = verify(data, self.key)
             msg = decode(data)
             if self.time_reference == "stamp":
                 validate_on_receipt(msg, now_s, self.max_future_s, self.max_age_s)

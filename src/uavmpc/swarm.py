@@ -1,0 +1,222 @@
+"""A scenario flown by one node process per UAV on loopback, watched by a monitor (issue 6).
+
+``uavmpc swarm SCENARIO_OR_FILE`` starts ``uavmpc node`` for every UAV of the scenario (each its
+own process, peer-to-peer over Zenoh on 127.0.0.1, no broker), and a monitor in this process
+that subscribes to every state and prediction, records them in the same MCAP format as the
+simulated world, detects collisions and writes the same ``summary.json`` as ``uavmpc run``.
+
+Topology: node 0 listens first; every other node and the monitor connect to it (Zenoh's gossip
+completes the mesh). All missions start at a common epoch a few seconds after launch, once the
+peers have found each other.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uavmpc.comms.auth import load_key, verify
+from uavmpc.comms.message import InvalidMessageError, decode
+from uavmpc.log import FlightRecorder
+from uavmpc.scenarios import Scenario
+from uavmpc.world import COLLISION_DISTANCE_M, GOAL_TOLERANCE_M
+
+#: Seconds from launch to the common mission start (discovery takes ≈ 1 s; numba loads ≈ 1 s).
+STARTUP_S = 4.0
+
+
+def free_ports(n: int) -> list[int]:
+    """``n`` TCP ports free on 127.0.0.1 right now."""
+    socks, ports = [], []
+    for _ in range(n):
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        socks.append(s)
+        ports.append(s.getsockname()[1])
+    for s in socks:
+        s.close()
+    return ports
+
+
+def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
+                 mission_file: Path, avoidance: bool, duration_s: float,
+                 key_file: str | None = None) -> list[str]:
+    """The ``uavmpc node`` command line of one UAV of a scenario."""
+    cmd = [sys.executable, "-m", "uavmpc.cli", "node", "--id", spec.uav_id,
+           "--priority", str(spec.priority), "--airframe", spec.airframe,
+           "--swarm", swarm, "--listen", listen,
+           "--start", *(repr(v) for v in spec.start_m), "--heading", repr(spec.heading_rad),
+           "--mission-file", str(mission_file), "--duration", repr(duration_s)]
+    for ep in connect:
+        cmd += ["--connect", ep]
+    if not avoidance:
+        cmd.append("--no-avoidance")
+    if key_file:
+        cmd += ["--key-file", key_file]
+    return cmd
+
+
+def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
+              duration_s: float | None = None, key_file: str | None = None,
+              kill_at_s: dict[str, float] | None = None) -> dict[str, Any]:
+    """Fly ``scenario`` as separate node processes; returns the summary (also written).
+
+    ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
+    (a UAV that drops out of the sky, as far as the link can tell)."""
+    from uavmpc.comms.zenoh_link import ZenohTransport
+
+    duration = scenario.duration_s if duration_s is None else float(duration_s)
+    auth_key = load_key(key_file) if key_file else None
+    out.mkdir(parents=True, exist_ok=True)
+    swarm = f"s{os.getpid()}"
+    n = len(scenario.uavs)
+    ports = free_ports(n + 1)
+    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
+    epoch = time.time() + STARTUP_S
+    ids = [u.uav_id for u in scenario.uavs]
+    goals = {u.uav_id: np.array(u.goal_m) for u in scenario.uavs}
+    procs: dict[str, subprocess.Popen[str]] = {}
+    tmp = tempfile.TemporaryDirectory(prefix="uavmpc-swarm-")
+    monitor = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
+                             connect=[endpoints[0]], max_pending=4096)
+    states = monitor.subscribe("*/state", maxlen=100_000)
+    predictions = monitor.subscribe("*/prediction", maxlen=10_000)
+    latest: dict[str, np.ndarray] = {}
+    last_state: dict[str, dict[str, Any]] = {}
+    kills = dict(kill_at_s or {})
+    offsets: dict[str, float] = dict.fromkeys(ids, 0.0)
+    collisions: list[dict[str, Any]] = []
+    in_contact: set[tuple[str, str]] = set()
+    min_d = math.inf
+    trace_t: list[float] = []
+    trace_d: list[float] = []
+    try:
+        for i, spec in enumerate(scenario.uavs):
+            mission = Path(tmp.name) / f"{spec.uav_id}.json"
+            mission.write_text(json.dumps({
+                "times_s": (spec.mission.times_s + epoch).tolist(),
+                "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
+            cmd = node_command(spec, swarm=swarm, listen=endpoints[i],
+                               connect=[] if i == 0 else [endpoints[0]],
+                               mission_file=mission, avoidance=avoidance,
+                               duration_s=duration + (epoch - time.time()) + 1.0,
+                               key_file=key_file)
+            procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh"}
+        with FlightRecorder(out / "flight.mcap", ids, meta) as rec:
+            end = epoch + duration
+            while time.time() < end:
+                for topic, payload in states.drain():
+                    uav = topic.split("/")[-2]
+                    try:
+                        s = json.loads(payload)
+                        p = np.array(s["p"], dtype=float)
+                    except (ValueError, KeyError, TypeError):
+                        continue
+                    if uav not in offsets or p.shape != (3,) or not np.all(np.isfinite(p)):
+                        continue
+                    latest[uav] = p
+                    last_state[uav] = s
+                    offsets[uav] = max(offsets[uav], float(s.get("z_offset", 0.0)))
+                    rec.pose(uav, "state", float(s["t"]), p, float(s.get("heading", 0.0)))
+                    rec.pose(uav, "command", float(s["t"]), np.array(s["cmd"]), 0.0)
+                    rec.status(uav, float(s["t"]), z_offset_m=float(s.get("z_offset", 0.0)),
+                               avoiding=bool(s.get("avoiding", False)),
+                               conflicts=list(s.get("conflicts", [])))
+                for _key, payload in predictions.drain():
+                    try:
+                        msg = decode(verify(payload, auth_key) if auth_key is not None else payload)
+                    except InvalidMessageError:
+                        continue
+                    rec.prediction(msg.uav_id, msg.stamp_s, msg.positions_m,
+                                   np.zeros(msg.positions_m.shape[0]))
+                now = time.time()
+                for uav, t_kill in list(kills.items()):
+                    if now >= epoch + t_kill:
+                        procs[uav].kill()
+                        latest.pop(uav, None)  # a dead UAV is no longer watched for collisions
+                        del kills[uav]
+                alive = [u for u in ids if procs[u].poll() is None or u in latest]
+                if now >= epoch and all(u in latest for u in alive) and len(alive) > 1:
+                    d_now = math.inf
+                    watched = [u for u in ids if u in latest]
+                    for a in range(len(watched)):
+                        for b in range(a + 1, len(watched)):
+                            pa, pb = latest[watched[a]], latest[watched[b]]
+                            d = float(np.linalg.norm(pa - pb))
+                            d_now = min(d_now, d)
+                            pair = (watched[a], watched[b])
+                            if d < COLLISION_DISTANCE_M and pair not in in_contact:
+                                in_contact.add(pair)
+                                collisions.append({"t": now - epoch, "a": pair[0],
+                                                   "b": pair[1], "distance_m": d})
+                            elif d >= COLLISION_DISTANCE_M:
+                                in_contact.discard(pair)
+                    min_d = min(min_d, d_now)
+                    trace_t.append(now - epoch)
+                    trace_d.append(d_now)
+                time.sleep(0.005)
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        node_stats: dict[str, dict[str, Any]] = {}
+        for uav, p in procs.items():
+            try:
+                stdout, _ = p.communicate(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                stdout, _ = p.communicate()
+            lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
+            node_stats[uav] = json.loads(lines[-1]) if lines else {"exit_code": p.returncode}
+        monitor.close()
+        tmp.cleanup()
+    sent = sum(s.get("predictions_sent", 0) for s in node_stats.values()) * (n - 1)
+    delivered = sum(s.get("accepted", 0) for s in node_stats.values())
+    uavs = {}
+    for uav in ids:
+        st = node_stats.get(uav, {})
+        final = np.array(st.get("final_position_m") or latest.get(uav, [np.nan] * 3))
+        uavs[uav] = {
+            "max_z_offset_m": offsets[uav],
+            "avoidance_active_s": st.get("avoidance_active_s"),
+            "tracking_rmse_m": st.get("tracking_rmse_m"),
+            "reached_goal": bool(np.linalg.norm(final - goals[uav]) < GOAL_TOLERANCE_M),
+            "final_position_m": final.tolist(),
+            "last_state": last_state.get(uav, {}),
+            "node": st,
+        }
+    summary = {
+        "scenario": scenario.name, "avoidance": avoidance, "duration_s": duration,
+        "transport": "zenoh (peer to peer, 127.0.0.1)",
+        "collisions": collisions,
+        "min_distance_m": min_d if math.isfinite(min_d) else None,
+        "uavs": uavs,
+        "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if trace_t:
+        from uavmpc.plots import plt
+
+        fig, ax = plt.subplots(figsize=(8, 4))
+        ax.plot(trace_t, trace_d, label="closest pair")
+        ax.axhline(COLLISION_DISTANCE_M, color="r", ls="--", label="collision (1 m)")
+        ax.set_xlabel("time since mission start [s]")
+        ax.set_ylabel("min pairwise distance [m]")
+        ax.set_ylim(bottom=0.0)
+        ax.grid(alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(out / "min_distance.png", dpi=110)
+    return summary

@@ -1,0 +1,190 @@
+"""Each UAV its own process (or thread) over Zenoh on 127.0.0.1: end to end, robustness, keys."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+pytest.importorskip("zenoh")
+
+from uavmpc import scenarios
+from uavmpc.comms.auth import sign
+from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.comms.zenoh_link import ZenohTransport
+from uavmpc.node import Node
+from uavmpc.plant import Airframe
+from uavmpc.reference import Reference
+from uavmpc.swarm import free_ports, run_swarm
+
+HORIZON = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
+KEY = b"0123456789abcdef0123456789abcdef"
+
+
+def _prediction(uav: str, priority: int, positions: np.ndarray, cooperative: bool) -> bytes:
+    now = time.time()
+    return encode(PredictionMessage(1, uav, priority, now, now + HORIZON, positions, cooperative))
+
+
+def _on_path(x: float = 0.0) -> np.ndarray:
+    """A non-cooperative intruder hovering right where the node hovers."""
+    return np.tile([x, 0.0, 5.0], (40, 1))
+
+
+class _Flight:
+    """A node flying in a thread of this process, and a second transport to talk to it."""
+
+    def __init__(self, *, key: bytes | None = None, duration_s: float = 6.0) -> None:
+        ports = free_ports(2)
+        self.swarm = f"t{ports[0]}"
+        eps = [f"tcp/127.0.0.1:{p}" for p in ports]
+        self.node_tx = ZenohTransport("uav1", swarm=self.swarm, listen=[eps[0]])
+        self.other = ZenohTransport("intruder", swarm=self.swarm, listen=[eps[1]],
+                                    connect=[eps[0]])
+        self.node = Node("uav1", 5, Airframe.packaged("f550"), self.node_tx,
+                         start_m=(0.0, 0.0, 5.0), key=key)
+        self.states = self.other.subscribe("uav1/state", maxlen=100_000)
+        self.thread = threading.Thread(target=self.node.run, args=(duration_s,), daemon=True)
+
+    def __enter__(self) -> _Flight:
+        self.thread.start()
+        deadline = time.time() + 5.0  # wait for discovery: the node's state reaches us
+        while not self.states.drain() and time.time() < deadline:
+            time.sleep(0.05)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.node.stop()
+        self.thread.join(timeout=10)
+        self.other.close()
+        self.node_tx.close()
+
+    def max_offset(self) -> float:
+        import json
+
+        return max((json.loads(p)["z_offset"] for _, p in self.states.drain()), default=0.0)
+
+
+def test_swap_as_three_processes_is_collision_free_and_reaches_goals(tmp_path) -> None:
+    s = run_swarm(scenarios.load("swap_through_static"), tmp_path, duration_s=28.0)
+    assert s["collisions"] == [], s["collisions"]
+    assert s["min_distance_m"] is not None and s["min_distance_m"] > 1.0
+    for uav, u in s["uavs"].items():
+        assert u["reached_goal"], (uav, u["final_position_m"])
+        assert u["node"]["ticks"] > 2500  # it flew, in real time, at 100 Hz
+    assert s["uavs"]["uav1"]["max_z_offset_m"] == 0.0
+    assert s["uavs"]["uav3"]["max_z_offset_m"] > 0.0
+    assert s["messages"]["delivered"] > 0.8 * s["messages"]["sent"]
+    assert (tmp_path / "flight.mcap").stat().st_size > 1000
+
+
+def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
+    s = run_swarm(scenarios.load("swap_through_static"), tmp_path, avoidance=False,
+                  duration_s=10.0)
+    assert s["collisions"], "the network path must be what carries the avoidance"
+
+
+def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_path) -> None:
+    path = tmp_path / "pair.toml"
+    path.write_text("""
+name = "pair"
+duration_s = 14.0
+[[uavs]]
+id = "uav1"
+priority = 1
+start = [0.0, 0.0, 5.0]
+goto = [0.0, 0.0, 5.0, 0.0]
+[[uavs]]
+id = "uav2"
+priority = 2
+start = [2.0, 0.0, 5.0]
+goto = [2.0, 0.0, 5.0, 0.0]
+""")
+    s = run_swarm(scenarios.load(path), tmp_path / "out", kill_at_s={"uav1": 5.0})
+    uav2 = s["uavs"]["uav2"]
+    assert uav2["max_z_offset_m"] >= 3.0  # it yielded while uav1 was there
+    # …and after the 1 s timeout, the 2 s hysteresis and the release, it is back down
+    assert uav2["last_state"]["z_offset"] == 0.0 and not uav2["last_state"]["avoiding"]
+    assert uav2["reached_goal"]
+
+
+def test_forged_or_unsigned_predictions_are_ignored_with_a_key() -> None:
+    with _Flight(key=KEY) as f:
+        forged = bytearray(sign(_prediction("intruder", 0, _on_path(), False), KEY))
+        forged[30] ^= 0xFF  # tampered after signing
+        for _ in range(20):
+            f.other.publish(_prediction("intruder", 0, _on_path(), False), "intruder", 0.0)
+            f.other.publish(bytes(forged), "intruder", 0.0)
+            time.sleep(0.1)
+        assert f.max_offset() == 0.0
+        assert f.node.inbox.rejected_total >= 20
+        for _ in range(20):  # the same prediction, properly signed, does make it climb
+            f.other.publish(sign(_prediction("intruder", 0, _on_path(), False), KEY),
+                            "intruder", 0.0)
+            time.sleep(0.1)
+        assert f.max_offset() >= 3.0
+
+
+def test_fuzzed_messages_never_crash_or_move_a_flying_node() -> None:
+    far = np.tile([500.0, 500.0, 5.0], (40, 1))  # a valid base message, far from the node
+    base = _prediction("fuzzer", 1, far, True)
+    sent = []
+
+    @settings(max_examples=10_000, deadline=None, derandomize=True,
+              suppress_health_check=list(HealthCheck))
+    @given(st.one_of(st.binary(max_size=2000),
+                     st.tuples(st.integers(0, len(base) - 1), st.integers(0, 255)).map(
+                         lambda m: base[:m[0]] + bytes([m[1]]) + base[m[0] + 1:]),
+                     st.integers(0, len(base)).map(lambda n: base[:n])))
+    def blast(data: bytes) -> None:
+        sent.append(len(data))
+        f.other.publish(data, "intruder", 0.0)
+
+    with _Flight(duration_s=30.0) as f:
+        f.node.set_mission(Reference.goto(10.0, 0.0, 5.0, 0.0, start_s=time.time()))
+        blast()
+        time.sleep(8.0)
+        assert f.thread.is_alive()  # no crash
+        assert f.max_offset() == 0.0  # no change of flight
+        state = f.node.plant.state()
+        assert np.linalg.norm(state.position_m - [10.0, 0.0, 5.0]) < 0.5
+    assert len(sent) >= 10_000
+    assert f.node.inbox.rejected_total > 1000  # most of the fuzz is malformed and counted
+
+
+def test_a_flood_does_not_starve_the_control_loop() -> None:
+    with _Flight(duration_s=8.0) as f:
+        far = np.tile([500.0, 500.0, 5.0], (40, 1))
+        t_end = time.time() + 5.0
+        n = 0
+        while time.time() < t_end:  # 1000 messages/s from one sender, bounded in time
+            for _ in range(10):
+                f.other.publish(_prediction("flooder", 1, far, True), "intruder", 0.0)
+                n += 1
+            time.sleep(0.01)
+        f.thread.join(timeout=10)
+    s = f.node.stats
+    assert n >= 3000
+    assert abs(s.period_p50_ms - 10.0) <= 1.0  # the 100 Hz tick keeps its period within 10 %
+    assert s.ticks >= 0.9 * 800
+
+
+def test_missions_over_the_network_are_validated() -> None:
+    import json
+
+    with _Flight(duration_s=12.0) as f:
+        bad = [b"not json", b"[]", json.dumps({"goto": [1, 2]}).encode(),
+               b'{"goto": [1, 2, NaN, 0]}', json.dumps({"points": [[0, 0, 0]]}).encode()]
+        for payload in bad:
+            f.other.send("uav1", "mission", payload)
+            time.sleep(0.05)
+        time.sleep(0.5)
+        assert f.node.stats.missions_rejected == len(bad)
+        f.other.send("uav1", "mission", json.dumps({"goto": [3.0, 0.0, 5.0, 0.0]}).encode())
+        time.sleep(6.0)
+        state = f.node.plant.state()
+        assert np.linalg.norm(state.position_m - [3.0, 0.0, 5.0]) < 0.3
