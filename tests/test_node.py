@@ -188,3 +188,24 @@ def test_missions_over_the_network_are_validated() -> None:
         time.sleep(6.0)
         state = f.node.plant.state()
         assert np.linalg.norm(state.position_m - [3.0, 0.0, 5.0]) < 0.3
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_node_process_shuts_down_cleanly_on_signal(sig: str) -> None:
+    import json
+    import signal
+    import subprocess
+    import sys
+
+    port = free_ports(1)[0]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "uavmpc.cli", "node", "--id", "solo", "--priority", "1",
+         "--listen", f"tcp/127.0.0.1:{port}", "--goto", "3", "0", "5", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)
+    assert proc.poll() is None  # still flying
+    proc.send_signal(getattr(signal, sig))
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    stats = json.loads(out.strip().splitlines()[-1])
+    assert stats["uav_id"] == "solo" and stats["ticks"] > 100
