@@ -88,23 +88,9 @@ def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
     assert s["collisions"], "the network path must be what carries the avoidance"
 
 
-def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_path) -> None:
-    path = tmp_path / "pair.toml"
-    path.write_text("""
-name = "pair"
-duration_s = 14.0
-[[uavs]]
-id = "uav1"
-priority = 1
-start = [0.0, 0.0, 5.0]
-goto = [0.0, 0.0, 5.0, 0.0]
-[[uavs]]
-id = "uav2"
-priority = 2
-start = [2.0, 0.0, 5.0]
-goto = [2.0, 0.0, 5.0, 0.0]
-""")
-    s = run_swarm(scenarios.load(path), tmp_path / "out", kill_at_s={"uav1": 5.0})
+def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_path,
+                                                                          hover_pair) -> None:
+    s = run_swarm(scenarios.load(hover_pair), tmp_path / "out", kill_at_s={"uav1": 5.0})
     uav2 = s["uavs"]["uav2"]
     assert uav2["max_z_offset_m"] >= 3.0  # it yielded while uav1 was there
     # …and after the 1 s timeout, the 2 s hysteresis and the release, it is back down

@@ -163,26 +163,12 @@ def test_the_resolution_strategy_is_pluggable() -> None:
     assert world.run(15.0).collisions  # the strategy, not the plumbing, avoids collisions
 
 
-def test_a_conflict_at_close_range_costs_one_dz_not_a_runaway_climb(tmp_path) -> None:
+def test_a_conflict_at_close_range_costs_one_dz_not_a_runaway_climb(hover_pair) -> None:
     """Two UAVs hover 2 m apart: the lower priority climbs exactly Δz and stays there. (Checking
     candidate offsets against a plan still climbing towards the current offset would find the
     same conflict every update and climb to the ceiling.)"""
-    path = tmp_path / "pair.toml"
-    path.write_text("""
-duration_s = 12.0
-[[uavs]]
-id = "a"
-priority = 1
-start = [0.0, 0.0, 5.0]
-goto = [0.0, 0.0, 5.0, 0.0]
-[[uavs]]
-id = "b"
-priority = 2
-start = [2.0, 0.0, 5.0]
-goto = [2.0, 0.0, 5.0, 0.0]
-""")
-    result = World(scenarios.load(path)).run()
-    offsets = result.z_offset_m[:, result.uav_ids.index("b")]
+    result = World(scenarios.load(hover_pair)).run(12.0)
+    offsets = result.z_offset_m[:, result.uav_ids.index("uav2")]
     assert offsets.max() == DZ and offsets[-1] == DZ
-    assert np.all(result.z_offset_m[:, result.uav_ids.index("a")] == 0.0)
+    assert np.all(result.z_offset_m[:, result.uav_ids.index("uav1")] == 0.0)
     assert abs(result.positions_m[-1, 1, 2] - (5.0 + DZ)) < 0.1
