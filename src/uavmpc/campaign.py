@@ -113,8 +113,9 @@ def run_trial(job: TrialJob) -> dict[str, Any]:
                 d = d[res.t_s <= collisions[0][0] + 1e-9]
             dmin = min(dmin, float(d.min()))
         sim_s = done * world.period_s
-        if collisions:  # flight time ends at the first collision
+        if collisions:  # flight time ends at the first collision, and so does the count
             sim_s = collisions[0][0]
+            collisions = [c for c in collisions if c[0] <= sim_s + 1e-9]
     first = collisions[0] if collisions else None
     return {
         "index": job.index,
