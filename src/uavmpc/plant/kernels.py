@@ -127,6 +127,14 @@ def _weighted_target_k(q, qd, yaw_weight):
 
 
 
+@numba.njit(cache=True, inline="always")
+def _rotation(w, x, y, z):
+    """Row-major entries of the rotation matrix of the unit quaternion (w, x, y, z)."""
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
 @numba.njit(cache=True)
 def _rhs(x, cmd, phys, inertia, inertia_inv, alloc, wind, dx):
     """dx = f(x, cmd) in place. ``phys`` = [mass, g, motor_tau, omega_max, dx, dy, dz]."""
@@ -134,15 +142,7 @@ def _rhs(x, cmd, phys, inertia, inertia_inv, alloc, wind, dx):
     m = phys[0]
     qw, qx, qy, qz = x[6], x[7], x[8], x[9]
     wx, wy, wz = x[10], x[11], x[12]
-    r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-    r01 = 2.0 * (qx * qy - qw * qz)
-    r02 = 2.0 * (qx * qz + qw * qy)
-    r10 = 2.0 * (qx * qy + qw * qz)
-    r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
-    r12 = 2.0 * (qy * qz - qw * qx)
-    r20 = 2.0 * (qx * qz - qw * qy)
-    r21 = 2.0 * (qy * qz + qw * qx)
-    r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotation(qw, qx, qy, qz)
     thrust = 0.0
     tx = 0.0
     ty = 0.0
@@ -270,16 +270,7 @@ def se3_kernel(
     into ``ff_out`` (3,); returns (clipped thrust, saturated, tilt limited).
     ``error_model="numpy"``: a degenerate (zero) force gives NaN as numpy does, not an exception.
     """
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    r00 = 1.0 - 2.0 * (y * y + z * z)
-    r01 = 2.0 * (x * y - w * z)
-    r02 = 2.0 * (x * z + w * y)
-    r10 = 2.0 * (x * y + w * z)
-    r11 = 1.0 - 2.0 * (x * x + z * z)
-    r12 = 2.0 * (y * z - w * x)
-    r20 = 2.0 * (x * z - w * y)
-    r21 = 2.0 * (y * z + w * x)
-    r22 = 1.0 - 2.0 * (x * x + y * y)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotation(q[0], q[1], q[2], q[3])
     ep0 = p[0] - p_d[0]
     ep1 = p[1] - p_d[1]
     ep2 = p[2] - p_d[2]
