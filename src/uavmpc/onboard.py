@@ -16,7 +16,13 @@ import numpy as np
 from uavmpc.control import Se3Controller
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.reference import Reference
-from uavmpc.tracker import DynamicLimits, MpcTracker, TrackerConfig, TrackerOutput
+from uavmpc.tracker import (
+    DynamicLimits,
+    MpcTracker,
+    Prediction,
+    TrackerConfig,
+    TrackerOutput,
+)
 
 #: How often the avoidance re-plans (the tracker ticks at 100 Hz, predictions arrive at 2 Hz).
 AVOIDANCE_PERIOD_S = 0.1
@@ -91,13 +97,25 @@ class OnboardStack:
 
     # The two halves of :meth:`tick`, for a world that steps the trackers of many UAVs at once
     # (:func:`uavmpc.tracker.tracker.step_trackers`) in between.
-    def reshape(self, others: Mapping[str, object] | None) -> None:
-        """Avoidance (every AVOIDANCE_PERIOD_S): z offset and limits for the next tracker step."""
-        if self.avoidance is not None and self._last is not None and others is not None:
-            now = self.tracker.time_s
-            if now >= self._next_avoidance_s - 1e-9:
-                self._next_avoidance_s = now + AVOIDANCE_PERIOD_S
-                self._avoid(now, others)
+    def reshape(self, others: Mapping[str, object] | None,
+                prediction: Prediction | None = None) -> None:
+        """Avoidance (every AVOIDANCE_PERIOD_S): z offset and limits for the next tracker step.
+
+        ``prediction``: our own current plan, if not the last output's (a world that steps the
+        trackers elsewhere, :mod:`uavmpc.world_kernel`, hands it in when due).
+        """
+        if prediction is None and self._last is not None:
+            prediction = self._last.prediction
+        if others is None or prediction is None:
+            return
+        now = float(prediction.times_s[0])
+        if self.avoidance_due(now):
+            self._next_avoidance_s = now + AVOIDANCE_PERIOD_S
+            self._avoid(now, prediction, others)
+
+    def avoidance_due(self, now_s: float) -> bool:
+        """Whether :meth:`reshape` would re-plan at time ``now_s`` (the plan's first stamp)."""
+        return self.avoidance is not None and now_s >= self._next_avoidance_s - 1e-9
 
     def control(self, out: TrackerOutput, estimate: VehicleState) -> OnboardOutput:
         """SE(3) control towards the tracker's new command."""
@@ -105,8 +123,7 @@ class OnboardStack:
         target = self.controller.update(out.command, estimate, self.period_s)
         return OnboardOutput(out, target)
 
-    def _avoid(self, now: float, others: Mapping[str, object]) -> None:
-        pred = self._last.prediction  # type: ignore[union-attr]
+    def _avoid(self, now: float, pred: Prediction, others: Mapping[str, object]) -> None:
         # The strategy shifts our plan by candidate offsets; hand it the plan without the part
         # of the current offset the virtual UAV has already climbed at each predicted point
         # (plan minus mission reference, clipped to [0, offset]). Subtracting the whole offset

@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -27,6 +27,7 @@ from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.scenarios import LinkSettings, Scenario
 from uavmpc.tracker.tracker import step_trackers
+from uavmpc.world_kernel import CompiledStep, compiled_supported
 
 COLLISION_DISTANCE_M = 1.0
 #: A UAV has reached its goal when it ends within this 3-D distance of it.
@@ -117,6 +118,11 @@ class World:
         recorder: optional MCAP recorder.
         strategy: makes each UAV's conflict-resolution strategy from the scenario's avoidance
             parameters (any :class:`~uavmpc.avoidance.ResolutionStrategy`).
+        backend: ``"compiled"`` (default) ticks every UAV's tracker, controller and plant in one
+            numba call (:mod:`uavmpc.world_kernel`), with messages, avoidance and broadcasts
+            still per UAV in Python; ``"plain"`` ticks the per-UAV objects one by one (the
+            readable reference). A world the kernel does not cover (a recorder attached, mixed
+            airframes, …) runs plain; :attr:`backend_used` says which ran.
     """
 
     def __init__(
@@ -129,7 +135,14 @@ class World:
         wind_mps: float = 0.0,
         recorder: FlightRecorder | None = None,
         strategy: Callable[[AvoidanceParams], ResolutionStrategy] = HeightOffsetStrategy,
+        backend: Literal["compiled", "plain"] = "compiled",
     ) -> None:
+        if backend not in ("compiled", "plain"):
+            raise ValueError(f"backend must be 'compiled' or 'plain', got {backend!r}")
+        self.backend = backend
+        #: The backend of the last run (``"plain"`` when the kernel does not cover the world).
+        self.backend_used: str | None = None
+        self._compiled: CompiledStep | None = None
         self.scenario = scenario
         self.avoidance = avoidance
         self.seed = seed
@@ -179,6 +192,8 @@ class World:
         if not (math.isfinite(duration) and duration > 0):
             raise ValueError(f"duration_s must be > 0, got {duration_s}")
         ticks = round(duration / self.period_s)
+        if ticks < 1:
+            raise ValueError(f"duration_s must be at least one tick ({self.period_s} s)")
         n = len(self.uavs)
         ids = [u.uav_id for u in self.uavs]
         pos = np.empty((ticks, n, 3))
@@ -188,8 +203,41 @@ class World:
         iu = np.triu_indices(n, 1)
         contact: dict[tuple[int, int], Collision] = {}
         collisions: list[Collision] = []
-        next_log = 0.0
         wall0 = time.perf_counter()
+        why_not = compiled_supported(self) if self.backend == "compiled" else "not asked"
+        self.backend_used = "compiled" if why_not is None else "plain"
+        if why_not is None:
+            self._run_compiled(ticks, pos, zoff, dmin, t_log, ids, iu, contact, collisions)
+        else:
+            self._run_plain(ticks, pos, zoff, dmin, t_log, ids, iu, contact, collisions)
+        wall = time.perf_counter() - wall0
+        per_uav = {}
+        for i, u in enumerate(self.uavs):
+            final = pos[-1, i]
+            per_uav[u.uav_id] = {
+                "max_z_offset_m": u.max_z_offset_m,
+                "avoidance_active_s": u.avoiding_ticks * self.period_s,
+                "tracking_rmse_m": math.sqrt(u.err_sq_sum / ticks),
+                "reached_goal": bool(np.linalg.norm(final - u.goal_m) < GOAL_TOLERANCE_M),
+                "final_position_m": final.tolist(),
+                "limit_violations": u.limit_violations,
+                "max_limit_excess": u.max_limit_excess,
+                "tracker_fallbacks": u.stack.tracker.fallback_count,
+                "messages_rejected": u.inbox.rejected_total,
+            }
+        st = self.link.stats
+        messages = {"sent": st.sent, "delivered": st.delivered,
+                    "dropped": st.dropped + st.dropped_range, "published": st.published}
+        return WorldResult(self.scenario.name, self.seed, self.avoidance, ticks * self.period_s,
+                           ids, t_log, pos, zoff, dmin, collisions, per_uav, messages, wall)
+
+    def _run_plain(self, ticks: int, pos: np.ndarray, zoff: np.ndarray, dmin: np.ndarray,
+                   t_log: np.ndarray, ids: list[str], iu: tuple[np.ndarray, np.ndarray],
+                   contact: dict[tuple[int, int], Collision],
+                   collisions: list[Collision]) -> None:
+        """The per-UAV objects, one by one: the readable reference of every tick."""
+        n = len(self.uavs)
+        next_log = 0.0
         states = [u.plant.state() for u in self.uavs]
         trackers = [u.stack.tracker for u in self.uavs]
         for k in range(ticks):
@@ -220,26 +268,51 @@ class World:
             if self.recorder is not None and self.t_s >= next_log - 1e-9:
                 next_log = self.t_s + POSE_LOG_PERIOD_S
                 self._log(states)
-        wall = time.perf_counter() - wall0
-        per_uav = {}
+
+    def _run_compiled(self, ticks: int, pos: np.ndarray, zoff: np.ndarray, dmin: np.ndarray,
+                      t_log: np.ndarray, ids: list[str], iu: tuple[np.ndarray, np.ndarray],
+                      contact: dict[tuple[int, int], Collision],
+                      collisions: list[Collision]) -> None:
+        """:meth:`_run_plain` with the numerical work in :func:`uavmpc.world_kernel.world_tick`;
+        messages, avoidance and broadcasts stay per UAV, in the same order."""
+        if self._compiled is None:
+            self._compiled = CompiledStep(self)
+        step = self._compiled
+        step.pack()
+        n = len(self.uavs)
+        pair_d = np.empty(max(1, n * (n - 1) // 2))
+        stacks = [u.stack for u in self.uavs]
+        winds = [(i, u.plant.wind) for i, u in enumerate(self.uavs) if u.plant.wind is not None]
+        ranged = self.link.range_m is not None
+        try:
+            for k in range(ticks):
+                now = self.t_s
+                for i, u in enumerate(self.uavs):
+                    others = u.inbox.poll(self.link, now)
+                    stack = stacks[i]
+                    if (stack.avoidance is not None and step.has_plan[i]
+                            and stack.avoidance_due(step.time_s(i))):
+                        stack.reshape(others, step.prediction(i))
+                        step.refresh_limits(i)
+                        step.refresh_avoiding(i)
+                for i, wind in winds:
+                    step.wind[i] = wind.update(self.period_s)
+                step.tick(k, pos, zoff, dmin, pair_d)
+                for i, u in enumerate(self.uavs):
+                    if now >= u.next_broadcast_s - 1e-9:
+                        u.next_broadcast_s += BROADCAST_PERIOD_S
+                        self._publish(u, step.prediction(i), now)
+                if ranged:  # the link's range check sees where the UAVs are (as in plain)
+                    for i, u in enumerate(self.uavs):
+                        self._positions[u.uav_id] = pos[k, i]
+                self.t_s = now + self.period_s
+                t_log[k] = self.t_s
+                if n > 1 and (dmin[k] < COLLISION_DISTANCE_M or contact):
+                    self._collisions(pair_d, iu, ids, contact, collisions)
+        finally:
+            step.unpack()
         for i, u in enumerate(self.uavs):
-            final = pos[-1, i]
-            per_uav[u.uav_id] = {
-                "max_z_offset_m": u.max_z_offset_m,
-                "avoidance_active_s": u.avoiding_ticks * self.period_s,
-                "tracking_rmse_m": math.sqrt(u.err_sq_sum / ticks),
-                "reached_goal": bool(np.linalg.norm(final - u.goal_m) < GOAL_TOLERANCE_M),
-                "final_position_m": final.tolist(),
-                "limit_violations": u.limit_violations,
-                "max_limit_excess": u.max_limit_excess,
-                "tracker_fallbacks": u.stack.tracker.fallback_count,
-                "messages_rejected": u.inbox.rejected_total,
-            }
-        st = self.link.stats
-        messages = {"sent": st.sent, "delivered": st.delivered,
-                    "dropped": st.dropped + st.dropped_range, "published": st.published}
-        return WorldResult(self.scenario.name, self.seed, self.avoidance, ticks * self.period_s,
-                           ids, t_log, pos, zoff, dmin, collisions, per_uav, messages, wall)
+            self._positions[u.uav_id] = pos[ticks - 1, i].copy()
 
     # ------------------------------------------------------------------------------ internals
     def _bookkeeping(self, u: _Uav, out: Any, state: Any) -> None:
@@ -270,11 +343,13 @@ class World:
         return u.inbox.latest
 
     def _broadcast(self, u: _Uav, out: Any, now: float) -> None:
-        msg = from_prediction(out.tracker.prediction, uav_id=u.uav_id, priority=u.stack.priority,
+        self._publish(u, out.tracker.prediction, now)
+
+    def _publish(self, u: _Uav, pred: Any, now: float) -> None:
+        msg = from_prediction(pred, uav_id=u.uav_id, priority=u.stack.priority,
                               stamp_s=now, avoiding=u.stack.avoidance is not None)
         self.link.publish(encode(msg), u.uav_id, now)
         if self.recorder is not None:
-            pred = out.tracker.prediction
             self.recorder.prediction(u.uav_id, now, pred.position_m, pred.heading_rad)
             self.recorder.link(now, "sent", u.uav_id, stamp_s=now)
 

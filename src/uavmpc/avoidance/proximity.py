@@ -17,10 +17,13 @@ Outside the other prediction's time span:
   count as a conflict.
 
 Everything is vectorised over points and over senders (arrays ``(k, m)``).
+:func:`near_and_dz` is the compiled form the avoidance calls at 10 Hz per UAV (``align_batch``
+stays the readable reference; a test proves they agree bit for bit).
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 
@@ -57,6 +60,40 @@ def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_tim
     out = p0 + w[..., None] * (p1 - p0)
     known = at[None, :] <= times[:, -1:] + extrapolate_s
     return out, known
+
+
+@numba.njit(cache=True)
+def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
+                extrapolate_s: float, own_positions_m: np.ndarray, radius_m: float,
+                near_out: np.ndarray, dz_out: np.ndarray) -> None:
+    """One other prediction against ours, in one pass: :func:`align_batch`, then per point
+    whether it is known and horizontally within ``radius_m`` (``near_out`` (m,) bool) and our
+    height minus theirs (``dz_out`` (m,)). The same operations as the numpy version, in the
+    same order, so the results are identical.
+
+    Args:
+        other_times_s: (n,) strictly increasing, n ≥ 2; other_positions_m: (n, 3).
+        at_times_s: (m,) our prediction times (increasing); own_positions_m: (m, 3).
+    """
+    n = other_times_s.shape[0]
+    t_end = other_times_s[n - 1] + extrapolate_s
+    r2 = radius_m**2
+    count = 0
+    for i in range(at_times_s.shape[0]):
+        at = at_times_s[i]
+        while count < n and other_times_s[count] <= at:
+            count += 1
+        j = min(max(count - 1, 0), n - 2)
+        t0 = other_times_s[j]
+        w = max((at - t0) / (other_times_s[j + 1] - t0), 0.0)
+        dx = (other_positions_m[j, 0] + w * (other_positions_m[j + 1, 0]
+                                             - other_positions_m[j, 0])) - own_positions_m[i, 0]
+        dy = (other_positions_m[j, 1] + w * (other_positions_m[j + 1, 1]
+                                             - other_positions_m[j, 1])) - own_positions_m[i, 1]
+        dz = (other_positions_m[j, 2] + w * (other_positions_m[j + 1, 2]
+                                             - other_positions_m[j, 2])) - own_positions_m[i, 2]
+        near_out[i] = at <= t_end and dx**2 + dy**2 <= r2
+        dz_out[i] = -dz
 
 
 def align(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,

@@ -21,7 +21,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from uavmpc.avoidance.proximity import align_batch
+from uavmpc.avoidance.proximity import near_and_dz
 from uavmpc.comms.message import PredictionMessage
 from uavmpc.config import ConfigError, positive, reject_unknown
 
@@ -281,25 +281,17 @@ class HeightOffsetStrategy:
             # is taken to be the moment we received it (error: the link latency).
             shifted.append(msg.times_s + (ref - msg.stamp_s))
         k, m = len(msgs), times.shape[0]
-        aligned = np.empty((k, m, 3))
-        known = np.zeros((k, m), dtype=bool)
-        # Senders are batched by prediction length (normally all have the same m).
-        by_len: dict[int, list[int]] = {}
+        near_xy = np.empty((k, m), dtype=bool)
+        dz = np.empty((k, m))
+        # Compiled (align_batch, then the horizontal test, per sender; bit-identical).
         for i, msg in enumerate(msgs):
-            by_len.setdefault(msg.points, []).append(i)
-        for idx in by_len.values():
-            pos, kn = align_batch(np.stack([shifted[i] for i in idx]),
-                                  np.stack([msgs[i].positions_m for i in idx]), times,
-                                  prm.timeout_s)
-            aligned[idx] = pos
-            known[idx] = kn
-        d = aligned - own[None]
-        near_xy = known & (d[..., 0] ** 2 + d[..., 1] ** 2 <= prm.radius_m**2)
+            near_and_dz(shifted[i], msg.positions_m, times, prm.timeout_s, own, prm.radius_m,
+                        near_xy[i], dz[i])
         must_yield = np.array(
             [(not msg.avoiding) or msg.priority < own_priority
              or (msg.priority == own_priority and msg.uav_id < own_id) for msg in msgs],
             dtype=bool)
-        return _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, -d[..., 2])
+        return _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, dz)
 
     def _climb(self, enc: _Encounters, half_h: float) -> tuple[float, bool]:
         """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to; (offset, ceiling)."""
