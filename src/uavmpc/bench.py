@@ -255,24 +255,45 @@ def bench_world(sizes: tuple[int, ...] = (5, 20, 100), duration_s: float = 20.0,
                 avoidance: bool = True, progress: Callable[[str], None] = print
                 ) -> dict[str, Any]:
     """The per-core real-time factor of one random_walk world of N UAVs (full pipeline at
-    100 Hz, plants at 500 Hz, avoidance on), for each N in ``sizes``. The area grows with N so
-    the density stays that of the protocol (5 UAVs in 100 m × 100 m)."""
+    100 Hz, plants at 500 Hz, avoidance on), for each N in ``sizes``, with the compiled world
+    step; the first size is flown again with the plain per-UAV path as the reference (same
+    flight, compared). The area grows with N so the density stays that of the protocol
+    (5 UAVs in 100 m × 100 m)."""
     from uavmpc.scenarios.random_walk import random_walk
     from uavmpc.world import World
 
-    rows = []
-    World(random_walk(2, duration_s=1.0), avoidance=avoidance).run(0.5)  # load compiled kernels
-    for n in sizes:
+    def fly(n: int, backend: str) -> Any:
         area = 100.0 * math.sqrt(n / 5.0)
         world = World(random_walk(n, area_m=area, duration_s=duration_s, seed=1),
-                      avoidance=avoidance, seed=1)
-        result = world.run(duration_s)
+                      avoidance=avoidance, seed=1, backend=backend)
+        return world.run(duration_s), area
+
+    rows = []
+    for backend in ("compiled", "plain"):  # compile and load the kernels first
+        World(random_walk(2, duration_s=1.0), avoidance=avoidance, backend=backend).run(0.5)
+    compiled5 = None
+    for n in sizes:
+        result, area = fly(n, "compiled")
+        compiled5 = compiled5 or result
         factor = result.duration_s / result.wall_s
-        rows.append({"uavs": n, "area_m": round(area, 1), "realtime_factor": round(factor, 2),
+        rows.append({"uavs": n, "backend": "compiled", "area_m": round(area, 1),
+                     "realtime_factor": round(factor, 2),
                      "uav_seconds_per_wall_second": round(factor * n, 1),
                      "collisions": len(result.collisions)})
-        progress(f"{n} UAVs: {factor:.1f}× real time ({factor * n:.0f} UAV-seconds per second)")
+        progress(f"{n} UAVs, compiled: {factor:.1f}× real time "
+                 f"({factor * n:.0f} UAV-seconds per second)")
+    plain, area = fly(sizes[0], "plain")
+    factor = plain.duration_s / plain.wall_s
+    diff = float(np.abs(plain.positions_m - compiled5.positions_m).max())
+    rows.append({"uavs": sizes[0], "backend": "plain", "area_m": round(area, 1),
+                 "realtime_factor": round(factor, 2),
+                 "uav_seconds_per_wall_second": round(factor * sizes[0], 1),
+                 "collisions": len(plain.collisions)})
+    speedup = rows[0]["realtime_factor"] / factor
+    progress(f"{sizes[0]} UAVs, plain (reference): {factor:.1f}× real time; compiled is "
+             f"{speedup:.1f}× faster, largest position difference {diff:.1e} m")
     return {"duration_s": duration_s, "avoidance": avoidance, "worlds": rows,
+            "compiled_speedup": round(speedup, 2), "max_position_diff_m": diff,
             "python": platform.python_version(), "machine": platform.machine()}
 
 
