@@ -334,11 +334,42 @@ def test_ceiling_is_reported_and_offset_bounded() -> None:
     params = AvoidanceParams(max_offset_m=7.0)  # room for two corrections (6 m), not three
     others = {f"h{i}": msg(f"h{i}", i, hover((0.5, 0.0, 10.0 + 3.0 * i))) for i in range(3)}
     d = HeightOffsetStrategy(params).update(NOW, "o", 9, t, own, others)
-    assert d.ceiling_hit and d.z_offset_m == 6.0 and d.unresolved == ("h2",)
-    assert d.yielding_to == ("h0",)
-    # With room (default 30 m) the stack is cleared at 9 m.
+    # No offset under the ceiling is clear, and the way up is blocked by h1 and h2: hold.
+    assert d.ceiling_hit and d.z_offset_m == 0.0 and d.unresolved == ("h0",)
+    assert d.yielding_to == ("h0",) and d.waiting_for == ("h1", "h2")
+    # With room (default 30 m) 9 m would be clear, but not the way there through h1 and h2.
     d = HeightOffsetStrategy().update(NOW, "o", 9, t, own, others)
-    assert not d.ceiling_hit and d.z_offset_m == 9.0 and d.unresolved == ()
+    assert not d.ceiling_hit and d.z_offset_m == 0.0 and d.waiting_for == ("h1", "h2")
+    # Without the stack above, the same conflict is cleared at 3 m at once.
+    d = HeightOffsetStrategy().update(NOW, "o", 9, t, own, {"h0": others["h0"]})
+    assert d.z_offset_m == 3.0 and d.waiting_for == () and d.unresolved == ()
+
+
+def test_a_climb_waits_for_a_uav_passing_through_the_layer_above() -> None:
+    """Found in the 24 h campaign (trial 125): a UAV yielding to a conflict 8 s ahead climbed
+    two layers at once, through the layer of a UAV crossing over it 1.6 s later (0.64 m)."""
+    t = NOW + REL
+    own = line(t, (0.0, 0.0, 10.0), (6.0, 0.0, 0.0))  # us (priority 5), at layer 0
+    # uav4 one layer up (+3 m: no conflict), head-on, right above us 1.6 s from now.
+    over = msg("u4", 4, line(t, (20.0, 0.0, 13.0), (-6.5, 0.0, 0.0)))
+    # uav3 at our layer, in conflict 7.8 s ahead: we must yield (climb) …
+    far = msg("u3", 3, hover((6.0 * 7.8, 0.0, 10.0)))
+    others = {"u4": over, "u3": far}
+    s = HeightOffsetStrategy()
+    d = s.update(NOW, "u5", 5, t, own, others)
+    assert d.yielding_to == ("u3",)
+    # … but +3 m is uav4's layer, +6 m is clear, and the way to it crosses uav4: wait.
+    assert d.z_offset_m == 0.0 and d.waiting_for == ("u4",) and d.unresolved == ("u3",)
+    assert d.avoiding and d.horizontal_scale < 1.0  # slowed down meanwhile
+    # Once uav4 has passed (3.5 s later, 20 m behind us), the climb goes ahead.
+    later = NOW + 3.5
+    t2 = later + REL
+    own2 = line(t2, (6.0 * 3.5, 0.0, 10.0), (6.0, 0.0, 0.0), later)
+    over2 = msg("u4", 4, line(t2, (20.0 - 6.5 * 3.5, 0.0, 13.0), (-6.5, 0.0, 0.0), later),
+                stamp=later)
+    far2 = msg("u3", 3, hover((6.0 * 7.8, 0.0, 10.0)), stamp=later)
+    d = s.update(later, "u5", 5, t2, own2, {"u4": over2, "u3": far2})
+    assert d.z_offset_m == 3.0 and d.waiting_for == () and d.yielding_to == ("u3",)
 
 
 def test_offsets_accumulate_in_multiples_of_dz() -> None:

@@ -12,7 +12,8 @@ A campaign lives in one folder ``DIR``:
 Trial ``i`` draws its seeds from ``numpy.random.SeedSequence(seed, spawn_key=(i,))`` (the same
 as ``SeedSequence(seed).spawn(n)[i]``): one for the scenario's starts and waypoints, one for the
 world (link and wind). The report aggregates the trials sorted by index, so it is bit-identical
-(apart from ``wall_s``) for any number of workers and any interruption pattern.
+(apart from ``wall_s`` and ``trial_wall_s``) for any number of workers and any interruption
+pattern.
 
 Without avoidance a trial runs until its first collision or ``cap_s`` simulated seconds (the
 world is run in chunks and stopped at the first collision; chunked runs are bit-identical to one
@@ -186,8 +187,12 @@ class _Ray:
             ) from None
         self._ray = ray
         if not ray.is_initialized():
-            ray.init(address=None if address == "local" else address,
-                     ignore_reinit_error=True, log_to_driver=False)
+            # "local" is Ray's own word for "always start a new local instance" (None would
+            # attach to a cluster that `ray start` left running on this machine)
+            try:
+                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+            except (ConnectionError, ValueError) as exc:
+                raise CampaignError(f"--ray {address}: cannot connect to Ray ({exc})") from None
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.capacity = 2 * max(cpus, 1)
         self._remote = ray.remote(num_cpus=1)(run_trial)

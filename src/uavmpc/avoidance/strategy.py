@@ -56,6 +56,10 @@ class AvoidanceParams:
         time_reference: "stamp" (synchronised clocks) or "receive" (the message's
             ``received_s`` replaces its stamp: fallback for unsynchronised clocks, off by the
             link latency).
+        climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
+            ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
+            the way up: every altitude between the lagging and the fastest climb is checked
+            (see :meth:`HeightOffsetStrategy._climb`).
     """
 
     radius_m: float = 5.0
@@ -69,6 +73,7 @@ class AvoidanceParams:
     climb_speed_mps: float = 5.0
     climb_accel_mps2: float = 3.0
     time_reference: str = "stamp"
+    climb_lag_s: float = 1.0
 
     def __post_init__(self) -> None:
         p = "avoidance"
@@ -81,6 +86,7 @@ class AvoidanceParams:
         positive(self.climb_speed_mps, f"{p}.climb_speed_mps", upper=MAX_SPEED_MPS)
         positive(self.climb_accel_mps2, f"{p}.climb_accel_mps2", upper=MAX_ACCEL_MPS2)
         positive(self.horizontal_scale, f"{p}.horizontal_scale", upper=1.0)
+        positive(self.climb_lag_s, f"{p}.climb_lag_s", upper=MAX_TIME_S, allow_zero=True)
         for f in fields(self):
             if f.name != "time_reference":
                 object.__setattr__(self, f.name, float(getattr(self, f.name)))
@@ -122,6 +128,8 @@ class AvoidanceDecision:
         horizontal_scale: factor on the nominal horizontal limits (1.0 = nominal).
         climb_speed_mps, climb_accel_mps2: lifted ascend limits, or None for nominal.
         ceiling_hit: the offset could not be raised as needed because of ``max_offset_m``.
+        waiting_for: UAVs in the way of the climb this decision needs (the offset is held
+            until they have passed).
     """
 
     z_offset_m: float = 0.0
@@ -134,6 +142,7 @@ class AvoidanceDecision:
     climb_speed_mps: float | None = None
     climb_accel_mps2: float | None = None
     ceiling_hit: bool = False
+    waiting_for: tuple[str, ...] = ()
 
 
 @runtime_checkable
@@ -229,8 +238,9 @@ class HeightOffsetStrategy:
         hit_start = c_start.any(axis=1)
         yield_hit = hit_start & enc.must_yield
         ceiling_hit = False
+        waiting_for: tuple[str, ...] = ()
         if yield_hit.any():
-            self.z_offset_m, ceiling_hit = self._climb(enc, half_h)
+            self.z_offset_m, ceiling_hit, waiting_for = self._climb(enc, half_h, times - now_s)
         c_end = enc.conflicts(self.z_offset_m, half_h)
         unresolved = c_end.any(axis=1) & enc.must_yield
         # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
@@ -258,6 +268,7 @@ class HeightOffsetStrategy:
             climb_speed_mps=prm.climb_speed_mps if limits_tight else None,
             climb_accel_mps2=prm.climb_accel_mps2 if limits_tight else None,
             ceiling_hit=ceiling_hit,
+            waiting_for=waiting_for,
         )
 
     def _encounters(self, now_s: float, own_id: str, own_priority: int, times: np.ndarray,
@@ -293,20 +304,57 @@ class HeightOffsetStrategy:
             dtype=bool)
         return _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, dz)
 
-    def _climb(self, enc: _Encounters, half_h: float) -> tuple[float, bool]:
-        """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to; (offset, ceiling)."""
+    def _climb(self, enc: _Encounters, half_h: float, ahead_s: np.ndarray
+               ) -> tuple[float, bool, tuple[str, ...]]:
+        """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without
+        crossing anyone; returns (offset, ceiling hit, the UAVs in the way).
+
+        The way up is checked against every known UAV, not only those we yield to: at each
+        predicted point (``ahead_s`` (m,) seconds from now) the climb is somewhere between the
+        fastest one (from rest at ``climb_accel_mps2`` up to ``climb_speed_mps``) and the same
+        ``climb_lag_s`` later, and no altitude of that band may conflict. Found in the 24 h
+        campaign: a UAV yielding to a conflict 8 s ahead climbed two layers at once, straight
+        through the layer of a UAV passing over it 1.6 s later. When every offset clear at the
+        end is blocked on the way, the offset is held (the conflict is reported unresolved and
+        the limits stay tightened) and the climb starts once the way is clear.
+        """
         prm = self.params
-        steps = math.floor((prm.max_offset_m - self.z_offset_m) / prm.dz_m + _EPS)
+        z = self.z_offset_m
+        steps = math.floor((prm.max_offset_m - z) / prm.dz_m + _EPS)
         if steps < 1:
-            return self.z_offset_m, True
-        candidates = self.z_offset_m + prm.dz_m * np.arange(1, steps + 1)
+            return z, True, ()
+        candidates = z + prm.dz_m * np.arange(1, steps + 1)
         sub = _Encounters(enc.ids, enc.must_yield[enc.must_yield],
                           enc.near_xy[enc.must_yield], enc.dz_m[enc.must_yield])
-        blocked = sub.conflicts(candidates, half_h).any(axis=(1, 2))
-        free = np.flatnonzero(~blocked)
-        if free.size:
-            return float(candidates[free[0]]), False
-        return float(candidates[-1]), True
+        blocked_end = sub.conflicts(candidates, half_h).any(axis=(1, 2))  # (c,)
+        fast = z + _climbed(np.maximum(ahead_s, 0.0), prm)  # (m,)
+        slow = z + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
+        hi = np.minimum(fast[None, :], candidates[:, None])[:, None, :]  # (c, 1, m)
+        lo = np.minimum(slow[None, :], candidates[:, None])[:, None, :]
+        # While still climbing (lo < o; once there, the check at the end applies):
+        # |dz + o'| ≤ h for some o' in [lo, hi]  ⇔  dz + hi ≥ −h and dz + lo ≤ h
+        # A point already in conflict at the offset in force is not made worse by climbing
+        # (it is what the climb escapes from); only new conflicts on the way up block it.
+        climbing = lo < candidates[:, None, None]
+        in_way = (enc.near_xy & climbing & ~enc.conflicts(z, half_h)
+                  & (enc.dz_m + hi >= -half_h) & (enc.dz_m + lo <= half_h))
+        blocked_way = in_way.any(axis=2)  # (c, k)
+        clear_way = ~blocked_way.any(axis=1)
+
+        def in_the_way(c: int) -> tuple[str, ...]:
+            return tuple(i for i, b in zip(enc.ids, blocked_way[c], strict=True) if b)
+
+        good = np.flatnonzero(~blocked_end & clear_way)
+        if good.size:
+            return float(candidates[good[0]]), False, ()
+        clear_end = np.flatnonzero(~blocked_end)
+        if clear_end.size:  # reachable later: hold until the way is clear
+            return z, False, in_the_way(clear_end[0])
+        # Nothing is clear below the ceiling: as high as the way allows.
+        reachable = np.flatnonzero(clear_way)
+        if reachable.size:
+            return float(candidates[reachable[-1]]), True, ()
+        return z, True, in_the_way(candidates.size - 1)
 
     def _release(self, now_s: float) -> None:
         """Lower the offset at the release rate once the hysteresis has passed. Only called
@@ -320,3 +368,11 @@ class HeightOffsetStrategy:
             return
         since = start if self._last_update_s is None else max(self._last_update_s, start)
         self.z_offset_m = max(0.0, self.z_offset_m - prm.release_rate_mps * (now_s - since))
+
+
+def _climbed(t_s: np.ndarray, prm: AvoidanceParams) -> np.ndarray:
+    """Height gained after ``t_s`` by the fastest climb: from rest at the lifted acceleration
+    up to the lifted speed (the virtual UAV cannot climb faster)."""
+    a, v = prm.climb_accel_mps2, prm.climb_speed_mps
+    t_a = v / a
+    return np.where(t_s < t_a, 0.5 * a * t_s**2, 0.5 * v * t_a + v * (t_s - t_a))
