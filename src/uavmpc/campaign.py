@@ -7,6 +7,8 @@ A campaign lives in one folder ``DIR``:
 - ``trials.jsonl``: one JSON line per finished trial, appended (flushed and fsynced) as soon as
   the trial ends. Re-running the same command skips the trials already there, so a crash or
   Ctrl-C loses nothing but the trials in flight.
+- ``runs.jsonl``: the wall time of each invocation that ran trials (the report's ``wall_s`` is
+  their sum).
 - ``report.json``, ``report.md``, ``ttc_cdf.png``, ``min_distance_hist.png``: the aggregate.
 
 Trial ``i`` draws its seeds from ``numpy.random.SeedSequence(seed, spawn_key=(i,))`` (the same
@@ -51,6 +53,9 @@ PERCENTILES = (50, 75, 95, 99)
 CHUNK_S = 5.0
 CAMPAIGN_FILE = "campaign.json"
 TRIALS_FILE = "trials.jsonl"
+#: One line per invocation that ran trials: its wall time (the report's ``wall_s`` is their sum,
+#: so a campaign resumed after Ctrl-C reports all the time it took, not its last part).
+RUNS_FILE = "runs.jsonl"
 
 
 class CampaignError(ConfigError):
@@ -377,9 +382,12 @@ def _execute(out: Path, jobs: Callable[[int], TrialJob], trials: dict[int, dict[
 
 
 # ------------------------------------------------------------------------------ report
-def _percentiles(times: list[float | None]) -> dict[str, float | None] | None:
+def _percentiles(times: list[float | None]) -> dict[str, float | None]:
+    """Percentiles of the time to first collision; a trial without one counts as later than
+    any, so a percentile beyond the share of trials with a collision is None (all None when
+    no trial collided, as the report's schema asks)."""
     if not any(t is not None for t in times):
-        return None
+        return {f"p{q}": None for q in PERCENTILES}
     x = np.array([math.inf if t is None else t for t in times])
     out = {}
     for q in PERCENTILES:
@@ -422,7 +430,7 @@ def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
 
 def _fmt_ttc(report: dict[str, Any], key: str) -> str:
     p = report["time_to_first_collision_s"]
-    if p is None:
+    if p is None or not report["collisions"]:
         return "no collision"
     v = p[key]
     return f"{v:.1f} s" if v is not None else f"> {report['censored_at_s']:g} s"
@@ -601,10 +609,20 @@ def run_campaign(
     else:
         executor = _Pool(workers)
     if executor is not None:
-        _execute(out, job, done, trials, target_s, length, executor, _Progress(progress))
+        before = len(done)
+        try:
+            _execute(out, job, done, trials, target_s, length, executor, _Progress(progress))
+        finally:  # also when interrupted: the time was spent on this campaign
+            with open(out / RUNS_FILE, "a") as f:
+                _append(f, {"wall_s": time.perf_counter() - wall0,
+                            "new_trials": len(done) - before, "workers": workers,
+                            "ray": ray_address})
     selected, complete = _selected(done, trials, target_s)
     assert complete
-    report = aggregate(selected, params, time.perf_counter() - wall0)
+    runs = out / RUNS_FILE
+    wall = (sum(json.loads(line)["wall_s"] for line in runs.read_text().splitlines()
+                if line.strip()) if runs.exists() else time.perf_counter() - wall0)
+    report = aggregate(selected, params, wall)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     (out / "report.md").write_text(report_markdown(report))
     _figures(out, selected, report)
