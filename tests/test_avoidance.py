@@ -405,3 +405,33 @@ def test_strategy_honours_the_protocol_and_rejects_bad_shapes() -> None:
     assert isinstance(s, ResolutionStrategy)
     with pytest.raises(ValueError, match=r"positions \(m, 3\)"):
         s.update(NOW, "o", 1, NOW + REL, np.zeros((40, 2)), {})
+
+
+def test_the_offset_is_not_released_onto_a_uav_that_went_silent() -> None:
+    """Found in the 24 h campaign with 30 % loss (trial 48): ten messages in a row from uav3
+    were lost, uav4 saw no conflict any more, released its offset and came down onto uav3."""
+    own = hover((0.0, 0.0, 10.0))
+    s = HeightOffsetStrategy()
+    h = hover((1.0, 0.0, 10.0))
+    d = s.update(NOW, "o", 2, NOW + REL, own, {"h": msg("h", 1, h)})
+    assert d.z_offset_m == 3.0
+    # h goes silent where it was. Its last message is stale after 1 s and no evidence of
+    # anything, but it was heard 10 s ago at most: no release, so no descent onto it.
+    for k in range(1, 100):
+        now = NOW + 0.1 * k
+        d = s.update(now, "o", 2, now + REL, own, {"h": msg("h", 1, h)})
+        assert d.z_offset_m == 3.0, now - NOW
+        assert d.silent == (("h",) if now - NOW > 1.0 + 1e-9 else ())
+    # Silent for longer than silent_hold_s: taken as gone, and the offset is released.
+    released = []
+    for k in range(101, 160):
+        now = NOW + 0.1 * k
+        released.append(s.update(now, "o", 2, now + REL, own, {"h": msg("h", 1, h)}).z_offset_m)
+    assert released[-1] == 0.0
+    # The old behaviour (silent_hold_s = 0) released 2 s after the last message.
+    old = HeightOffsetStrategy(AvoidanceParams(silent_hold_s=0.0))
+    old.update(NOW, "o", 2, NOW + REL, own, {"h": msg("h", 1, h)})
+    for k in range(1, 50):
+        now = NOW + 0.1 * k
+        z = old.update(now, "o", 2, now + REL, own, {"h": msg("h", 1, h)}).z_offset_m
+    assert z == 0.0

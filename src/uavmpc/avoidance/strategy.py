@@ -56,6 +56,9 @@ class AvoidanceParams:
         time_reference: "stamp" (synchronised clocks) or "receive" (the message's
             ``received_s`` replaces its stamp: fallback for unsynchronised clocks, off by the
             link latency).
+        silent_hold_s: an offset is not released while a UAV heard from within this time has
+            gone silent (its latest prediction older than ``timeout_s``): silence on a lossy
+            link is not absence (0 turns the rule off).
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -74,6 +77,7 @@ class AvoidanceParams:
     climb_accel_mps2: float = 3.0
     time_reference: str = "stamp"
     climb_lag_s: float = 1.0
+    silent_hold_s: float = 10.0
 
     def __post_init__(self) -> None:
         p = "avoidance"
@@ -87,6 +91,7 @@ class AvoidanceParams:
         positive(self.climb_accel_mps2, f"{p}.climb_accel_mps2", upper=MAX_ACCEL_MPS2)
         positive(self.horizontal_scale, f"{p}.horizontal_scale", upper=1.0)
         positive(self.climb_lag_s, f"{p}.climb_lag_s", upper=MAX_TIME_S, allow_zero=True)
+        positive(self.silent_hold_s, f"{p}.silent_hold_s", upper=MAX_TIME_S, allow_zero=True)
         for f in fields(self):
             if f.name != "time_reference":
                 object.__setattr__(self, f.name, float(getattr(self, f.name)))
@@ -130,6 +135,8 @@ class AvoidanceDecision:
         ceiling_hit: the offset could not be raised as needed because of ``max_offset_m``.
         waiting_for: UAVs in the way of the climb this decision needs (the offset is held
             until they have passed).
+        silent: UAVs heard from recently whose latest prediction is stale: while there are
+            any, the offset is not released (see ``AvoidanceParams.silent_hold_s``).
     """
 
     z_offset_m: float = 0.0
@@ -143,6 +150,7 @@ class AvoidanceDecision:
     climb_accel_mps2: float | None = None
     ceiling_hit: bool = False
     waiting_for: tuple[str, ...] = ()
+    silent: tuple[str, ...] = ()
 
 
 @runtime_checkable
@@ -174,6 +182,7 @@ class _Encounters:
     must_yield: np.ndarray  # (k,) bool
     near_xy: np.ndarray  # (k, m) bool: known and horizontally within R_p
     dz_m: np.ndarray  # (k, m) our z (without offset) minus theirs
+    silent: tuple[str, ...] = ()  # heard from recently, stale now
 
     def conflicts(self, offset_m: float | np.ndarray, half_height_m: float) -> np.ndarray:
         """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets."""
@@ -249,7 +258,9 @@ class HeightOffsetStrategy:
         # released on top of it and re-raised as soon as the conflict reappeared.
         if hit_start.any() or c_end.any() or enc.below(self.z_offset_m, half_h).any():
             self._last_conflict_s = now_s
-        else:
+        elif not enc.silent:
+            # Found in the 24 h campaign with 30 % loss: a UAV that had not heard from another
+            # for 5 s (ten lost messages in a row) released its offset onto it.
             self._release(now_s)
         self._last_update_s = now_s
 
@@ -269,6 +280,7 @@ class HeightOffsetStrategy:
             climb_accel_mps2=prm.climb_accel_mps2 if limits_tight else None,
             ceiling_hit=ceiling_hit,
             waiting_for=waiting_for,
+            silent=enc.silent,
         )
 
     def _encounters(self, now_s: float, own_id: str, own_priority: int, times: np.ndarray,
@@ -276,6 +288,7 @@ class HeightOffsetStrategy:
         prm = self.params
         msgs: list[PredictionMessage] = []
         shifted: list[np.ndarray] = []
+        silent: list[str] = []
         for sender, msg in others.items():
             if sender == own_id or msg.uav_id == own_id:
                 continue
@@ -286,6 +299,8 @@ class HeightOffsetStrategy:
                 # Stale: the other may have gone silent, its plan is no evidence. Stamped
                 # further ahead than that: a clock fault, equally unusable (the inbox normally
                 # rejects those already).
+                if 0.0 < now_s - ref <= prm.silent_hold_s:
+                    silent.append(msg.uav_id)
                 continue
             msgs.append(msg)
             # With the receive-time fallback the prediction is moved onto our clock: its stamp
@@ -302,7 +317,8 @@ class HeightOffsetStrategy:
             [(not msg.avoiding) or msg.priority < own_priority
              or (msg.priority == own_priority and msg.uav_id < own_id) for msg in msgs],
             dtype=bool)
-        return _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, dz)
+        return _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, dz,
+                           tuple(silent))
 
     def _climb(self, enc: _Encounters, half_h: float, ahead_s: np.ndarray
                ) -> tuple[float, bool, tuple[str, ...]]:
