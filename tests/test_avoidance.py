@@ -435,3 +435,19 @@ def test_the_offset_is_not_released_onto_a_uav_that_went_silent() -> None:
         now = NOW + 0.1 * k
         z = old.update(now, "o", 2, now + REL, own, {"h": msg("h", 1, h)}).z_offset_m
     assert z == 0.0
+
+
+def test_a_new_offset_must_be_clear_of_silent_uavs_too() -> None:
+    """Found in the 24 h campaign with 30 % loss (trial 78): uav5 had missed two messages of
+    uav2, one layer up, and climbed into that layer to yield to uav1."""
+    own = hover((0.0, 0.0, 10.0))
+    h = msg("h", 1, hover((1.0, 0.0, 10.0)))  # fresh, in conflict: we must climb
+    up = msg("u2", 2, hover((2.0, 0.0, 13.0)), stamp=NOW - 1.5)  # silent for 1.5 s, +3 m
+    d = HeightOffsetStrategy().update(NOW, "o", 5, NOW + REL, own, {"h": h, "u2": up})
+    assert d.silent == ("u2",) and d.yielding_to == ("h",)
+    # +3 m is u2's layer as last heard; +6 m would cross it on the way: wait.
+    assert d.z_offset_m == 0.0 and d.waiting_for == ("u2",)
+    # Silent for longer than silent_hold_s: no longer evidence, +3 m is taken.
+    gone = msg("u2", 2, hover((2.0, 0.0, 13.0)), stamp=NOW - 11.0)
+    d = HeightOffsetStrategy().update(NOW, "o", 5, NOW + REL, own, {"h": h, "u2": gone})
+    assert d.z_offset_m == 3.0 and d.silent == ()

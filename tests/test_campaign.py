@@ -250,3 +250,15 @@ def test_the_collision_of_the_lossy_24_hour_campaign_no_longer_happens() -> None
     record = run_trial(job)
     assert record["collisions"] == 0
     assert record["min_distance_m"] > 2.0
+
+
+def test_the_second_collision_of_the_lossy_24_hour_campaign_no_longer_happens() -> None:
+    """Trial 78 of the same lossy campaign collided at 439.96 s: uav5 had missed two messages
+    of uav2 and climbed into its layer. A new offset must now be clear of silent UAVs too."""
+    scenario_seed, world_seed = trial_seeds(0, 78)
+    job = TrialJob(index=78, scenario_seed=scenario_seed, world_seed=world_seed, uavs=5,
+                   area_m=100.0, height_m=10.0, avoidance=True, loss=0.3, latency_s=0.2,
+                   jitter_s=0.02, wind_mps=0.0, duration_s=450.0)
+    record = run_trial(job)
+    assert record["collisions"] == 0
+    assert record["min_distance_m"] > 2.0

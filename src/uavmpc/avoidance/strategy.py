@@ -241,7 +241,7 @@ class HeightOffsetStrategy:
             raise ValueError(
                 f"own prediction: times (m,) and positions (m, 3) expected, got {times.shape} "
                 f"and {own.shape}")
-        enc = self._encounters(now_s, own_id, own_priority, times, own, others)
+        enc, known = self._encounters(now_s, own_id, own_priority, times, own, others)
 
         c_start = enc.conflicts(self.z_offset_m, half_h)  # (k, m)
         hit_start = c_start.any(axis=1)
@@ -249,7 +249,10 @@ class HeightOffsetStrategy:
         ceiling_hit = False
         waiting_for: tuple[str, ...] = ()
         if yield_hit.any():
-            self.z_offset_m, ceiling_hit, waiting_for = self._climb(enc, half_h, times - now_s)
+            # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
+            # another climbed into its layer. A new offset must be clear of the silent ones too.
+            self.z_offset_m, ceiling_hit, waiting_for = self._climb(known, half_h,
+                                                                    times - now_s)
         c_end = enc.conflicts(self.z_offset_m, half_h)
         unresolved = c_end.any(axis=1) & enc.must_yield
         # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
@@ -284,7 +287,10 @@ class HeightOffsetStrategy:
         )
 
     def _encounters(self, now_s: float, own_id: str, own_priority: int, times: np.ndarray,
-                    own: np.ndarray, others: Mapping[str, PredictionMessage]) -> _Encounters:
+                    own: np.ndarray, others: Mapping[str, PredictionMessage]
+                    ) -> tuple[_Encounters, _Encounters]:
+        """(fresh, known): the others with a fresh prediction, and the same plus the silent
+        ones at their last known prediction (a new offset must be clear of those too)."""
         prm = self.params
         msgs: list[PredictionMessage] = []
         shifted: list[np.ndarray] = []
@@ -299,9 +305,9 @@ class HeightOffsetStrategy:
                 # Stale: the other may have gone silent, its plan is no evidence. Stamped
                 # further ahead than that: a clock fault, equally unusable (the inbox normally
                 # rejects those already).
-                if 0.0 < now_s - ref <= prm.silent_hold_s:
-                    silent.append(msg.uav_id)
-                continue
+                if not 0.0 < now_s - ref <= prm.silent_hold_s:
+                    continue
+                silent.append(msg.uav_id)
             msgs.append(msg)
             # With the receive-time fallback the prediction is moved onto our clock: its stamp
             # is taken to be the moment we received it (error: the link latency).
@@ -317,8 +323,13 @@ class HeightOffsetStrategy:
             [(not msg.avoiding) or msg.priority < own_priority
              or (msg.priority == own_priority and msg.uav_id < own_id) for msg in msgs],
             dtype=bool)
-        return _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, dz,
-                           tuple(silent))
+        known = _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, dz,
+                            tuple(silent))
+        fresh = np.array([msg.uav_id not in silent for msg in msgs], dtype=bool)
+        if fresh.all():
+            return known, known
+        return _Encounters(tuple(i for i, f in zip(known.ids, fresh, strict=True) if f),
+                           must_yield[fresh], near_xy[fresh], dz[fresh], tuple(silent)), known
 
     def _climb(self, enc: _Encounters, half_h: float, ahead_s: np.ndarray
                ) -> tuple[float, bool, tuple[str, ...]]:
