@@ -90,10 +90,13 @@ def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
 
 def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_path,
                                                                           hover_pair) -> None:
-    s = run_swarm(scenarios.load(hover_pair), tmp_path / "out", kill_at_s={"uav1": 5.0})
+    # 19 s: uav1 is killed at 5 s, and silence is not absence for silent_hold_s = 10 s
+    s = run_swarm(scenarios.load(hover_pair), tmp_path / "out", kill_at_s={"uav1": 5.0},
+                  duration_s=19.0)
     uav2 = s["uavs"]["uav2"]
     assert uav2["max_z_offset_m"] >= 3.0  # it yielded while uav1 was there
-    # …and after the 1 s timeout, the 2 s hysteresis and the release, it is back down
+    # …held it while uav1 was silent (10 s after its last message), then released it at
+    # 2 m/s: back down by about 16.5 s
     assert uav2["last_state"]["z_offset"] == 0.0 and not uav2["last_state"]["avoiding"]
     assert uav2["reached_goal"]
 
