@@ -15,7 +15,7 @@ dual active-set solver (:mod:`uavmpc.tracker.batchqp`, equal to DAQP to 1e-9), a
 taken in a different order than numpy's.
 
 Not cached on disk (``cache=False``): numba's cache only notices edits to a kernel's own file,
-and this kernel calls kernels from three others. Compiling takes a few seconds once per process.
+and this kernel calls kernels from three others. Compiling takes about 10 s once per process.
 """
 
 from __future__ import annotations
