@@ -276,7 +276,7 @@ class World:
         """:meth:`_run_plain` with the numerical work in :func:`uavmpc.world_kernel.world_tick`;
         messages, avoidance and broadcasts stay per UAV, in the same order."""
         if self._compiled is None:
-            self._compiled = CompiledStep(self)
+            self._compiled = CompiledStep(self, LIMIT_TOL)
         step = self._compiled
         step.pack()
         n = len(self.uavs)

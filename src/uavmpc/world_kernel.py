@@ -407,8 +407,10 @@ class CompiledStep:
     :func:`world_tick`, and writes the state back into the per-UAV objects (:meth:`unpack`)
     so that the plain path, logging and summaries see the same world afterwards."""
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: World, limit_tol: float) -> None:
         self.world = world
+        #: A state outside its limits by more than this (when not braking) is a violation.
+        self.limit_tol = float(limit_tol)
         first = world.uavs[0]
         tracker = first.stack.tracker
         cfg = tracker.config
@@ -475,7 +477,7 @@ class CompiledStep:
             np.array([u.max_limit_excess for u in uavs]),
             np.array([u.limit_violations for u in uavs]),
             np.array([t.fallback_count for t in trackers]), np.zeros(n, dtype=np.bool_),
-            float(_limit_tol()),
+            self.limit_tol,
         )
         for i, u in enumerate(uavs):
             self.refresh_avoiding(i)
@@ -578,9 +580,3 @@ class CompiledStep:
             u.limit_violations = int(book[5][i])
             if self.has_plan[i]:
                 u.stack._last = self.output(i)
-
-
-def _limit_tol() -> float:
-    from uavmpc.world import LIMIT_TOL
-
-    return LIMIT_TOL
