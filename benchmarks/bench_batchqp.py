@@ -16,10 +16,10 @@ import platform
 import time
 
 import numpy as np
-
-from uavmpc.bench import _fly, demanding_events
-from uavmpc.tracker import CondensedModel, DaqpSolver, MpcTracker, QpResult, TrackerConfig
 from uavmpc.tracker.batchqp import OPTIMAL, BatchQpSolver
+
+from uavmpc.apps.bench import _fly, demanding_events
+from uavmpc.tracker import CondensedModel, DaqpSolver, MpcTracker, QpResult, TrackerConfig
 
 
 class _Recorder:

@@ -2,7 +2,7 @@
 
 import sys
 
-from uavmpc.cli import main
+from uavmpc.apps.cli import main
 
 if __name__ == "__main__":
     sys.exit(main(["bench", "loop", *sys.argv[1:]]))

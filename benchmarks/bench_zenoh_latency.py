@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from uavmpc.comms.zenoh_link import ZenohTransport
-from uavmpc.swarm import free_ports
+from uavmpc.drivers.swarm import free_ports
 
 
 def main() -> None:

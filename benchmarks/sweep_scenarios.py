@@ -7,8 +7,8 @@ import argparse
 import json
 
 from uavmpc import scenarios
+from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
-from uavmpc.world import World
 
 LINKS = {
     "ideal (50 ms)": None,

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uavmpc.bench import _fly, demanding_events
-from uavmpc.tracker import CondensedModel, DaqpSolver, MpcTracker, QpResult, TrackerConfig
-from uavmpc.tracker.batchqp import (
+from uavmpc.apps.bench import _fly, demanding_events
+from uavmpc.solvers.batchqp import (
     INFEASIBLE,
     ITERATION_LIMIT,
     NUMERICAL,
@@ -15,6 +14,7 @@ from uavmpc.tracker.batchqp import (
     BatchAxisSolver,
     BatchQpSolver,
 )
+from uavmpc.tracker import CondensedModel, DaqpSolver, MpcTracker, QpResult, TrackerConfig
 from uavmpc.tracker.model import braking_plan
 
 #: Bound violation allowed in our solutions.

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uavmpc.campaign import (
+from uavmpc.apps.campaign import (
     CampaignError,
     TrialJob,
     load_trials,
@@ -78,8 +78,8 @@ def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) ->
     assert ttc is not None and ttc["p50"] is not None and 0.0 < ttc["p50"] < 40.0
     assert r["simulated_hours"] == pytest.approx(sum(x["sim_s"] for x in recs) / 3600.0)
     # a single collided trial flown in one piece collides at the same time
+    from uavmpc.drivers.world import World
     from uavmpc.scenarios.random_walk import random_walk as rw
-    from uavmpc.world import World
 
     x = hit[0]
     res = World(rw(3, 30.0, 10.0, 40.0, x["scenario_seed"]), avoidance=False,
@@ -121,7 +121,7 @@ def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> Non
     # a crash mid-write leaves a torn line: it is dropped and the trial re-run
     with open(tmp_path / "trials.jsonl", "a") as f:
         f.write('{"index": 2, "scen')
-    import uavmpc.campaign as campaign
+    import uavmpc.apps.campaign as campaign
 
     flown: list[int] = []
 

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from uavmpc.cli import main
+from uavmpc.apps.cli import main
 
 
 def test_tracker_demo_writes_figure_and_summary(tmp_path, capsys) -> None:

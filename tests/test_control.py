@@ -1,4 +1,5 @@
-"""SE(3) controller + attitude controller + plant in closed loop, and airframe-file validation."""
+"""SE(3) controller + attitude controller + plant in closed loop, kernels == numpy oracles,
+controllers as rows of a shared record, and airframe-file validation."""
 
 from __future__ import annotations
 
@@ -10,10 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from oracles import AttitudeController, Mixer, Se3Oracle
 
 from uavmpc.config import ConfigError
-from uavmpc.control import AttitudeController, Mixer, Se3Controller
+from uavmpc.control import ControlRows, Se3Controller, se3_row
 from uavmpc.plant import G_MPS2, Airframe, GnssNoise, VehicleState, Wind
+from uavmpc.plant.attitude import attitude_kernel, mix, mixer_matrices, pack_attitude_gains
 from uavmpc.plant.interface import quat_to_rot, rot_to_quat, yaw_quat
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.tracker.tracker import TrackerCommand
@@ -112,14 +115,13 @@ def test_integrators_are_clipped_and_frozen_in_saturation(airframe: Airframe) ->
     np.testing.assert_array_equal(ctl.integral_world_ms, 0.0)
 
 
-def test_se3_numba_backend_matches_numpy_reference(airframe: Airframe) -> None:
-    """The compiled kernel and the numpy reference give the same targets, flags and integrator
+def test_se3_kernel_matches_numpy_oracle(airframe: Airframe) -> None:
+    """The compiled kernel and the numpy oracle give the same targets, flags and integrator
     states over random commands/states covering the free, tilt-limited, saturated and
     integral-clipped regimes."""
     rng = np.random.default_rng(7)
     fast = Se3Controller(airframe, period_s=PERIOD_S)
-    ref = Se3Controller(airframe, period_s=PERIOD_S, backend="numpy")
-    assert fast.backend == "numba"
+    ref = Se3Oracle(airframe, period_s=PERIOD_S)
     counts = {"free": 0, "tilt": 0, "sat": 0, "clipped": 0}
 
     def compare(cmd: TrackerCommand, s: VehicleState, dt: float | None) -> None:
@@ -166,28 +168,120 @@ def test_se3_numba_backend_matches_numpy_reference(airframe: Airframe) -> None:
     t1, t2 = fast.update(hold((0.0, 0.0, 0.0)), s), fast.update(hold((1.0, 0.0, 0.0)), s)
     assert t1.attitude_wxyz is not t2.attitude_wxyz
     assert t1.body_rates_ff_radps is not t2.body_rates_ff_radps
-    with pytest.raises(ValueError, match="backend"):
-        Se3Controller(airframe, backend="torch")  # type: ignore[arg-type]
 
 
-def test_mixer_reproduces_thrust_and_torque(airframe: Airframe) -> None:
-    mixer = Mixer(airframe)
+def _random_inputs(rng: np.random.Generator, k: int) -> tuple[TrackerCommand, VehicleState]:
+    scale = 0.05 if k % 3 else float(rng.choice([0.5, 5.0, 50.0]))
+    q = rng.normal([1.0, 0, 0, 0], [0.0, 0.2, 0.2, 1.0])
+    s = VehicleState(0.0, rng.normal(0.0, scale, 3), rng.normal(0.0, scale, 3),
+                     q / np.linalg.norm(q), rng.normal(0.0, 0.5, 3))
+    cmd = TrackerCommand(0.0, rng.normal(0.0, scale, 3), rng.normal(0.0, scale, 3),
+                         rng.normal(0.0, scale, 3), float(rng.uniform(-4.0, 4.0)),
+                         float(rng.normal(0.0, 0.5)), 0.0)
+    return cmd, s
+
+
+def test_controllers_as_rows_of_a_shared_record_equal_standalone_ones() -> None:
+    """Two controllers (a hexacopter's and a quadrotor's) as rows 0 and 1 of one record give
+    bit for bit the targets, flags and integrals of two standalone ones; so does the kernel
+    called on the row directly."""
+    afs = [Airframe.packaged("f550"), Airframe.packaged("x500")]
+    shared = ControlRows.empty(2)
+    in_rows = [Se3Controller(af, period_s=PERIOD_S, rows=shared, row=i)
+               for i, af in enumerate(afs)]
+    alone = [Se3Controller(af, period_s=PERIOD_S) for af in afs]
+    assert in_rows[1].rows is shared and in_rows[1].row == 1
+    assert in_rows[1].thrust_max_n == alone[1].thrust_max_n != alone[0].thrust_max_n
+    rng = np.random.default_rng(3)
+    flags = set()
+    for k in range(400):
+        for a, b in zip(in_rows, alone, strict=True):
+            cmd, s = _random_inputs(rng, k)
+            dt = None if k % 2 else 0.02
+            ta, tb = a.update(cmd, s, dt), b.update(cmd, s, dt)
+            np.testing.assert_array_equal(ta.attitude_wxyz, tb.attitude_wxyz)
+            np.testing.assert_array_equal(ta.body_rates_ff_radps, tb.body_rates_ff_radps)
+            assert ta.thrust_n == tb.thrust_n
+            assert (a.saturated, a.tilt_limited) == (b.saturated, b.tilt_limited)
+            np.testing.assert_array_equal(a.integral_world_ms, b.integral_world_ms)
+            np.testing.assert_array_equal(a.integral_body_ms, b.integral_body_ms)
+            flags.add((a.saturated, a.tilt_limited))
+        if k == 200:
+            in_rows[0].reset()
+            alone[0].reset()
+            np.testing.assert_array_equal(shared.integral_world_ms[0], 0.0)
+            assert np.any(shared.integral_world_ms[1] != 0.0)  # its neighbour kept its state
+    assert len(flags) >= 3, flags  # free, tilt limited and saturated all occurred
+    # A driver calling the kernel on row 1 gets what the object gets.
+    cmd, s = _random_inputs(rng, 1)
+    q, ff = np.empty(4), np.empty(3)
+    thrust = se3_row(1, shared, s.position_m, s.velocity_mps, s.attitude_wxyz, cmd.position_m,
+                     cmd.velocity_mps, cmd.acceleration_mps2, cmd.heading_rad,
+                     cmd.heading_rate_radps, PERIOD_S, q, ff)
+    tb = alone[1].update(cmd, s)
+    assert thrust == tb.thrust_n
+    np.testing.assert_array_equal(q, tb.attitude_wxyz)
+    np.testing.assert_array_equal(ff, tb.body_rates_ff_radps)
+    np.testing.assert_array_equal(in_rows[1].integral_body_ms, alone[1].integral_body_ms)
+    # The properties are copies: writing into one does not change the controller.
+    in_rows[1].integral_world_ms[:] = 99.0
+    assert np.all(shared.integral_world_ms[1] != 99.0)
+    with pytest.raises(ValueError, match="row 2"):
+        Se3Controller(afs[0], rows=shared, row=2)
+
+
+def _mixers(airframe: Airframe) -> dict[str, Callable[[float, np.ndarray], np.ndarray]]:
+    """The compiled mixer (the plant's) and the numpy oracle, as thrust, torque → ω."""
+    inverse, lo, hi = mixer_matrices(airframe)
+    n = airframe.n_rotors
+
+    def kernel(thrust_n: float, torque_nm: np.ndarray) -> np.ndarray:
+        out = np.empty(n)
+        mix(thrust_n, *map(float, torque_nm), inverse, n, lo, hi, out)
+        return out
+
+    return {"kernel": kernel, "oracle": Mixer(airframe).mix}
+
+
+@pytest.mark.parametrize("impl", ["kernel", "oracle"])
+def test_mixer_reproduces_thrust_and_torque(airframe: Airframe, impl: str) -> None:
+    mixer = _mixers(airframe)[impl]
     torque = np.array([0.3, -0.2, 0.05])
-    omega = mixer.mix(airframe.mass_kg * G_MPS2, torque)
+    omega = mixer(airframe.mass_kg * G_MPS2, torque)
     wrench = airframe.allocation() @ omega**2
     np.testing.assert_allclose(wrench, [airframe.mass_kg * G_MPS2, *torque], rtol=1e-9, atol=1e-9)
     # Beyond the rotors' reach the yaw torque gives way first, roll stays.
-    omega = mixer.mix(0.85 * airframe.max_thrust_n, np.array([0.5, 0.0, 5.0]))
+    omega = mixer(0.85 * airframe.max_thrust_n, np.array([0.5, 0.0, 5.0]))
     wrench = airframe.allocation() @ omega**2
     assert wrench[1] == pytest.approx(0.5, rel=0.05)
     assert 0.0 <= wrench[3] < 5.0
 
 
-def test_attitude_controller_turns_towards_target(airframe: Airframe) -> None:
-    ctl = AttitudeController(airframe)
+def _attitude_loops(airframe: Airframe) -> dict[str, Callable[..., np.ndarray]]:
+    """The compiled attitude loop (the plant's) and the numpy oracle, as
+    (q, rates, target, thrust, ff, dt) → ω, each with its own state."""
+    gains = pack_attitude_gains(airframe.attitude)
+    inverse, lo, hi = mixer_matrices(airframe)
+    inertia = np.ascontiguousarray(airframe.inertia_kgm2)
+    ctrl = np.zeros(7)
+    n = airframe.n_rotors
+
+    def kernel(q: np.ndarray, w: np.ndarray, qd: np.ndarray, thrust_n: float, ff: np.ndarray,
+               dt_s: float) -> np.ndarray:
+        out = np.empty(n)
+        attitude_kernel(q, w, qd, thrust_n, ff, ctrl, gains, inertia, inverse, n, lo, hi, dt_s,
+                        False, out)
+        return out
+
+    return {"kernel": kernel, "oracle": AttitudeController(airframe).update}
+
+
+@pytest.mark.parametrize("impl", ["kernel", "oracle"])
+def test_attitude_controller_turns_towards_target(airframe: Airframe, impl: str) -> None:
+    update = _attitude_loops(airframe)[impl]
     target = rot_to_quat(quat_to_rot(np.array([math.cos(0.1), math.sin(0.1), 0.0, 0.0])))
-    omega = ctl.update(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), target,
-                       airframe.mass_kg * G_MPS2, np.zeros(3), 0.002)
+    omega = update(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), target,
+                   airframe.mass_kg * G_MPS2, np.zeros(3), 0.002)
     torque = (airframe.allocation() @ omega**2)[1:]
     assert torque[0] > 0.0 and abs(torque[1]) < 1e-9 * abs(torque[0]) + 1e-12
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from uavmpc import Reference
-from uavmpc.cli import main
-from uavmpc.flight import FlightStatus, demanding_reference, fly, summarize
+from uavmpc.apps.cli import main
+from uavmpc.drivers.flight import FlightStatus, demanding_reference, fly, summarize
 from uavmpc.plant import Airframe, Wind
 
 

@@ -16,10 +16,10 @@ from uavmpc import scenarios
 from uavmpc.comms.auth import sign
 from uavmpc.comms.message import PredictionMessage, encode
 from uavmpc.comms.zenoh_link import ZenohTransport
-from uavmpc.node import Node
+from uavmpc.drivers.node import Node
+from uavmpc.drivers.swarm import free_ports, run_swarm
 from uavmpc.plant import Airframe
 from uavmpc.reference import Reference
-from uavmpc.swarm import free_ports, run_swarm
 
 HORIZON = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
 KEY = b"0123456789abcdef0123456789abcdef"
@@ -110,7 +110,7 @@ def test_forged_or_unsigned_predictions_are_ignored_with_a_key() -> None:
             f.other.publish(bytes(forged), "intruder", 0.0)
             time.sleep(0.1)
         assert f.max_offset() == 0.0
-        assert f.node.inbox.rejected_total >= 20
+        assert f.node.stack.inbox.rejected_total >= 20
         for _ in range(20):  # the same prediction, properly signed, does make it climb
             f.other.publish(sign(_prediction("intruder", 0, _on_path(), False), KEY),
                             "intruder", 0.0)
@@ -142,7 +142,7 @@ def test_fuzzed_messages_never_crash_or_move_a_flying_node() -> None:
         state = f.node.plant.state()
         assert np.linalg.norm(state.position_m - [10.0, 0.0, 5.0]) < 0.5
     assert len(sent) >= 10_000
-    assert f.node.inbox.rejected_total > 1000  # most of the fuzz is malformed and counted
+    assert f.node.stack.inbox.rejected_total > 1000  # most of the fuzz is malformed and counted
 
 
 def test_a_flood_does_not_starve_the_control_loop() -> None:
@@ -188,7 +188,7 @@ def test_node_process_shuts_down_cleanly_on_signal(sig: str) -> None:
 
     port = free_ports(1)[0]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uavmpc.cli", "node", "--id", "solo", "--priority", "1",
+        [sys.executable, "-m", "uavmpc.apps.cli", "node", "--id", "solo", "--priority", "1",
          "--listen", f"tcp/127.0.0.1:{port}", "--goto", "3", "0", "5", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(4.0)

@@ -1,4 +1,5 @@
-"""The multirotor plant: physics sanity, motors, ground, wind, and fast == reference path."""
+"""The multirotor plant: physics sanity, motors, ground, wind, kernels == numpy oracle, and rows
+of a shared record flying like standalone vehicles."""
 
 from __future__ import annotations
 
@@ -7,8 +8,22 @@ import math
 
 import numpy as np
 import pytest
+from oracles import MultirotorOracle
 
-from uavmpc.plant import G_MPS2, Airframe, AttitudeTarget, GnssNoise, Plant, VehicleState, Wind
+from uavmpc.plant import (
+    G_MPS2,
+    Airframe,
+    AttitudeTarget,
+    GnssNoise,
+    Plant,
+    PlantRows,
+    VehicleState,
+    Wind,
+    attitude_target_ok,
+    copy_row,
+    normalize_quat,
+    plant_step,
+)
 from uavmpc.plant.interface import quat_to_rot, rot_to_quat, yaw_quat
 from uavmpc.plant.multirotor import N_RIGID, Multirotor
 
@@ -179,13 +194,16 @@ def test_step_rejects_partial_substeps(f550: Airframe) -> None:
 
 
 @pytest.mark.parametrize("name", ["f550", "x500"])
-def test_numba_path_equals_numpy_reference(name: str) -> None:
+def test_kernels_equal_numpy_oracle(name: str) -> None:
     af = Airframe.packaged(name)
     n = af.n_rotors
+
+    def wind() -> Wind:
+        return Wind(mean_mps=(3.0, -1.0, 0.0), gust_sigma_mps=1.0, seed=3)
+
     plants = {
-        b: Multirotor(af, position_m=(0.0, 0.0, 2.0), backend=b,
-                      wind=Wind(mean_mps=(3.0, -1.0, 0.0), gust_sigma_mps=1.0, seed=3))
-        for b in ("numba", "numpy")
+        "kernel": Multirotor(af, position_m=(0.0, 0.0, 2.0), wind=wind()),
+        "oracle": MultirotorOracle(af, position_m=(0.0, 0.0, 2.0), wind=wind()),
     }
     rng = np.random.default_rng(1)
     targets = []
@@ -198,17 +216,114 @@ def test_numba_path_equals_numpy_reference(name: str) -> None:
         targets.append(AttitudeTarget(q, thrust, rng.normal(size=3) * (k % 2)))
     for tgt in targets:
         out = {b: p.step(tgt, 0.01) for b, p in plants.items()}
-        a, b = out["numba"], out["numpy"]
+        a, b = out["kernel"], out["oracle"]
         for f in ("position_m", "velocity_mps", "attitude_wxyz", "body_rates_radps"):
             np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=0, atol=1e-9)
-    np.testing.assert_allclose(plants["numba"].rotor_speeds_radps,
-                               plants["numpy"].rotor_speeds_radps, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(plants["kernel"].rotor_speeds_radps,
+                               plants["oracle"].rotor_speeds_radps, rtol=1e-12, atol=1e-9)
     # Direct motor commands and ground contact take the same path in both.
     for p in plants.values():
         p.step_motors(np.zeros(n), 1.5)
-    xa, xb = plants["numba"]._x, plants["numpy"]._x
+    kernel = plants["kernel"]
+    xa, xb = kernel.rows.x[kernel.row], plants["oracle"].x
     np.testing.assert_allclose(xa[:N_RIGID], xb[:N_RIGID], rtol=0, atol=1e-9)
-    assert plants["numba"].landed == plants["numpy"].landed
+    assert kernel.landed == plants["oracle"].landed
+
+
+def _fly_mixed(plant: Multirotor, af: Airframe, seed: int) -> np.ndarray:
+    """Take off from the ground, fly varied targets in gusts, then cut the motors and land.
+    Returns every state vector, rotor speeds, landed flag and time along the way."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(150):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = rng.uniform(0.0, 0.5)
+        q = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis])
+        target = AttitudeTarget(q, af.mass_kg * G_MPS2 * rng.uniform(0.9, 1.6),
+                                rng.normal(size=3) * (k % 2))
+        s = plant.step(target, 0.01)
+        out.append([*s.position_m, *s.velocity_mps, *s.attitude_wxyz, *s.body_rates_radps,
+                    *plant.rotor_speeds_radps, plant.landed, plant.t_s])
+    for _ in range(150):
+        s = plant.step_motors(np.full(af.n_rotors, 50.0), 0.01)
+        out.append([*s.position_m, *s.velocity_mps, *s.attitude_wxyz, *s.body_rates_radps,
+                    *plant.rotor_speeds_radps, plant.landed, plant.t_s])
+    return np.array(out)
+
+
+def test_rows_of_a_shared_record_fly_like_standalone_plants() -> None:
+    """A hexacopter and a quadrotor as rows 0 and 1 of one record (sized for six rotors) fly
+    bit for bit as each one alone; so does the quadrotor stepped by the kernel directly."""
+    hexa, quad = Airframe.packaged("f550"), Airframe.packaged("x500")
+    assert (hexa.n_rotors, quad.n_rotors) == (6, 4)
+
+    def wind(seed: int) -> Wind:
+        return Wind(mean_mps=(2.0, -1.0, 0.0), gust_sigma_mps=0.8, seed=seed)
+
+    shared = PlantRows.empty(2, 6)
+    in_rows = [Multirotor(hexa, yaw_rad=0.4, wind=wind(1), rows=shared, row=0),
+               Multirotor(quad, position_m=(3.0, 0.0, 0.0), yaw_rad=-1.0, wind=wind(2),
+                          rows=shared, row=1)]
+    alone = [Multirotor(hexa, yaw_rad=0.4, wind=wind(1)),
+             Multirotor(quad, position_m=(3.0, 0.0, 0.0), yaw_rad=-1.0, wind=wind(2))]
+    assert in_rows[1].rows is shared and in_rows[1].row == 1
+    assert alone[1].rows.x.shape == (1, N_RIGID + 4)
+    # Interleaved, so a row that wrote into its neighbour's columns would show.
+    flights = {}
+    for k, (a, b) in enumerate(zip(in_rows, alone, strict=True)):
+        af = (hexa, quad)[k]
+        flights[k] = (_fly_mixed(a, af, seed=10 + k), _fly_mixed(b, af, seed=10 + k))
+    for a, b in flights.values():
+        assert a[:150, 2].max() > 0.5 and a[-1, 2] == 0.0  # took off and landed again
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(shared.x[1, N_RIGID + 4:], 0.0)  # unused columns stay 0
+
+    # A driver stepping row 1 itself with the kernel gets what the object gets.
+    driver = PlantRows.empty(2, 6)
+    obj = Multirotor(quad, position_m=(0.0, 0.0, 4.0))
+    view = Multirotor(quad, position_m=(0.0, 0.0, 4.0), rows=driver, row=1)
+    target = AttitudeTarget(yaw_quat(0.2), 1.1 * quad.mass_kg * G_MPS2, np.array([0, 0, 0.1]))
+    qd = np.array(target.attitude_wxyz)
+    assert attitude_target_ok(qd, target.thrust_n, target.body_rates_ff_radps)
+    normalize_quat(qd)
+    for _ in range(50):
+        s = obj.step(target, 0.01)
+        plant_step(1, driver, view.substeps(0.01), qd, target.thrust_n,
+                   target.body_rates_ff_radps)
+    np.testing.assert_array_equal(view.state().position_m, s.position_m)
+    np.testing.assert_array_equal(driver.x[1], np.pad(obj.rows.x[0], (0, 2)))
+    assert view.t_s == obj.t_s
+
+    # Rows copy between records of different widths (a driver gathering its vehicles).
+    narrow = PlantRows.empty(1, 4)
+    copy_row(driver, 1, narrow, 0)
+    np.testing.assert_array_equal(narrow.x[0], obj.rows.x[0])
+    with pytest.raises(ValueError, match="does not fit"):
+        copy_row(shared, 0, narrow, 0)
+    with pytest.raises(ValueError, match="rotors"):
+        Multirotor(hexa, rows=narrow)
+    with pytest.raises(ValueError, match="row 2"):
+        Multirotor(quad, rows=narrow, row=2)
+
+
+def test_target_check_and_normalisation_match_numpy() -> None:
+    """The compiled check accepts what numpy's did and normalises as numpy did (to the bit
+    where numpy's dot is a chain of fused multiply-adds, as OpenBLAS's on x86-64 with FMA)."""
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        qd = rng.normal(size=4) * rng.choice([0.1, 0.5, 1.0])
+        qd /= rng.uniform(0.8, 1.2) * np.linalg.norm(qd)
+        norm = math.sqrt(float(qd @ qd))
+        assert attitude_target_ok(qd, 1.0, np.zeros(3)) == (0.9 < norm < 1.1)
+        q = qd.copy()
+        normalize_quat(q)
+        np.testing.assert_array_max_ulp(q, qd / norm, maxulp=1)
+    good = np.array([1.0, 0.0, 0.0, 0.0])
+    assert attitude_target_ok(good, 10.0, np.zeros(3))
+    assert not attitude_target_ok(good, float("inf"), np.zeros(3))
+    assert not attitude_target_ok(good, 10.0, np.array([0.0, float("nan"), 0.0]))
+    assert not attitude_target_ok(np.full(4, float("nan")), 10.0, np.zeros(3))
 
 
 def test_rejects_invalid_attitude_target(f550: Airframe) -> None:

@@ -1,6 +1,5 @@
 """Many UAVs, one sky: the built-in scenarios with and without avoidance, over a lossy link."""
 
-import heapq
 import json
 import math
 
@@ -8,11 +7,11 @@ import numpy as np
 import pytest
 
 from uavmpc import ConfigError, scenarios
-from uavmpc.cli import main
+from uavmpc.apps.cli import main
 from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.drivers.world import World
 from uavmpc.log import read_topics
 from uavmpc.scenarios import LinkSettings
-from uavmpc.world import World
 
 DZ = 3.0
 
@@ -69,16 +68,16 @@ def test_bad_messages_are_dropped_counted_and_change_nothing() -> None:
     future = intruder(500.0)
     world = World(scenarios.load("swap_through_static"), seed=5)
     garbage = [b"", b"\x00" * 7, valid[:30], wrong_version, nan, future, valid + b"trailing"]
-    # Deliver garbage straight into each receiver's queue (not through publish: the link's
-    # random stream must stay the same as in the clean run).
+    # Deliver garbage straight to each receiver (not through publish: the link's random stream
+    # must stay the same as in the clean run).
     for u in world.uavs:
         for j, g in enumerate(garbage):
-            heapq.heappush(world.link._queues[u.uav_id], (0.3 + 0.1 * j, -1 - j, g))
+            world.link.inject(u.uav_id, g, 0.3 + 0.1 * j)
     dirty = world.run(20.0)
     np.testing.assert_array_equal(dirty.positions_m, clean.positions_m)
     for u in world.uavs:
-        assert u.inbox.rejected_total == len(garbage)
-        assert "intruder" not in u.inbox.latest
+        assert u.stack.inbox.rejected_total == len(garbage)
+        assert "intruder" not in u.stack.inbox.latest
 
 
 def test_same_seed_same_flight_and_log_is_readable(tmp_path) -> None:

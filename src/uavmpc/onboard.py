@@ -1,57 +1,247 @@
-"""One UAV's onboard stack (SPEC §1): avoidance → MPC tracker → SE(3) controller.
+"""One UAV's whole program (SPEC §1): inbox → avoidance → MPC tracker → SE(3) controller.
 
-The stack is what would run on the UAV's own computer. It takes the state estimate and the
-predictions other UAVs broadcast, and returns an :class:`~uavmpc.plant.AttitudeTarget` for
-whatever stands behind the :class:`~uavmpc.plant.Plant` contract (our simulator, another
-simulator, an autopilot), plus its own prediction message to broadcast.
+:class:`OnboardStack` is what runs on a UAV's own computer, behind one small interface::
+
+    out = stack.tick(now_s, estimate, received)   # every 10 ms
+    out.target      # AttitudeTarget for the plant side (simulator or autopilot)
+    out.outgoing    # the prediction message to broadcast (bytes, signed with a key), or None
+
+It owns everything per UAV: its inbox (decoding, validation, signatures), its avoidance
+schedule (10 Hz) and strategy, its tracker and controller, its broadcast phase and period
+(2 Hz), and its statistics. Drivers — the simulated world, a network node, a single flight —
+are a clock, a transport and a plant around N stacks.
+
+A driver that ticks many UAVs in one compiled call (the simulated world) splits :meth:`tick`
+into its three phases: :meth:`OnboardStack.receive` and :meth:`OnboardStack.plan` per UAV,
+then the numerical part of every UAV at once (:func:`onboard_row` on the rows of an
+:class:`OnboardBatch`, the same function :meth:`tick` runs on its own row), then
+:meth:`OnboardStack.emit` per UAV.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
-from uavmpc.control import Se3Controller
+from uavmpc.avoidance import AvoidanceDecision, AvoidanceParams, ResolutionStrategy
+from uavmpc.comms.auth import sign
+from uavmpc.comms.link import Inbox
+from uavmpc.comms.message import PredictionMessage, encode, from_prediction
+from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
+from uavmpc.jit import bind, kernel
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.reference import Reference
 from uavmpc.tracker import (
     DynamicLimits,
     MpcTracker,
     Prediction,
+    TrackerBatch,
+    TrackerCommand,
     TrackerConfig,
-    TrackerOutput,
 )
+from uavmpc.tracker.kernels import (
+    ReferenceTable,
+    TrackerConsts,
+    TrackerRows,
+    limit_excess,
+    tick_row,
+)
+from uavmpc.tracker.tracker import TrackerOutput
 
 #: How often the avoidance re-plans (the tracker ticks at 100 Hz, predictions arrive at 2 Hz).
 AVOIDANCE_PERIOD_S = 0.1
+#: Predictions are broadcast at 2 Hz (SPEC §5.1).
+BROADCAST_PERIOD_S = 0.5
+#: A virtual-UAV state outside its limits by more than this (when not braking) is a violation.
+LIMIT_TOL = 1e-6
+#: Tolerance of the schedules (avoidance, broadcast) against round-off in the tick times.
+_SCHEDULE_TOL_S = 1e-9
+
+
+class StackStats(NamedTuple):
+    """What N stacks counted, one row each (updated by :func:`onboard_row`).
+
+    Attributes:
+        ticks: (N,) int64 control periods flown.
+        err_sq_sum_m2: (N,) Σ ‖estimate − virtual UAV‖² at each tick, before it [m²].
+        max_z_offset_m: (N,) the largest avoidance offset in force [m].
+        avoiding: (N,) bool the avoidance's current verdict (written by the stack).
+        avoiding_ticks: (N,) int64 ticks flown while avoiding.
+        limit_violations: (N,) int64 ticks whose new virtual state left the limits in force by
+            more than :data:`LIMIT_TOL` (braking back in after a tightening is not one).
+        max_limit_excess: (N,) the largest such excess.
+    """
+
+    ticks: np.ndarray
+    err_sq_sum_m2: np.ndarray
+    max_z_offset_m: np.ndarray
+    avoiding: np.ndarray
+    avoiding_ticks: np.ndarray
+    limit_violations: np.ndarray
+    max_limit_excess: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> StackStats:
+        return cls(np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n),
+                   np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
+                   np.zeros(n, dtype=np.int64), np.zeros(n))
+
+
+@kernel
+def onboard_pre(i: int, trk: TrackerRows, stats: StackStats, p: np.ndarray) -> None:
+    """Row i before its tracker ticks: the tracking error of the estimate position ``p`` (3,)
+    against the virtual UAV of the same time."""
+    s = trk.state[i]
+    e0 = p[0] - s[0, 0]
+    e1 = p[1] - s[1, 0]
+    e2 = p[2] - s[2, 0]
+    stats.err_sq_sum_m2[i] += e0 * e0 + e1 * e1 + e2 * e2
+
+
+@kernel
+def onboard_post(i: int, trk: TrackerRows, consts: TrackerConsts, ctl: ControlRows,
+                 stats: StackStats, p: np.ndarray, v: np.ndarray, q: np.ndarray, dt: float,
+                 q_out: np.ndarray, ff_out: np.ndarray) -> float:
+    """Row i after its tracker ticked: SE(3) control of the estimate (``p``, ``v``, ``q``)
+    towards the new virtual-UAV state, and the bookkeeping. Returns the thrust [N]; writes the
+    attitude target into ``q_out`` (4,) and the body-rate feedforward into ``ff_out`` (3,)."""
+    s = trk.state[i]
+    heading = (s[3, 0] + np.pi) % (2.0 * np.pi) - np.pi
+    thrust = se3_row(i, ctl, p, v, q, s[:3, 0].copy(), s[:3, 1].copy(), s[:3, 2].copy(),
+                     heading, s[3, 1], dt, q_out, ff_out)
+    stats.ticks[i] += 1
+    stats.max_z_offset_m[i] = max(stats.max_z_offset_m[i], trk.z_offset_m[i])
+    if stats.avoiding[i]:
+        stats.avoiding_ticks[i] += 1
+    if not trk.braking[i]:
+        ex = limit_excess(s, trk.v_lo[i], trk.v_hi[i], trk.a_lo[i], trk.a_hi[i], consts.tau_s)
+        stats.max_limit_excess[i] = max(stats.max_limit_excess[i], ex)
+        if ex > LIMIT_TOL:
+            stats.limit_violations[i] += 1
+    return thrust
+
+
+@kernel
+def onboard_row(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
+                ctl: ControlRows, stats: StackStats, p: np.ndarray, v: np.ndarray,
+                q: np.ndarray, dt: float, sc: object, q_out: np.ndarray,
+                ff_out: np.ndarray) -> float:
+    """The numerical part of row i's tick: bookkeeping, tracker (with the compiled solver),
+    SE(3) controller. ``sc``: :func:`~uavmpc.tracker.kernels.make_scratch`'s work arrays."""
+    onboard_pre(i, trk, stats, p)
+    tick_row(i, trk, refs, consts, sc)
+    return onboard_post(i, trk, consts, ctl, stats, p, v, q, dt, q_out, ff_out)
+
+
+class OnboardBatch:
+    """The numerical state of N onboard stacks of one tracker set-up, one row each.
+
+    Attributes:
+        tracker: their virtual UAVs (:class:`~uavmpc.tracker.TrackerBatch`).
+        control: their SE(3) controllers' state (:class:`~uavmpc.control.se3.ControlRows`).
+        stats: their counters (:class:`StackStats`).
+    """
+
+    def __init__(self, tracker_config: TrackerConfig | None = None, n: int = 1) -> None:
+        self.tracker = TrackerBatch(tracker_config, n)
+        self.control = ControlRows.empty(n)
+        self.stats = StackStats.empty(n)
+        self.n = n
+        self._one: tuple[ReferenceTable, object] | None = None
+
+    @property
+    def inline(self) -> bool:
+        """Every row solves its QPs inside the compiled tick (no Python solver)."""
+        return all(s is None for s in self.tracker.solvers)
+
+    def tick_row(self, row: int, p: np.ndarray, v: np.ndarray, q: np.ndarray, dt: float,
+                 q_out: np.ndarray, ff_out: np.ndarray) -> float:
+        """The numerical part of one row's tick (see :func:`onboard_row`); returns the thrust."""
+        t = self.tracker
+        if t.solvers[row] is not None:  # a Python solver: the same kernels, in three calls
+            onboard_pre(row, t.rows, self.stats, p)
+            t.step(np.array([row], dtype=np.int64))
+            return float(onboard_post(row, t.rows, t.consts, self.control, self.stats, p, v, q,
+                                      dt, q_out, ff_out))
+        table = t.table()
+        if self._one is None or self._one[0] is not table:
+            self._one = (table, bind(onboard_row, row, t.rows, table, t.consts, self.control,
+                                     self.stats, p, v, q, dt, t.scratch, q_out, ff_out))
+        return float(self._one[1](row, t.rows, table, t.consts, self.control, self.stats, p, v,
+                                  q, dt, t.scratch, q_out, ff_out))
 
 
 @dataclass(frozen=True, eq=False)
 class OnboardOutput:
-    """What one 10 ms tick of the stack produced.
+    """What one tick of the stack produced.
 
     Attributes:
-        tracker: the tracker's command (virtual-UAV state) and prediction.
         target: attitude and collective thrust for the plant side.
+        outgoing: the prediction message to broadcast now (wire bytes, signed when the stack
+            has a key), or None.
     """
 
-    tracker: TrackerOutput
     target: AttitudeTarget
+    outgoing: bytes | None = None
+
+
+@dataclass(frozen=True)
+class StackReport:
+    """One stack's statistics (serialised at the edge: ``dataclasses.asdict``).
+
+    Attributes:
+        uav_id: who.
+        ticks: control periods flown; flight_s: their duration [s].
+        tracking_rmse_m: RMS distance of the estimate from the virtual UAV [m].
+        max_z_offset_m: the largest avoidance offset [m]; avoidance_active_s: time avoiding.
+        limit_violations, max_limit_excess: see :class:`StackStats`.
+        tracker_fallbacks: ticks on which an axis braked because its QP failed.
+        predictions_sent: broadcasts; messages_accepted, messages_superseded: inbox counters;
+        messages_rejected: rejected messages by reason.
+    """
+
+    uav_id: str
+    ticks: int
+    flight_s: float
+    tracking_rmse_m: float
+    max_z_offset_m: float
+    avoidance_active_s: float
+    limit_violations: int
+    max_limit_excess: float
+    tracker_fallbacks: int
+    predictions_sent: int
+    messages_accepted: int
+    messages_superseded: int
+    messages_rejected: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def messages_rejected_total(self) -> int:
+        return sum(self.messages_rejected.values())
 
 
 class OnboardStack:
-    """Avoidance, tracker and SE(3) controller of one UAV, ticked at the tracker's rate (100 Hz).
+    """Inbox, avoidance, tracker and SE(3) controller of one UAV, ticked at the tracker's rate.
 
     Args:
         airframe: the aircraft (mass, thrust range, SE(3) gains).
-        tracker_config: MPC set-up and nominal limits (default: packaged data/tracker.toml).
+        tracker_config: MPC set-up and nominal limits (default: packaged data/tracker.toml;
+            with ``batch``, the batch's).
         position_m, heading_rad, t0_s: the initial virtual-UAV state (usually the UAV's own).
         uav_id, priority: identity on the link (lower priority number = higher priority).
-        avoidance: a resolution strategy (see :mod:`uavmpc.avoidance`), or None to fly without
-            avoidance (the broadcast flag is then down: others treat this UAV as
-            non-cooperative and yield to it).
+        avoidance: a resolution strategy (:class:`~uavmpc.avoidance.ResolutionStrategy`), or
+            None to fly without avoidance (the broadcast flag is then down: others treat this
+            UAV as non-cooperative and yield to it).
+        params: the avoidance parameters the inbox applies too (message age, time reference);
+            default: the strategy's, else the reference design's.
+        key: the swarm's shared key: outgoing predictions are signed, unsigned or forged ones
+            rejected (:mod:`uavmpc.comms.auth`).
+        broadcast_phase_s: first broadcast at ``t0_s + broadcast_phase_s``, then every
+            ``broadcast_period_s`` (UAVs spread their phases over the period).
+        batch, row: the row of an :class:`OnboardBatch` this stack's numbers live in (default:
+            a batch of its own).
     """
 
     def __init__(
@@ -59,76 +249,150 @@ class OnboardStack:
         airframe: Airframe,
         tracker_config: TrackerConfig | None = None,
         *,
-        position_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        position_m: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
         heading_rad: float = 0.0,
         t0_s: float = 0.0,
         uav_id: str = "uav",
         priority: int = 0,
-        avoidance: object | None = None,
+        avoidance: ResolutionStrategy | None = None,
+        params: AvoidanceParams | None = None,
+        key: bytes | None = None,
+        broadcast_period_s: float = BROADCAST_PERIOD_S,
+        broadcast_phase_s: float = 0.0,
+        batch: OnboardBatch | None = None,
+        row: int = 0,
     ) -> None:
+        if batch is None:
+            batch = OnboardBatch(tracker_config, 1)
+        if not broadcast_period_s > 0.0:
+            raise ValueError(f"broadcast_period_s must be > 0, got {broadcast_period_s}")
+        self.batch = batch
+        self.row = int(row)
         self.airframe = airframe
         self.uav_id = uav_id
         self.priority = priority
-        self.tracker = MpcTracker(tracker_config, position_m=position_m, heading_rad=heading_rad,
-                                  t0_s=t0_s)
+        self.tracker = MpcTracker(batch.tracker.config, position_m=position_m,
+                                  heading_rad=heading_rad, t0_s=t0_s, batch=batch.tracker,
+                                  row=self.row)
         self.period_s = self.tracker.config.first_step_s
-        self.controller = Se3Controller(airframe, period_s=self.period_s)
+        self.controller = Se3Controller(airframe, period_s=self.period_s, rows=batch.control,
+                                        row=self.row)
         self.avoidance = avoidance
+        if params is None:
+            params = getattr(avoidance, "params", None) or AvoidanceParams()
+        self.params = params
+        self.key = key
+        self.inbox = Inbox(uav_id, time_reference=params.time_reference,  # type: ignore[arg-type]
+                           max_age_s=params.timeout_s, key=key)
         self.nominal_limits = self.tracker.limits
-        self.decision: object | None = None
-        self._last: TrackerOutput | None = None
-        self._next_avoidance_s = t0_s
+        self.decision: AvoidanceDecision | None = None
+        self.broadcast_period_s = float(broadcast_period_s)
+        self.next_broadcast_s = float(t0_s) + float(broadcast_phase_s)
+        #: The prediction of the last broadcast (for logs), and how many were sent.
+        self.last_broadcast: Prediction | None = None
+        self.predictions_sent = 0
+        self._next_avoidance_s = float(t0_s)
         self._limits_key: tuple[float, float | None, float | None] = (1.0, None, None)
+        self._ticked = False
+        self._idx = np.array([self.row], dtype=np.int64)
+        for name in StackStats._fields:
+            getattr(batch.stats, name)[self.row] = 0
 
+    # ------------------------------------------------------------------ the interface
     def set_mission(self, reference: Reference) -> None:
         """Fly a new desired trajectory (validated when the Reference was built)."""
         self.tracker.set_reference(reference)
 
+    def tick(self, now_s: float, estimate: VehicleState,
+             received: Iterable[bytes] = ()) -> OnboardOutput:
+        """One control period at ``now_s``: take the received messages, reshape the reference
+        if the avoidance is due, advance the virtual UAV, steer the real one towards it, and
+        broadcast the plan when due."""
+        self.receive(now_s, received)
+        self.plan(now_s)
+        q = np.empty(4)
+        ff = np.empty(3)
+        thrust = self.batch.tick_row(
+            self.row, np.asarray(estimate.position_m, dtype=float),
+            np.asarray(estimate.velocity_mps, dtype=float),
+            np.asarray(estimate.attitude_wxyz, dtype=float), self.period_s, q, ff)
+        target = AttitudeTarget(attitude_wxyz=q, thrust_n=thrust, body_rates_ff_radps=ff)
+        return OnboardOutput(target, self.emit(now_s))
+
+    # ------------------------------------------------------------------ the phases
+    def receive(self, now_s: float, received: Iterable[bytes]) -> list[PredictionMessage | None]:
+        """Verify, decode and validate what arrived; one entry per datagram: the message it
+        kept, or None (rejected, counted by reason, or older than what it holds)."""
+        return [self.inbox.accept(data, now_s) for data in received]
+
+    def plan(self, now_s: float) -> None:
+        """Avoidance (every :data:`AVOIDANCE_PERIOD_S`, once there is a plan): the z offset
+        and the limits for the next tracker tick."""
+        if self.avoidance is None or not self._ticked:
+            return
+        plan_s = self.tracker.time_s
+        if plan_s < self._next_avoidance_s - _SCHEDULE_TOL_S:
+            return
+        self._next_avoidance_s = plan_s + AVOIDANCE_PERIOD_S
+        self._avoid(plan_s, self.tracker.prediction())
+        self.batch.stats.avoiding[self.row] = bool(self.decision is not None
+                                                    and self.decision.avoiding)
+
+    def emit(self, now_s: float) -> bytes | None:
+        """After the tick: the prediction message when a broadcast is due (stamped ``now_s``)."""
+        self._ticked = True
+        if now_s < self.next_broadcast_s - _SCHEDULE_TOL_S:
+            return None
+        self.next_broadcast_s += self.broadcast_period_s
+        pred = self.tracker.prediction()
+        msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
+                              avoiding=self.avoidance is not None)
+        data = encode(msg)
+        if self.key is not None:
+            data = sign(data, self.key)
+        self.last_broadcast = pred
+        self.predictions_sent += 1
+        return data
+
+    # ------------------------------------------------------------------ views
     @property
     def last_output(self) -> TrackerOutput | None:
-        return self._last
+        """The tracker's last tick (None before the first)."""
+        return self.tracker.batch.output(self.row) if self._ticked else None
 
-    def tick(self, estimate: VehicleState,
-             others: Mapping[str, object] | None = None) -> OnboardOutput:
-        """One control period: reshape the reference if needed, advance the virtual UAV, then
-        steer the real UAV towards it. ``others``: the newest prediction message per sender."""
-        self.reshape(others)
-        return self.control(self.tracker.step(), estimate)
+    def prediction(self) -> Prediction:
+        """The current plan (the last tick's), stamped."""
+        return self.tracker.prediction()
 
-    # The two halves of :meth:`tick`, for a world that steps the trackers of many UAVs at once
-    # (:func:`uavmpc.tracker.tracker.step_trackers`) in between.
-    def reshape(self, others: Mapping[str, object] | None,
-                prediction: Prediction | None = None) -> None:
-        """Avoidance (every AVOIDANCE_PERIOD_S): z offset and limits for the next tracker step.
+    def command(self) -> TrackerCommand:
+        """The virtual UAV's current state: the command the controller follows."""
+        return self.tracker.command()
 
-        ``prediction``: our own current plan, if not the last output's (a world that steps the
-        trackers elsewhere, :mod:`uavmpc.world_kernel`, hands it in when due).
-        """
-        if prediction is None and self._last is not None:
-            prediction = self._last.prediction
-        if others is None or prediction is None:
-            return
-        now = float(prediction.times_s[0])
-        if self.avoidance_due(now):
-            self._next_avoidance_s = now + AVOIDANCE_PERIOD_S
-            self._avoid(now, prediction, others)
+    def report(self) -> StackReport:
+        """The statistics so far."""
+        st = self.batch.stats
+        i = self.row
+        ticks = int(st.ticks[i])
+        return StackReport(
+            uav_id=self.uav_id, ticks=ticks, flight_s=ticks * self.period_s,
+            tracking_rmse_m=float(np.sqrt(st.err_sq_sum_m2[i] / max(ticks, 1))),
+            max_z_offset_m=float(st.max_z_offset_m[i]),
+            avoidance_active_s=int(st.avoiding_ticks[i]) * self.period_s,
+            limit_violations=int(st.limit_violations[i]),
+            max_limit_excess=float(st.max_limit_excess[i]),
+            tracker_fallbacks=self.tracker.fallback_count,
+            predictions_sent=self.predictions_sent, messages_accepted=self.inbox.accepted,
+            messages_superseded=self.inbox.superseded,
+            messages_rejected=dict(self.inbox.rejected))
 
-    def avoidance_due(self, now_s: float) -> bool:
-        """Whether :meth:`reshape` would re-plan at time ``now_s`` (the plan's first stamp)."""
-        return self.avoidance is not None and now_s >= self._next_avoidance_s - 1e-9
-
-    def control(self, out: TrackerOutput, estimate: VehicleState) -> OnboardOutput:
-        """SE(3) control towards the tracker's new command."""
-        self._last = out
-        target = self.controller.update(out.command, estimate, self.period_s)
-        return OnboardOutput(out, target)
-
-    def _avoid(self, now: float, pred: Prediction, others: Mapping[str, object]) -> None:
+    # ------------------------------------------------------------------ internals
+    def _avoid(self, now: float, pred: Prediction) -> None:
         # The strategy shifts our plan by candidate offsets; hand it the plan without the part
         # of the current offset the virtual UAV has already climbed at each predicted point
         # (plan minus mission reference, clipped to [0, offset]). Subtracting the whole offset
         # would put the early, still-climbing points below the mission and make the strategy
         # climb again and again for a conflict the climb in progress already resolves.
+        assert self.avoidance is not None
         own = pred.position_m.copy()
         offset = self.tracker.z_offset_m
         mission = self.tracker.reference
@@ -137,8 +401,8 @@ class OnboardStack:
             own[:, 2] -= np.clip(own[:, 2] - nominal_z, 0.0, offset)
         elif offset:
             own[:, 2] -= offset
-        decision = self.avoidance.update(  # type: ignore[attr-defined]
-            now, self.uav_id, self.priority, pred.times_s, own, others)
+        decision = self.avoidance.update(now, self.uav_id, self.priority, pred.times_s, own,
+                                         self.inbox.latest)
         self.decision = decision
         if decision.z_offset_m != self.tracker.z_offset_m:
             self.tracker.set_z_offset(decision.z_offset_m)
@@ -162,4 +426,3 @@ def avoidance_limits(nominal: DynamicLimits, horizontal_scale: float,
         limits.descend_speed_mps, limits.descend_accel_mps2,
         limits.heading_rate_radps, limits.heading_accel_radps2,
     )
-

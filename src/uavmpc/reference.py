@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uavmpc.jit import kernel
+
 #: Largest accepted |x|, |y|, |z| in metres: far beyond any mission, small enough that
 #: squared errors in the QP stay well inside float64 precision.
 MAX_ABS_POSITION_M = 1.0e5
@@ -135,27 +137,78 @@ class Reference:
     def start_s(self) -> float:
         return float(self.times_s[0])
 
+    @property
+    def knots_s(self) -> np.ndarray:
+        """(K,) the sampling knots: ``times_s``, plus the closing knot of a looping reference."""
+        return self._knots  # type: ignore[attr-defined,no-any-return]
+
+    @property
+    def values(self) -> np.ndarray:
+        """(K, 4) the points at :attr:`knots_s`."""
+        return self._values  # type: ignore[attr-defined,no-any-return]
+
+    @property
+    def uniform_period_s(self) -> float:
+        """The knot spacing when it is uniform (sampling is then O(1)), else 0."""
+        return self._uniform_period  # type: ignore[attr-defined,no-any-return]
+
     def sample(self, t_s: np.ndarray) -> np.ndarray:
         """Linear interpolation at the times ``t_s`` (K,) → (K, 4); holds the end points."""
-        knots, values = self._knots, self._values  # type: ignore[attr-defined]
-        n = knots.shape[0]
-        if n == 1:
-            return np.broadcast_to(values[0], (t_s.shape[0], 4)).copy()
-        t0 = knots[0]
-        if self.loop:
-            period = knots[-1] - t0
-            t_s = t0 + np.where(t_s < t0, 0.0, np.mod(t_s - t0, period))
-        period = self._uniform_period  # type: ignore[attr-defined]
-        if period > 0.0:  # O(1) indexing for the common, uniformly sampled trajectory
-            pos = np.minimum(np.maximum((t_s - t0) / period, 0.0), n - 1.0)
-            idx = np.minimum(pos.astype(np.intp), n - 2)
-            frac = (pos - idx)[:, None]
+        times = np.ascontiguousarray(t_s, dtype=float).reshape(-1)
+        out = np.empty((times.shape[0], 4))
+        sample_reference(self.knots_s, self.values, self.uniform_period_s, self.loop, times,
+                         out)
+        return out
+
+
+@kernel
+def sample_reference(knots: np.ndarray, values: np.ndarray, period: float, loop: bool,
+                     times: np.ndarray, out: np.ndarray) -> None:
+    """Linear interpolation of one reference's table (knots (n,), values (n, 4)) at ``times``
+    (k,) into ``out`` (k, 4); the end points are held, a looping reference wraps.
+
+    ``period`` > 0 says the knots are uniform (O(1) indexing); otherwise the segment is found
+    by bisection, or by walking on from the previous one while the times increase.
+    """
+    n = knots.shape[0]
+    m = times.shape[0]
+    if n == 1:
+        for k in range(m):
+            for j in range(4):
+                out[k, j] = values[0, j]
+        return
+    t0 = knots[0]
+    cycle = knots[n - 1] - t0
+    idx = 0
+    for k in range(m):
+        t = times[k]
+        if loop:
+            t = t0 + (0.0 if t < t0 else np.mod(t - t0, cycle))
+        if period > 0.0:
+            pos = min(max((t - t0) / period, 0.0), n - 1.0)
+            i = min(int(pos), n - 2)
+            frac = pos - i
         else:
-            idx = np.minimum(np.maximum(np.searchsorted(knots, t_s, side="right") - 1, 0), n - 2)
-            k0 = knots[idx]
-            frac = np.minimum(np.maximum((t_s - k0) / (knots[idx + 1] - k0), 0.0), 1.0)[:, None]
-        lo = values[idx]
-        return lo + (values[idx + 1] - lo) * frac
+            # searchsorted(knots, t, "right") − 1, clipped to [0, n − 2].
+            if loop or k == 0 or knots[idx] > t:
+                lo, hi = 0, n
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if knots[mid] <= t:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                idx = lo - 1
+            else:
+                while idx + 1 < n and knots[idx + 1] <= t:
+                    idx += 1
+            i = min(max(idx, 0), n - 2)
+            k0 = knots[i]
+            frac = min(max((t - k0) / (knots[i + 1] - k0), 0.0), 1.0)
+        for j in range(4):
+            lo_v = values[i, j]
+            out[k, j] = lo_v + (values[i + 1, j] - lo_v) * frac
+
 
 
 def _wrap(angle: np.ndarray | float) -> np.ndarray | float:

@@ -23,8 +23,9 @@ stays the readable reference; a test proves they agree bit for bit).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from uavmpc.jit import kernel
 
 
 def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
@@ -62,7 +63,7 @@ def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_tim
     return out, known
 
 
-@numba.njit(cache=True)
+@kernel
 def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
                 extrapolate_s: float, own_positions_m: np.ndarray, radius_m: float,
                 near_out: np.ndarray, dz_out: np.ndarray) -> None:

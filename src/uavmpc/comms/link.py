@@ -52,6 +52,7 @@ class LinkStats:
         delivered: copies handed to receivers by ``receive``.
         dropped: copies lost at random (``loss``).
         dropped_range: copies not delivered because the receiver was out of range.
+        injected: raw byte strings delivered by :meth:`SimulatedLink.inject`.
     """
 
     published: int = 0
@@ -59,11 +60,13 @@ class LinkStats:
     delivered: int = 0
     dropped: int = 0
     dropped_range: int = 0
+    injected: int = 0
 
     @property
     def in_flight(self) -> int:
         """Copies scheduled but not yet received."""
-        return self.sent - self.delivered - self.dropped - self.dropped_range
+        return (self.sent + self.injected - self.delivered - self.dropped
+                - self.dropped_range)
 
 
 class SimulatedLink:
@@ -151,6 +154,14 @@ class SimulatedLink:
             else:
                 heapq.heappush(self._queues[r], (t_s + float(d), self._seq, payload))
                 self._seq += 1
+
+    def inject(self, receiver_id: str, msg_bytes: bytes, at_s: float) -> None:
+        """Deliver raw bytes to ``receiver_id`` at ``at_s``, as if from the air (a foreign or
+        broken transmitter): no sender, no loss, no random draw; counted as ``injected``."""
+        self.join(receiver_id)
+        heapq.heappush(self._queues[receiver_id], (float(at_s), self._seq, bytes(msg_bytes)))
+        self._seq += 1
+        self.stats.injected += 1
 
     def receive(self, receiver_id: str, t_s: float) -> list[bytes]:
         self.join(receiver_id)

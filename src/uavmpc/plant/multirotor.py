@@ -23,87 +23,50 @@ velocity removed (inelastic: no bounce, no NaN). If in contact the thrust cannot
 vehicle, it rests: velocity and rates are zeroed and roll/pitch levelled (yaw kept), and the
 attitude loop's integrator is frozen, like an autopilot's landed state.
 
-Two implementations: a compiled one (:mod:`uavmpc.plant.kernels`, numba, default) and plain
-numpy here (``backend="numpy"``, readable, the reference); a test proves they agree to 1e-9.
+The laws are the compiled kernels of :mod:`uavmpc.plant.kernels` and
+:mod:`uavmpc.plant.attitude`; the state lives in a row of a :class:`~uavmpc.plant.rows.PlantRows`
+record. A :class:`Multirotor` is a view on one row: of a 1-row record of its own, or of a record
+a batched driver allocated for many vehicles (``rows=``, ``row=``) and may step with
+:func:`~uavmpc.plant.kernels.plant_step` itself.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Literal
 
 import numpy as np
 
-from uavmpc.control.attitude import AttitudeController, Mixer, pack_gains
-from uavmpc.plant.airframe import G_MPS2, Airframe
-from uavmpc.plant.interface import AttitudeTarget, VehicleState, quat_to_rot
-from uavmpc.plant.kernels import N_RIGID, run_substeps
+from uavmpc.plant.airframe import Airframe
+from uavmpc.plant.interface import AttitudeTarget, VehicleState
+from uavmpc.plant.kernels import (
+    N_RIGID,
+    attitude_target_ok,
+    normalize_quat,
+    plant_step,
+    plant_step_motors,
+    settle,
+)
+from uavmpc.plant.rows import PlantRows
 from uavmpc.plant.wind import Wind
 
-Backend = Literal["numba", "numpy"]
-__all__ = ["N_RIGID", "Backend", "Multirotor", "ground_numpy", "rhs_numpy"]
-
-
-# --------------------------------------------------------------------------------------------
-# Plain numpy path (reference)
-# --------------------------------------------------------------------------------------------
-
-
-_rot = quat_to_rot  # the same matrix as the contract's; one definition
-
-
-def rhs_numpy(x: np.ndarray, cmd: np.ndarray, af: Airframe, wind: np.ndarray) -> np.ndarray:
-    """ẋ for state ``x`` (13 + n,) and rotor commands ``cmd`` (n,) [rad/s] (readable version)."""
-    v, q, w, rotors = x[3:6], x[6:10], x[10:13], x[N_RIGID:]
-    rot = _rot(q)
-    wrench = af.allocation() @ rotors**2  # [T, τx, τy, τz]
-    f_body = np.array([0.0, 0.0, wrench[0]]) - af.drag_n_per_mps * (rot.T @ (v - wind))
-    acc = rot @ f_body / af.mass_kg - np.array([0.0, 0.0, G_MPS2])
-    qdot = 0.5 * np.array(
-        [
-            -q[1:] @ w,
-            *(q[0] * w + np.cross(q[1:], w)),
-        ]
-    )
-    j = af.inertia_kgm2
-    wdot = np.linalg.solve(j, wrench[1:] - np.cross(w, j @ w))
-    rdot = (np.clip(cmd, 0.0, af.omega_max_radps) - rotors) / af.motor_tau_s
-    return np.concatenate([v, acc, qdot, wdot, rdot])
-
-
-def ground_numpy(x: np.ndarray, af: Airframe) -> bool:
-    """Numpy version of the ground contact (see the module docstring); modifies ``x``."""
-    if x[2] > 0.0:
-        return False
-    x[2] = 0.0
-    x[5] = max(x[5], 0.0)
-    rot = _rot(x[6:10])
-    if af.k_f * np.sum(x[N_RIGID:] ** 2) * rot[2, 2] >= af.mass_kg * G_MPS2:
-        return False
-    yaw = math.atan2(rot[1, 0], rot[0, 0])
-    x[3:6] = 0.0
-    x[6:10] = [math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)]
-    x[10:13] = 0.0
-    return True
-
-
-# --------------------------------------------------------------------------------------------
-# The plant
-# --------------------------------------------------------------------------------------------
+__all__ = ["N_RIGID", "Multirotor"]
 
 
 class Multirotor:
-    """Simulated multirotor behind the :class:`~uavmpc.plant.interface.Plant` protocol.
+    """Simulated multirotor behind the :class:`~uavmpc.plant.interface.Plant` protocol: a view
+    on one row of a :class:`~uavmpc.plant.rows.PlantRows` record.
 
     Args:
         airframe: parameters and attitude-loop gains.
         position_m: (3,) initial position (ENU) [m].
         yaw_rad: initial heading (level attitude).
-        wind: wind model (None: still air).
+        wind: wind model (None: still air); advanced by each step, the object's own.
         substep_s: integration and attitude-loop step (≤ 2 ms).
         t0_s: initial time [s].
         rotors_at_hover: start the rotors at hover speed (default: when above the ground).
-        backend: ``"numba"`` (fast) or ``"numpy"`` (reference).
+        rows: the record to be a view on (None: a 1-row record of its own). Its row ``row`` is
+            overwritten with this vehicle's airframe constants and initial state.
+        row: which row of ``rows``.
     """
 
     def __init__(
@@ -116,48 +79,54 @@ class Multirotor:
         substep_s: float = 0.002,
         t0_s: float = 0.0,
         rotors_at_hover: bool | None = None,
-        backend: Backend = "numba",
+        rows: PlantRows | None = None,
+        row: int = 0,
     ) -> None:
         if not 0.0 < substep_s <= 0.002 + 1e-12:
             raise ValueError(f"substep_s must be in (0, 0.002], got {substep_s}")
-        if backend not in ("numba", "numpy"):
-            raise ValueError(f"backend must be 'numba' or 'numpy', got {backend!r}")
+        if rows is None:
+            rows, row = PlantRows.empty(1, airframe.n_rotors), 0
+        elif not 0 <= row < rows.t_s.shape[0]:
+            raise ValueError(f"row {row} is not in a record of {rows.t_s.shape[0]} rows")
         self.airframe = airframe
         self.wind = wind
         self.substep_s = float(substep_s)
-        self.backend: Backend = backend
-        self.t_s = float(t0_s)
-        n = airframe.n_rotors
-        self._x = np.zeros(N_RIGID + n)
-        self._x[0:3] = np.asarray(position_m, dtype=float)
-        self._x[6] = math.cos(0.5 * yaw_rad)
-        self._x[9] = math.sin(0.5 * yaw_rad)
+        self._rows = rows
+        self._row = int(row)
+        rows.configure(self._row, airframe, self.substep_s)
+        rows.t_s[self._row] = float(t0_s)
+        x = rows.x[self._row]
+        x[0:3] = np.asarray(position_m, dtype=float)
+        x[6] = math.cos(0.5 * yaw_rad)
+        x[9] = math.sin(0.5 * yaw_rad)
         if rotors_at_hover is None:
-            rotors_at_hover = self._x[2] > 0.0
+            rotors_at_hover = x[2] > 0.0
         if rotors_at_hover:
-            self._x[N_RIGID:] = airframe.hover_omega_radps
-        # Compiled-path parameter arrays, packed once.
-        self._phys = np.array(
-            [airframe.mass_kg, G_MPS2, airframe.motor_tau_s, airframe.omega_max_radps,
-             *airframe.drag_n_per_mps]
-        )
-        self._inertia = np.ascontiguousarray(airframe.inertia_kgm2, dtype=float)
-        self._inertia_inv = np.linalg.inv(self._inertia)
-        self._alloc = np.ascontiguousarray(airframe.allocation())
-        self._gains = pack_gains(airframe.attitude)
-        mixer = Mixer(airframe)
-        self._mix_inv = np.ascontiguousarray(mixer.inverse)
-        self._lo, self._hi = mixer.lo_radps2, mixer.hi_radps2
-        self._ctrl = np.zeros(7)
-        self._landed = np.zeros(1)
-        self._controller = AttitudeController(airframe)  # numpy path
-        self._ground_once()
+            x[N_RIGID:N_RIGID + airframe.n_rotors] = airframe.hover_omega_radps
+        settle(self._row, rows)
+
+    # -- the record this object views ----------------------------------------------------------
+
+    @property
+    def rows(self) -> PlantRows:
+        """The record holding this vehicle's state (shared with others when a driver batches)."""
+        return self._rows
+
+    @property
+    def row(self) -> int:
+        """This vehicle's row in :attr:`rows`."""
+        return self._row
+
+    @property
+    def t_s(self) -> float:
+        """Simulated time [s]."""
+        return float(self._rows.t_s[self._row])
 
     # -- Plant protocol ------------------------------------------------------------------------
 
     def state(self) -> VehicleState:
         """The true state (copies)."""
-        x = self._x
+        x = self._rows.x[self._row]
         return VehicleState(
             t_s=self.t_s,
             position_m=x[0:3].copy(),
@@ -173,13 +142,15 @@ class Multirotor:
             ValueError: a target that is not finite or whose quaternion is far from unit length
                 (fail fast instead of integrating NaN).
         """
-        qd = np.asarray(target.attitude_wxyz, dtype=float)
-        ff = np.asarray(target.body_rates_ff_radps, dtype=float)
+        # Copies: the quaternion is normalised in place, the caller's target stays as it was.
+        qd = np.array(target.attitude_wxyz, dtype=float).reshape(4)
+        ff = np.array(target.body_rates_ff_radps, dtype=float).reshape(3)
         thrust = float(target.thrust_n)
-        norm = math.sqrt(float(qd @ qd))
-        if not (0.9 < norm < 1.1 and math.isfinite(thrust) and np.isfinite(ff).all()):
+        if not attitude_target_ok(qd, thrust, ff):
             raise ValueError(f"invalid attitude target: {target}")
-        self._advance(dt_s, False, self._no_cmd(), qd / norm, thrust, ff)
+        normalize_quat(qd)
+        n_sub = self.hold_wind(dt_s)
+        plant_step(self._row, self._rows, n_sub, qd, thrust, ff)
         return self.state()
 
     # -- extras for tests and other simulators ------------------------------------------------
@@ -187,80 +158,60 @@ class Multirotor:
     def step_motors(self, omega_cmd_radps: np.ndarray, dt_s: float) -> VehicleState:
         """Command rotor speeds directly (the attitude loop is bypassed) for ``dt_s``."""
         cmd = np.asarray(omega_cmd_radps, dtype=float).reshape(self.airframe.n_rotors)
-        self._advance(dt_s, True, cmd, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, np.zeros(3))
+        n_sub = self.hold_wind(dt_s)
+        plant_step_motors(self._row, self._rows, n_sub, cmd)
         return self.state()
 
     @property
     def rotor_speeds_radps(self) -> np.ndarray:
         """(n,) current rotor speeds [rad/s]."""
-        return self._x[N_RIGID:].copy()
+        return self._rows.x[self._row, N_RIGID:N_RIGID + self.airframe.n_rotors].copy()
 
     @property
     def landed(self) -> bool:
         """True while the vehicle rests on the ground."""
-        return bool(self._landed[0])
+        return bool(self._rows.landed[self._row])
 
     def set_state(
         self, state: VehicleState, rotor_speeds_radps: np.ndarray | None = None
     ) -> None:
         """Overwrite the state (e.g. to start from a given motion); resets the attitude loop."""
-        self.t_s = float(state.t_s)
-        self._x[0:3] = state.position_m
-        self._x[3:6] = state.velocity_mps
-        self._x[6:10] = np.asarray(state.attitude_wxyz) / np.linalg.norm(state.attitude_wxyz)
-        self._x[10:13] = state.body_rates_radps
+        rows, i = self._rows, self._row
+        x = rows.x[i]
+        rows.t_s[i] = float(state.t_s)
+        x[0:3] = state.position_m
+        x[3:6] = state.velocity_mps
+        q = np.array(state.attitude_wxyz, dtype=float).reshape(4)
+        normalize_quat(q)
+        x[6:10] = q
+        x[10:13] = state.body_rates_radps
         if rotor_speeds_radps is not None:
-            self._x[N_RIGID:] = rotor_speeds_radps
-        self._ctrl[:] = 0.0
-        self._controller.reset()
-        self._landed[0] = 0.0
-        self._ground_once()
+            x[N_RIGID:N_RIGID + self.airframe.n_rotors] = rotor_speeds_radps
+        rows.ctrl[i] = 0.0
+        rows.landed[i] = 0.0
+        settle(i, rows)
 
-    # -- internals --------------------------------------------------------------------------------
+    def substeps(self, dt_s: float) -> int:
+        """How many substeps ``dt_s`` is.
 
-    def _no_cmd(self) -> np.ndarray:
-        return np.zeros(self.airframe.n_rotors)
-
-    def _ground_once(self) -> None:
-        if self._x[2] <= 0.0:
-            self._landed[0] = 1.0 if ground_numpy(self._x, self.airframe) else 0.0
-
-    def _substeps(self, dt_s: float) -> int:
+        Raises:
+            ValueError: ``dt_s`` is not a whole number of substeps.
+        """
         n = round(dt_s / self.substep_s)
         if n < 1 or abs(n * self.substep_s - dt_s) > 1e-9:
             raise ValueError(f"dt_s={dt_s} is not a whole number of substeps of {self.substep_s}")
         return n
 
-    def _advance(
-        self, dt_s: float, direct: bool, cmd: np.ndarray, qd: np.ndarray, thrust: float,
-        ff: np.ndarray,
-    ) -> None:
-        n_sub = self._substeps(dt_s)
-        wind = self.wind.update(dt_s) if self.wind is not None else np.zeros(3)
-        if self.backend == "numba":
-            run_substeps(
-                self._x, self._ctrl, self._landed, n_sub, self.substep_s, direct, cmd, qd,
-                thrust, ff, wind, self._phys, self._inertia, self._inertia_inv, self._alloc,
-                self._gains, self._mix_inv, self._lo, self._hi,
-            )
-        else:
-            self._advance_numpy(n_sub, direct, cmd, qd, thrust, ff, wind)
-        self.t_s += n_sub * self.substep_s
+    # -- internals --------------------------------------------------------------------------------
 
-    def _advance_numpy(
-        self, n_sub: int, direct: bool, cmd: np.ndarray, qd: np.ndarray, thrust: float,
-        ff: np.ndarray, wind: np.ndarray,
-    ) -> None:
-        af, h, x = self.airframe, self.substep_s, self._x
-        for _ in range(n_sub):
-            if not direct:
-                cmd = self._controller.update(
-                    x[6:10], x[10:13], qd, thrust, ff, h, freeze_integral=self.landed
-                )
-            k1 = rhs_numpy(x, cmd, af, wind)
-            k2 = rhs_numpy(x + 0.5 * h * k1, cmd, af, wind)
-            k3 = rhs_numpy(x + 0.5 * h * k2, cmd, af, wind)
-            k4 = rhs_numpy(x + h * k3, cmd, af, wind)
-            x += h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            x[6:10] /= np.linalg.norm(x[6:10])
-            self._landed[0] = 1.0 if ground_numpy(x, af) else 0.0
+    def hold_wind(self, dt_s: float) -> int:
+        """Advance the wind by ``dt_s`` and hold it in the row for the next step; returns the
+        step's substeps. :meth:`step` calls it; a driver that steps the row with
+        :func:`~uavmpc.plant.kernels.plant_step` itself calls it before."""
+        n_sub = self.substeps(dt_s)
+        wind = self.rows.wind_mps[self._row]
+        if self.wind is not None:
+            wind[:] = self.wind.update(dt_s)
+        else:
+            wind[:] = 0.0
+        return n_sub

@@ -1,12 +1,13 @@
-"""MPC trajectory tracker (SPEC §2): the virtual UAV, its model, its QP and its solvers."""
+"""MPC trajectory tracker (SPEC §2): the virtual UAV, its model, its law and its state."""
 
+from uavmpc.solvers import AxisQpSolver, ClarabelSolver, DaqpSolver, QpResult
 from uavmpc.tracker.model import CondensedModel, braking_plan, discretize
 from uavmpc.tracker.params import AXES, DynamicLimits, TrackerConfig
-from uavmpc.tracker.qp import AxisQpSolver, ClarabelSolver, DaqpSolver, QpResult
 from uavmpc.tracker.tracker import (
     InvalidStateError,
     MpcTracker,
     Prediction,
+    TrackerBatch,
     TrackerCommand,
     TrackerOutput,
 )
@@ -22,6 +23,7 @@ __all__ = [
     "MpcTracker",
     "Prediction",
     "QpResult",
+    "TrackerBatch",
     "TrackerCommand",
     "TrackerConfig",
     "TrackerOutput",

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uavmpc.tracker.kernels import braking_plan as law
 from uavmpc.tracker.params import TrackerConfig
 
 
@@ -137,14 +138,8 @@ def braking_plan(
     a_lo: np.ndarray,
     a_hi: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Brake to a stop at the acceleration limits, for every axis at once.
-
-    The policy is ``u_k = clip(−w_k / Δt_k, a_lo, a_hi)``: it drives ``w = v + τa`` to zero as fast
-    as the input bound allows, so velocity and acceleration only ever shrink towards the box of
-    the limits in force. It is the safe fallback plan and the envelope that keeps the QP feasible
-    after a tightening. Because ``w`` integrates ``u`` exactly, the policy's ``w`` is known in
-    closed form (a ramp at the limit down to zero), and the states follow from the condensed
-    model in one product instead of a loop over the horizon.
+    """Brake to a stop at the acceleration limits, every axis at once (the law is
+    :func:`uavmpc.tracker.kernels.braking_plan`; this is its array-in, array-out face).
 
     Args:
         state: (n_axes, 3) current ``[p, v, a]`` per axis.
@@ -153,11 +148,12 @@ def braking_plan(
     Returns:
         inputs (n_axes, m) and states (n_axes, m, 3) after each step.
     """
-    m = model.config.steps
-    t = np.concatenate([[0.0], model.config.horizon_times_s])  # (m + 1,)
-    w0 = state[:, 1:2] + model.config.tau_s * state[:, 2:3]
-    w = np.where(w0 > 0.0, np.maximum(w0 + a_lo[:, None] * t, 0.0),
-                 np.minimum(w0 + a_hi[:, None] * t, 0.0))
-    inputs = np.diff(w, axis=1) / model.config.step_lengths_s
-    states = (state @ model.free.T + inputs @ model.forced.T).reshape(state.shape[0], m, 3)
+    cfg = model.config
+    m = cfg.steps
+    s = np.ascontiguousarray(state, dtype=float)
+    inputs = np.empty((s.shape[0], m))
+    states = np.empty((s.shape[0], m, 3))
+    law(s, np.ascontiguousarray(a_lo, dtype=float), np.ascontiguousarray(a_hi, dtype=float),
+        float(cfg.tau_s), np.concatenate([[0.0], cfg.horizon_times_s]), cfg.step_lengths_s,
+        np.ascontiguousarray(model.free.T), np.ascontiguousarray(model.forced.T), inputs, states)
     return inputs, states

@@ -100,8 +100,9 @@ class TrackerConfig:
         q_position, q_velocity, q_acceleration, q_input, q_input_rate: QP weights (SPEC §2.3;
             the velocity term tracks the reference's own velocity, clipped to the limits).
         limits: the nominal dynamic limits.
-        solver: "daqp" (default), "clarabel" (reference) or "batchqp" (our compiled dual
-            active-set solver, uavmpc.tracker.batchqp).
+        solver: "batchqp" (default: our compiled dual active-set solver,
+            :mod:`uavmpc.solvers.batchqp`, run inside the tracker's compiled tick), "daqp"
+            (DAQP, through the solver contract) or "clarabel" (interior point, the reference).
         iter_limit: solver iteration limit (a failure beyond it triggers the safe fallback).
     """
 
@@ -115,7 +116,7 @@ class TrackerConfig:
     q_input: float = 1.0
     q_input_rate: float = 0.0
     limits: DynamicLimits = DynamicLimits()
-    solver: str = "daqp"
+    solver: str = "batchqp"
     iter_limit: int = 1000
 
     def __post_init__(self) -> None:
@@ -131,9 +132,9 @@ class TrackerConfig:
         positive(self.q_acceleration, "weights.acceleration", allow_zero=True)
         positive(self.q_input, "weights.input")
         positive(self.q_input_rate, "weights.input_rate", allow_zero=True)
-        if self.solver not in ("daqp", "clarabel", "batchqp"):
+        if self.solver not in ("batchqp", "daqp", "clarabel"):
             raise ConfigError(
-                f"solver.name: must be 'daqp', 'clarabel' or 'batchqp', got {self.solver!r}")
+                f"solver.name: must be 'batchqp', 'daqp' or 'clarabel', got {self.solver!r}")
         if isinstance(self.iter_limit, bool) or not isinstance(self.iter_limit, int) or (
             self.iter_limit < 1
         ):

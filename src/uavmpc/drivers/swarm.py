@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +29,11 @@ import numpy as np
 
 from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
+from uavmpc.drivers.node import warm_up
+from uavmpc.drivers.world import COLLISION_DISTANCE_M, GOAL_TOLERANCE_M
 from uavmpc.log import FlightRecorder
+from uavmpc.plant import Airframe
 from uavmpc.scenarios import Scenario
-from uavmpc.world import COLLISION_DISTANCE_M, GOAL_TOLERANCE_M
 
 #: Seconds from launch to the common mission start (discovery takes ≈ 1 s; numba loads ≈ 1 s).
 STARTUP_S = 4.0
@@ -53,7 +56,7 @@ def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
                  mission_file: Path, avoidance: bool, duration_s: float,
                  key_file: str | None = None) -> list[str]:
     """The ``uavmpc node`` command line of one UAV of a scenario."""
-    cmd = [sys.executable, "-m", "uavmpc.cli", "node", "--id", spec.uav_id,
+    cmd = [sys.executable, "-m", "uavmpc.apps.cli", "node", "--id", spec.uav_id,
            "--priority", str(spec.priority), "--airframe", spec.airframe,
            "--swarm", swarm, "--listen", listen,
            "--start", *(repr(v) for v in spec.start_m), "--heading", repr(spec.heading_rad),
@@ -69,11 +72,14 @@ def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
 
 def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               duration_s: float | None = None, key_file: str | None = None,
-              kill_at_s: dict[str, float] | None = None) -> dict[str, Any]:
+              kill_at_s: dict[str, float] | None = None,
+              on_trace: Callable[[list[float], list[float]], None] | None = None
+              ) -> dict[str, Any]:
     """Fly ``scenario`` as separate node processes; returns the summary (also written).
 
     ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
-    (a UAV that drops out of the sky, as far as the link can tell)."""
+    (a UAV that drops out of the sky, as far as the link can tell). ``on_trace(t_s, d_m)``
+    gets the closest pairwise distance over time at the end (the CLI draws it)."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
     duration = scenario.duration_s if duration_s is None else float(duration_s)
@@ -83,6 +89,10 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     n = len(scenario.uavs)
     ports = free_ports(n + 1)
     endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
+    # Compile the kernels once here, into the cache every node loads them from, before the
+    # clock of the mission starts.
+    for name in sorted({u.airframe for u in scenario.uavs}):
+        warm_up(Airframe.from_toml(name) if name.endswith(".toml") else Airframe.packaged(name))
     epoch = time.time() + STARTUP_S
     ids = [u.uav_id for u in scenario.uavs]
     goals = {u.uav_id: np.array(u.goal_m) for u in scenario.uavs}
@@ -206,17 +216,6 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
         "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    if trace_t:
-        from uavmpc.plots import plt
-
-        fig, ax = plt.subplots(figsize=(8, 4))
-        ax.plot(trace_t, trace_d, label="closest pair")
-        ax.axhline(COLLISION_DISTANCE_M, color="r", ls="--", label="collision (1 m)")
-        ax.set_xlabel("time since mission start [s]")
-        ax.set_ylabel("min pairwise distance [m]")
-        ax.set_ylim(bottom=0.0)
-        ax.grid(alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(out / "min_distance.png", dpi=110)
+    if trace_t and on_trace is not None:
+        on_trace(trace_t, trace_d)
     return summary

@@ -31,12 +31,12 @@ always dual feasible, so a stale warm set only costs iterations, never correctne
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
-import numba
 import numpy as np
 
-from uavmpc.tracker.model import CondensedModel
-from uavmpc.tracker.qp import QpResult
+from uavmpc.jit import FASTMATH, kernel
+from uavmpc.solvers.contract import QpMatrices, QpResult
 
 #: Status codes (the same numbers as DAQP's exit flags where the meaning is the same).
 OPTIMAL = 1
@@ -65,14 +65,18 @@ SKIPPED = 2
 CHECK_TOL = 1e-8
 #: A problem's cached factor is rebuilt from scratch after this many solves.
 REFRESH_AGE = 50
+#: Relative relaxations of the bounds for the retries of a failed solve (see solve_warm):
+#: 1e-10, then 1e-9 (≤ 2e-7 absolute on the tracker's bounds of ≤ 100 m/s or m/s²).
+RELAX = 1e-10
+RELAX_MAX = 1e-9
+#: An attempt taking more than this many iterations per constraint row is cycling (a normal
+#: cold solve of the tracker's QPs takes about one per input, 40–100 in all).
+CYCLE_ROWS = 4
 
-#: Let LLVM reorder sums (vectorised dot products) and fuse multiply-adds, but keep NaN/inf
-#: semantics: the kernel relies on isnan/isfinite to reject bad data.
-_FAST = {"reassoc", "contract", "nsz", "arcp"}
 
 
 # --------------------------------------------------------------------------- the kernel
-@numba.njit(cache=True, fastmath=_FAST)
+@kernel(fastmath=FASTMATH)
 def _forward(lf: np.ndarray, n: int, rhs: np.ndarray, out: np.ndarray) -> None:
     """Solve L out = rhs for the leading n×n lower-triangular block of lf."""
     for i in range(n):
@@ -82,7 +86,7 @@ def _forward(lf: np.ndarray, n: int, rhs: np.ndarray, out: np.ndarray) -> None:
         out[i] = s / lf[i, i]
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@kernel(fastmath=FASTMATH)
 def _backward(lf: np.ndarray, n: int, rhs: np.ndarray, out: np.ndarray) -> None:
     """Solve Lᵀ out = rhs for the leading n×n lower-triangular block of lf."""
     for i in range(n - 1, -1, -1):
@@ -92,7 +96,7 @@ def _backward(lf: np.ndarray, n: int, rhs: np.ndarray, out: np.ndarray) -> None:
         out[i] = s / lf[i, i]
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@kernel(fastmath=FASTMATH)
 def _try_append(lf: np.ndarray, n: int, gram: np.ndarray, widx: np.ndarray, j: int,
                 col: np.ndarray, ell: np.ndarray) -> bool:
     """Append row j to the factor of Gram[W, W] (size n) if it is independent of W.
@@ -113,7 +117,7 @@ def _try_append(lf: np.ndarray, n: int, gram: np.ndarray, widx: np.ndarray, j: i
     return True
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@kernel(fastmath=FASTMATH)
 def _remove(lf: np.ndarray, n: int, k: int, widx: np.ndarray, wside: np.ndarray,
             lam: np.ndarray, x: np.ndarray) -> None:
     """Remove position k (of n) from W: a rank-1 Cholesky update of the trailing block."""
@@ -140,7 +144,7 @@ def _remove(lf: np.ndarray, n: int, k: int, widx: np.ndarray, wside: np.ndarray,
         lam[i - 1] = lam[i]
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@kernel(fastmath=FASTMATH)
 def _refine(
     f: np.ndarray, lower: np.ndarray, upper: np.ndarray, hess: np.ndarray, hinv: np.ndarray,
     cmat: np.ndarray, q: np.ndarray, gram: np.ndarray, lf: np.ndarray, widx: np.ndarray,
@@ -197,8 +201,8 @@ def _refine(
         u[i] += delta[i]
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _solve_one(
+@kernel(fastmath=FASTMATH)
+def solve_one(
     f: np.ndarray, lower: np.ndarray, upper: np.ndarray, warm: np.ndarray,
     hess: np.ndarray, hinv: np.ndarray, cmat: np.ndarray, q: np.ndarray, gram: np.ndarray,
     inv_norm: np.ndarray, iter_limit: int, u: np.ndarray, ws: np.ndarray,
@@ -243,9 +247,15 @@ def _solve_one(
         for k in range(m):
             s += cmat[r, k] * u[k]
         rows[m + r] = s
+    # The iteration works with these shifted bounds, whose round-off grows with the shift (a
+    # far reference: |G U_free| ≈ 1e4): a row's "violation" below NEAR_TOL at that scale is
+    # round-off, not infeasibility.
+    scale = 1.0
     for i in range(n):
         blo[i] = lower[i] - rows[i]
         bhi[i] = upper[i] - rows[i]
+        scale = max(scale, abs(rows[i]))
+    near_tol = NEAR_TOL * scale
 
     # Warm start. The factor depends on W only (not on f or the bounds), so when the warm set is
     # the one factorised last time it is reused as is: no refactorisation on a quiet tick.
@@ -368,7 +378,7 @@ def _solve_one(
                     if t < t_min:
                         t_min, block = t, i
             if block < 0:
-                if add_violation <= NEAR_TOL:
+                if add_violation <= near_tol:
                     # A degenerate vertex (e.g. the braking plan, on every bound at once) can
                     # look infeasible by round-off: leave this row out instead. The final
                     # check still bounds its violation.
@@ -429,7 +439,79 @@ def _solve_one(
     return OPTIMAL, iterations, nw
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@kernel(fastmath=FASTMATH)
+def solve_warm(
+    f: np.ndarray, lower: np.ndarray, upper: np.ndarray, warm: np.ndarray,
+    hess: np.ndarray, hinv: np.ndarray, cmat: np.ndarray, q: np.ndarray, gram: np.ndarray,
+    inv_norm: np.ndarray, iter_limit: int, u: np.ndarray, ws: np.ndarray,
+    lf: np.ndarray, widx: np.ndarray, wside: np.ndarray, c_nw: np.ndarray, c_age: np.ndarray,
+    p: int, lam: np.ndarray, lam_star: np.ndarray, blo: np.ndarray, bhi: np.ndarray,
+    y: np.ndarray, col: np.ndarray, ell: np.ndarray, z: np.ndarray, rows: np.ndarray,
+    skip: np.ndarray,
+) -> tuple[int, int]:
+    """:func:`solve_one` for problem slot ``p`` with its factor cache (``c_nw[p]``,
+    ``c_age[p]``, ``lf``, ``widx``, ``wside``), and a cold retry; returns (status,
+    iterations).
+
+    At a degenerate vertex (the braking plan sits on dozens of bounds at once: 46 active rows
+    for 40 inputs) the iteration can end on a row that no multiplier makes room for, which
+    reads as infeasible although the problem is not, or cycle from a warm set until the
+    iteration limit (both found by the tracker's property test; DAQP solved the same
+    problems). So a failed solve is solved again from an empty working set, then with every
+    bound relaxed by :data:`RELAX` (relative, by a slightly different amount per row), then
+    by :data:`RELAX_MAX`: that splits the degenerate vertex (the perturbation remedy against
+    cycling), and the solution violates the original bounds by no more than the relaxation,
+    which the caller checks against its own tolerance (the tracker's is 1e-6). Each attempt
+    stops after ``iter_limit`` iterations or :data:`CYCLE_ROWS` per row, whichever is fewer;
+    the iterations returned are those of all attempts.
+    """
+    nw_cached = c_nw[p]
+    if c_age[p] >= REFRESH_AGE:
+        # Rank-1 updates accumulate round-off: refactorise from the Gram matrix now and then.
+        nw_cached = -1
+        c_age[p] = 0
+    warm_start = nw_cached >= 0
+    for j in range(warm.shape[0]):
+        warm_start = warm_start or warm[j] != 0
+    # An attempt cycling at a degenerate vertex stops early, leaving room for the retries.
+    budget = min(iter_limit, CYCLE_ROWS * lower.shape[0])
+    st, it, nw = solve_one(f, lower, upper, warm, hess, hinv, cmat, q, gram, inv_norm, budget,
+                           u, ws, lf, widx, wside, nw_cached, lam, lam_star, blo, bhi, y, col,
+                           ell, z, rows, skip)
+    # Without a success, the verdict is the cold attempt's (a relaxed attempt may cycle on a
+    # problem that is infeasible indeed).
+    verdict = st
+    for relax in (0.0, RELAX, RELAX_MAX):
+        if st == OPTIMAL:
+            break
+        if st == ITERATION_LIMIT and budget == iter_limit and (relax > 0.0 or not warm_start):
+            break  # a cold attempt used the caller's whole budget
+        if relax == 0.0 and not warm_start:  # the first attempt was the cold one
+            continue
+        n = lower.shape[0]
+        lo = np.empty(n)
+        hi = np.empty(n)
+        for j in range(n):
+            # Row-dependent amounts: a uniform shift keeps parallel rows coincident.
+            r = relax * (1.0 + j / n)
+            lo[j] = lower[j] - r * max(1.0, abs(lower[j]))
+            hi[j] = upper[j] + r * max(1.0, abs(upper[j]))
+        ws[:] = 0
+        st, it2, nw = solve_one(f, lo, hi, ws, hess, hinv, cmat, q, gram, inv_norm, budget, u,
+                                ws, lf, widx, wside, -1, lam, lam_star, blo, bhi, y, col, ell, z,
+                                rows, skip)
+        it += it2
+        c_age[p] = 0
+        if relax == 0.0:
+            verdict = st
+    if st != OPTIMAL:
+        st = verdict
+    c_nw[p] = nw
+    c_age[p] += 1
+    return st, it
+
+
+@kernel(fastmath=FASTMATH)
 def solve_batch(
     f: np.ndarray, lower: np.ndarray, upper: np.ndarray, warm: np.ndarray,
     hess: np.ndarray, hinv: np.ndarray, cmat: np.ndarray, q: np.ndarray, gram: np.ndarray,
@@ -449,7 +531,7 @@ def solve_batch(
         iter_limit: active-set changes allowed per problem.
         u: (K, m), status: (K,), iterations: (K,), ws: (K, n) int8 outputs (ws may be warm).
         c_lf: (K, m+1, m+1), c_widx, c_wside: (K, m+1) int64, c_nw, c_age: (K,) int64: each
-            problem's factor cache (see :func:`_solve_one`), updated in place; c_nw = −1
+            problem's factor cache (see :func:`solve_one`), updated in place; c_nw = −1
             marks an empty cache.
     """
     n_prob, m = f.shape
@@ -466,22 +548,50 @@ def solve_batch(
     rows = np.empty(n)
     skip = np.zeros(n, dtype=np.int8)
     for p in range(n_prob):
-        nw_cached = c_nw[p]
-        if c_age[p] >= REFRESH_AGE:
-            # Rank-1 updates accumulate round-off: refactorise from the Gram matrix now and then.
-            nw_cached = -1
-            c_age[p] = 0
-        st, it, nw = _solve_one(f[p], lower[p], upper[p], warm[p], hess, hinv, cmat, q, gram,
-                                inv_norm, iter_limit, u[p], ws[p], c_lf[p], c_widx[p],
-                                c_wside[p], nw_cached, lam, lam_star, blo, bhi, y, col, ell, z,
-                                rows, skip)
+        st, it = solve_warm(f[p], lower[p], upper[p], warm[p], hess, hinv, cmat, q, gram,
+                            inv_norm, iter_limit, u[p], ws[p], c_lf[p], c_widx[p], c_wside[p],
+                            c_nw, c_age, p, lam, lam_star, blo, bhi, y, col, ell, z, rows, skip)
         status[p] = st
         iterations[p] = it
-        c_nw[p] = nw
-        c_age[p] += 1
 
 
 # --------------------------------------------------------------------------- Python API
+class LdpData(NamedTuple):
+    """The constant data of the solver for one (H, C), in the least-distance form (module doc).
+
+    Attributes:
+        hess: (m, m) H.
+        hinv: (m, m) H⁻¹.
+        cmat: (r, m) C (n = m + r rows in G = [I; C]).
+        q: (n, m) G H⁻¹.
+        gram: (n, n) G H⁻¹ Gᵀ.
+        inv_norm: (n,) 1 / √diag(gram), the inverse norms of the LDP rows.
+    """
+
+    hess: np.ndarray
+    hinv: np.ndarray
+    cmat: np.ndarray
+    q: np.ndarray
+    gram: np.ndarray
+    inv_norm: np.ndarray
+
+    @classmethod
+    def build(cls, hessian: np.ndarray, constraint_matrix: np.ndarray) -> LdpData:
+        h = np.ascontiguousarray(hessian, dtype=float)
+        c = np.ascontiguousarray(constraint_matrix, dtype=float)
+        m = h.shape[0]
+        g = np.vstack([np.eye(m), c])
+        # H = RᵀR; the Gram matrix is formed from M = G R⁻¹ (κ(R) = √κ(H)) rather than from
+        # H⁻¹ directly, which halves the digits lost to the conditioning of H.
+        r_upper = np.linalg.cholesky(h).T
+        r_inv = np.triu(np.linalg.solve(r_upper, np.eye(m)))
+        mm = g @ r_inv
+        gram = mm @ mm.T
+        gram = np.ascontiguousarray(0.5 * (gram + gram.T))
+        return cls(h, np.ascontiguousarray(r_inv @ r_inv.T), c,
+                   np.ascontiguousarray(mm @ r_inv.T), gram, 1.0 / np.sqrt(np.diag(gram)))
+
+
 class BatchQpSolver:
     """Solves K tracker QPs (any mix of axes and UAVs) sharing H and G in one compiled call.
 
@@ -495,27 +605,11 @@ class BatchQpSolver:
         >>> u, status, iters, ws = solver.solve(f, lower, upper, ws)    # doctest: +SKIP
     """
 
-    def __init__(self, model: CondensedModel, iter_limit: int = 200) -> None:
-        h = np.asarray(model.hessian, dtype=float)
-        c = np.ascontiguousarray(model.constraint_matrix, dtype=float)
-        m = h.shape[0]
-        g = np.vstack([np.eye(m), c])
-        # H = RᵀR; the Gram matrix is formed from M = G R⁻¹ (κ(R) = √κ(H)) rather than from
-        # H⁻¹ directly, which halves the digits lost to the conditioning of H.
-        r_upper = np.linalg.cholesky(h).T
-        r_inv = np.linalg.solve(r_upper, np.eye(m))
-        r_inv = np.triu(r_inv)
-        mm = g @ r_inv
-        self.m = m
-        self.n_rows = g.shape[0]
+    def __init__(self, model: QpMatrices, iter_limit: int = 200) -> None:
+        self.data = LdpData.build(model.hessian, model.constraint_matrix)
+        self.m = self.data.hess.shape[0]
+        self.n_rows = self.m + self.data.cmat.shape[0]
         self.iter_limit = int(iter_limit)
-        self._hess = np.ascontiguousarray(h)
-        self._hinv = np.ascontiguousarray(r_inv @ r_inv.T)
-        self._cmat = c
-        self._q = np.ascontiguousarray(mm @ r_inv.T)
-        gram = mm @ mm.T
-        self._gram = np.ascontiguousarray(0.5 * (gram + gram.T))
-        self._inv_norm = 1.0 / np.sqrt(np.diag(self._gram))
         self._cache_arrays: tuple[np.ndarray, ...] = ()
         self.reset(0)
 
@@ -566,8 +660,7 @@ class BatchQpSolver:
         status = np.empty(k, dtype=np.int64)
         iterations = np.empty(k, dtype=np.int64)
         ws = np.empty((k, self.n_rows), dtype=np.int8)
-        solve_batch(f, lower, upper, warm, self._hess, self._hinv, self._cmat, self._q, self._gram,
-                    self._inv_norm, self.iter_limit, u, status, iterations, ws,
+        solve_batch(f, lower, upper, warm, *self.data, self.iter_limit, u, status, iterations, ws,
                     *self._cache(f.shape[0]))
         return u, status, iterations, ws
 
@@ -579,8 +672,7 @@ class BatchQpSolver:
 
         ``warm`` and ``ws`` may be the same array (each problem reads its warm set first).
         """
-        solve_batch(f, lower, upper, warm, self._hess, self._hinv, self._cmat, self._q, self._gram,
-                    self._inv_norm, self.iter_limit, u, status, iterations, ws,
+        solve_batch(f, lower, upper, warm, *self.data, self.iter_limit, u, status, iterations, ws,
                     *self._cache(f.shape[0]))
 
 
@@ -592,7 +684,7 @@ class BatchAxisSolver:
 
     name = "batchqp"
 
-    def __init__(self, model: CondensedModel, iter_limit: int = 200) -> None:
+    def __init__(self, model: QpMatrices, iter_limit: int = 200) -> None:
         self._solver = BatchQpSolver(model, iter_limit)
         n, m = self._solver.n_rows, self._solver.m
         self._f = np.zeros((1, m))

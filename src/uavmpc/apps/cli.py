@@ -17,9 +17,9 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     import dataclasses
 
     from uavmpc import scenarios
+    from uavmpc.apps.plots import plot_world
+    from uavmpc.drivers.world import COLLISION_DISTANCE_M, World
     from uavmpc.log import FlightRecorder
-    from uavmpc.plots import plot_world
-    from uavmpc.world import COLLISION_DISTANCE_M, World
 
     sc = scenarios.load(scenario)
     link = sc.link
@@ -89,7 +89,7 @@ def _node(args: argparse.Namespace) -> int:
     import numpy as np
 
     from uavmpc.comms.zenoh_link import ZenohTransport
-    from uavmpc.node import Node, parse_mission, run_node
+    from uavmpc.drivers.node import Node, parse_mission, run_node
     from uavmpc.plant import Airframe
     from uavmpc.reference import InvalidReferenceError, Reference
 
@@ -125,11 +125,19 @@ def _node(args: argparse.Namespace) -> int:
 
 def _swarm(args: argparse.Namespace) -> int:
     from uavmpc import scenarios
-    from uavmpc.swarm import run_swarm
+    from uavmpc.drivers.swarm import run_swarm
+    from uavmpc.drivers.world import COLLISION_DISTANCE_M
 
     out = Path(args.out)
+
+    def draw(t_s: list[float], d_m: list[float]) -> None:
+        from uavmpc.apps.plots import plot_min_distance_trace
+
+        plot_min_distance_trace(t_s, d_m, COLLISION_DISTANCE_M).savefig(
+            out / "min_distance.png", dpi=110)
+
     s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
-                  duration_s=args.duration, key_file=args.key_file)
+                  duration_s=args.duration, key_file=args.key_file, on_trace=draw)
     verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
     closest = s["min_distance_m"]
     print(f"{s['scenario']} as {len(s['uavs'])} node processes over Zenoh: {verdict}; closest "
@@ -145,7 +153,7 @@ def _swarm(args: argparse.Namespace) -> int:
 
 
 def _tracker_demo(args: argparse.Namespace) -> int:
-    from uavmpc.plots import plot_axis_response
+    from uavmpc.apps.plots import plot_axis_response
     from uavmpc.reference import Reference
     from uavmpc.tracker import MpcTracker
 
@@ -188,9 +196,9 @@ def _tracker_demo(args: argparse.Namespace) -> int:
 
 
 def _track(args: argparse.Namespace) -> int:
-    from uavmpc.flight import demanding_reference, fly, summarize
+    from uavmpc.apps.plots import plot_tracking
+    from uavmpc.drivers.flight import demanding_reference, fly, summarize
     from uavmpc.plant import Airframe, Wind
-    from uavmpc.plots import plot_tracking
 
     airframe = Airframe.from_toml(args.airframe) if args.airframe.endswith(".toml") else (
         Airframe.packaged(args.airframe))
@@ -217,7 +225,7 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavmpc.bench import main_loop, main_tracker, main_world
+    from uavmpc.apps.bench import main_loop, main_tracker, main_world
 
     if args.what == "tracker":
         return main_tracker(args.ticks, args.seed)
@@ -297,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)
-    from uavmpc.campaign import build_parser_campaign
+    from uavmpc.apps.campaign import build_parser_campaign
 
     build_parser_campaign(sub)
     return parser

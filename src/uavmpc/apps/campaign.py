@@ -89,9 +89,9 @@ def trial_seeds(seed: int, index: int) -> tuple[int, int]:
 
 def run_trial(job: TrialJob) -> dict[str, Any]:
     """Fly one trial; returns its JSON record."""
+    from uavmpc.drivers.world import World
     from uavmpc.scenarios import LinkSettings
     from uavmpc.scenarios.random_walk import random_walk
-    from uavmpc.world import World
 
     wall0 = time.perf_counter()
     link = LinkSettings(latency_s=job.latency_s, jitter_s=job.jitter_s, loss=job.loss)
@@ -488,7 +488,7 @@ def merge_reports(*paths: str | Path, out: str | Path | None = None) -> str:
 
 
 def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) -> None:
-    from uavmpc.plots import plt
+    from uavmpc.apps.plots import plt
 
     title = f"random_walk, {'with' if report['avoidance'] else 'without'} avoidance"
     n = len(selected)

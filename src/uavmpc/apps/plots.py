@@ -103,3 +103,17 @@ def plot_world(t_s: np.ndarray, positions_m: np.ndarray, min_distance_m: np.ndar
     ax.legend()
     dist.tight_layout()
     return top, alt, dist
+
+
+def plot_min_distance_trace(t_s: list[float], d_m: list[float], collision_m: float) -> Figure:
+    """The closest pairwise distance of a swarm over time since the mission start."""
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(t_s, d_m, label="closest pair")
+    ax.axhline(collision_m, color="r", ls="--", label=f"collision ({collision_m:g} m)")
+    ax.set_xlabel("time since mission start [s]")
+    ax.set_ylabel("min pairwise distance [m]")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    return fig

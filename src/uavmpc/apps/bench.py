@@ -2,13 +2,16 @@
 
 ``uavmpc bench loop`` times the full single-UAV loop (see :func:`bench_loop`).
 
-``uavmpc bench tracker`` flies the virtual UAV over a demanding reference (random far waypoints,
-50 m steps, limits halved and restored) three times on the same scenario:
+``uavmpc bench tracker`` flies the standalone :class:`~uavmpc.tracker.MpcTracker` over a
+demanding reference (random far waypoints, 50 m steps, limits halved and restored) four times
+on the same scenario:
 
-1. with the configured solver (DAQP), timing every whole tick (all 4 axes: build, solve, simulate);
-2. with Clarabel, an independent interior-point solver at tight tolerance, timed the same way;
-3. with DAQP again, re-solving every QP that reached the solver with Clarabel to compare the
-   first inputs (``max_solution_diff``) and the objective values
+1. with the configured solver (the compiled dual active-set solver, inside the compiled tick),
+   timing every whole ``step()`` (all 4 axes: build, solve, simulate);
+2. with DAQP through the solver contract, timed the same way (the solver it replaced);
+3. with Clarabel, an independent interior-point solver at tight tolerance, timed the same way;
+4. with our solver again (its one-problem adapter), re-solving every QP that reached the solver
+   with Clarabel to compare the first inputs (``max_solution_diff``) and the objective values
    (``max_relative_objective_excess`` > 0 would mean our plan costs more than Clarabel's).
 
 The last line of output is one JSON object.
@@ -27,7 +30,8 @@ from typing import Any
 import numpy as np
 
 from uavmpc.reference import Reference
-from uavmpc.tracker import ClarabelSolver, DaqpSolver, MpcTracker, QpResult, TrackerConfig
+from uavmpc.solvers import AxisQpSolver, BatchAxisSolver
+from uavmpc.tracker import ClarabelSolver, MpcTracker, QpResult, TrackerConfig
 
 #: A tick whose state lies outside the limits in force by more than this is a violation.
 VIOLATION_TOL = 1e-6
@@ -71,7 +75,8 @@ def demanding_events(ticks: int, seed: int) -> list[Event]:
 class _Recording:
     """Wraps an axis solver and re-solves every QP it sees with a reference solver."""
 
-    def __init__(self, inner: DaqpSolver, reference: ClarabelSolver, hessian: np.ndarray) -> None:
+    def __init__(self, inner: AxisQpSolver, reference: ClarabelSolver, hessian: np.ndarray
+                 ) -> None:
         self.name = inner.name
         self._inner, self._reference, self._hessian = inner, reference, hessian
         self.max_diff = 0.0
@@ -161,7 +166,10 @@ def bench_tracker(
         max_violation = max(max_violation, bad)
     fallbacks = tracker.fallback_count
 
-    progress("reference run: the same flight with Clarabel as the QP solver")
+    progress("reference runs: the same flight with DAQP, then Clarabel, as the QP solver")
+    daqp_tracker = MpcTracker(dataclasses.replace(config, solver="daqp"),
+                              position_m=(0.0, 0.0, 10.0))
+    daqp_times = [dt for dt, _, _ in _fly(daqp_tracker, events, ticks)]
     ref_config = dataclasses.replace(config, solver="clarabel")
     ref_tracker = MpcTracker(ref_config, position_m=(0.0, 0.0, 10.0))
     ref_times = [dt for dt, _, _ in _fly(ref_tracker, events, ticks)]
@@ -169,7 +177,7 @@ def bench_tracker(
     progress("comparison run: every QP solved by both solvers")
     model_tracker = MpcTracker(config, position_m=(0.0, 0.0, 10.0))
     model = model_tracker.model
-    recorders = [_Recording(DaqpSolver(model, config.iter_limit), ClarabelSolver(model),
+    recorders = [_Recording(BatchAxisSolver(model, config.iter_limit), ClarabelSolver(model),
                             model.hessian) for _ in range(4)]
     cmp_tracker = MpcTracker(config, position_m=(0.0, 0.0, 10.0), solvers=list(recorders))
     for _ in _fly(cmp_tracker, events, ticks, timed=False):
@@ -186,6 +194,7 @@ def bench_tracker(
         "limit_violations": int(violations),
         "max_violation": float(max_violation),
         "fallbacks": int(fallbacks),
+        "daqp_step_median_us": round(float(np.median(daqp_times) * 1e6), 2),
         "reference_solver": "clarabel",
         "reference_step_median_us": round(float(np.median(ref_times) * 1e6), 2),
         "max_solution_diff": float(max(r.max_diff for r in recorders)),
@@ -205,7 +214,7 @@ def bench_loop(duration_s: float = 60.0, repeats: int = 3, airframe: str = "f550
     ``realtime_factor`` is simulated time over wall time of the whole loop (median of
     ``repeats`` runs, one core); ``stage_us`` splits one tick by stage in a separate, timed run.
     """
-    from uavmpc.flight import demanding_reference, fly, summarize
+    from uavmpc.drivers.flight import demanding_reference, fly, summarize
     from uavmpc.onboard import OnboardStack
     from uavmpc.plant import Airframe
     from uavmpc.plant.multirotor import Multirotor
@@ -255,45 +264,46 @@ def bench_world(sizes: tuple[int, ...] = (5, 20, 100), duration_s: float = 20.0,
                 avoidance: bool = True, progress: Callable[[str], None] = print
                 ) -> dict[str, Any]:
     """The per-core real-time factor of one random_walk world of N UAVs (full pipeline at
-    100 Hz, plants at 500 Hz, avoidance on), for each N in ``sizes``, with the compiled world
-    step; the first size is flown again with the plain per-UAV path as the reference (same
-    flight, compared). The area grows with N so the density stays that of the protocol
-    (5 UAVs in 100 m × 100 m)."""
+    100 Hz, plants at 500 Hz, avoidance on), for each N in ``sizes``, every tick one compiled
+    call for all UAVs; the first size is flown again UAV by UAV through the per-object API
+    (``World(batched=False)``: the same kernels) as the in-run reference, and the two flights
+    are compared. The area grows with N so the density stays that of the protocol (5 UAVs in
+    100 m × 100 m)."""
+    from uavmpc.drivers.world import World
     from uavmpc.scenarios.random_walk import random_walk
-    from uavmpc.world import World
 
-    def fly(n: int, backend: str) -> Any:
+    def fly(n: int, batched: bool) -> Any:
         area = 100.0 * math.sqrt(n / 5.0)
         world = World(random_walk(n, area_m=area, duration_s=duration_s, seed=1),
-                      avoidance=avoidance, seed=1, backend=backend)
+                      avoidance=avoidance, seed=1, batched=batched)
         return world.run(duration_s), area
 
     rows = []
-    for backend in ("compiled", "plain"):  # compile and load the kernels first
-        World(random_walk(2, duration_s=1.0), avoidance=avoidance, backend=backend).run(0.5)
-    compiled5 = None
+    for batched in (True, False):  # compile and load the kernels first
+        World(random_walk(2, duration_s=1.0), avoidance=avoidance, batched=batched).run(0.5)
+    first = None
     for n in sizes:
-        result, area = fly(n, "compiled")
-        compiled5 = compiled5 or result
+        result, area = fly(n, True)
+        first = first or result
         factor = result.duration_s / result.wall_s
-        rows.append({"uavs": n, "backend": "compiled", "area_m": round(area, 1),
+        rows.append({"uavs": n, "path": "batched", "area_m": round(area, 1),
                      "realtime_factor": round(factor, 2),
                      "uav_seconds_per_wall_second": round(factor * n, 1),
                      "collisions": len(result.collisions)})
-        progress(f"{n} UAVs, compiled: {factor:.1f}× real time "
+        progress(f"{n} UAVs, batched: {factor:.1f}× real time "
                  f"({factor * n:.0f} UAV-seconds per second)")
-    plain, area = fly(sizes[0], "plain")
-    factor = plain.duration_s / plain.wall_s
-    diff = float(np.abs(plain.positions_m - compiled5.positions_m).max())
-    rows.append({"uavs": sizes[0], "backend": "plain", "area_m": round(area, 1),
+    objects, area = fly(sizes[0], False)
+    factor = objects.duration_s / objects.wall_s
+    identical = bool(np.array_equal(objects.positions_m, first.positions_m))
+    rows.append({"uavs": sizes[0], "path": "per-object", "area_m": round(area, 1),
                  "realtime_factor": round(factor, 2),
                  "uav_seconds_per_wall_second": round(factor * sizes[0], 1),
-                 "collisions": len(plain.collisions)})
+                 "collisions": len(objects.collisions)})
     speedup = rows[0]["realtime_factor"] / factor
-    progress(f"{sizes[0]} UAVs, plain (reference): {factor:.1f}× real time; compiled is "
-             f"{speedup:.1f}× faster, largest position difference {diff:.1e} m")
+    progress(f"{sizes[0]} UAVs, per object (reference): {factor:.1f}× real time; batched is "
+             f"{speedup:.1f}× faster, flights bit-identical: {identical}")
     return {"duration_s": duration_s, "avoidance": avoidance, "worlds": rows,
-            "compiled_speedup": round(speedup, 2), "max_position_diff_m": diff,
+            "batched_speedup": round(speedup, 2), "identical_to_per_object": identical,
             "python": platform.python_version(), "machine": platform.machine()}
 
 

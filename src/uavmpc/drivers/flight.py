@@ -122,9 +122,9 @@ def fly(
     k = 0
     for k in range(n):
         estimate = gnss.apply(state) if gnss is not None else state
-        out = stack.tick(estimate)
+        out = stack.tick(stack.tracker.time_s, estimate)
         state = plant.step(out.target, period)
-        c = out.tracker.command
+        c = stack.command()
         t_log[k] = c.t_s
         cmd_log[k, :3] = c.position_m
         cmd_log[k, 3] = c.heading_rad

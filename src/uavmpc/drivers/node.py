@@ -3,10 +3,10 @@
 A :class:`Node` flies the same :class:`~uavmpc.onboard.OnboardStack` as the simulated world,
 against its own simulated plant (software in the loop), on the wall clock:
 
-- every 10 ms: take what the transport delivered (at most a bounded number of messages per tick,
-  so a flood cannot starve the loop), validate it in the :class:`~uavmpc.comms.link.Inbox`, step
-  the stack and the plant;
-- every 0.5 s (at its own phase): broadcast its prediction (signed when a key is configured);
+- every 10 ms: hand the stack what the transport delivered (at most a bounded number of
+  messages per tick, so a flood cannot starve the loop), step the plant with its target, and
+  publish what the stack wants broadcast (its prediction every 0.5 s at its own phase, signed
+  when a key is configured);
 - at ``state_rate_hz``: publish its state (JSON) on ``uavmpc/<swarm>/<id>/state``;
 - any time: accept a new mission (JSON, validated) on ``uavmpc/<swarm>/<id>/mission`` or from
   Python (:meth:`Node.set_mission`).
@@ -18,7 +18,6 @@ they are synchronised by construction.
 from __future__ import annotations
 
 import json
-import math
 import signal
 import threading
 import time
@@ -29,16 +28,14 @@ from typing import Any
 import numpy as np
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
-from uavmpc.comms.link import Inbox, Transport
-from uavmpc.comms.message import encode, from_prediction
+from uavmpc.comms.link import Transport
 from uavmpc.onboard import OnboardStack
-from uavmpc.plant import Airframe
+from uavmpc.plant import Airframe, VehicleState
 from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import InvalidReferenceError, Reference
 
 PERIOD_S = 0.01
-BROADCAST_PERIOD_S = 0.5
 #: Most messages taken from the transport per tick: a flood is dropped, not queued forever.
 MAX_MESSAGES_PER_TICK = 32
 #: A loop this many periods late skips ahead instead of trying to catch up.
@@ -89,9 +86,21 @@ class NodeStats:
     wall_s: float = 0.0
 
 
+def warm_up(airframe: Airframe) -> None:
+    """Compile (or load from the cache) the kernels one UAV's tick needs, before a real-time
+    clock starts: the first tick of a flight must not take the seconds a compilation does."""
+    plant = Multirotor(airframe, position_m=(0.0, 0.0, 5.0))
+    stack = OnboardStack(airframe, position_m=(0.0, 0.0, 5.0),
+                         avoidance=HeightOffsetStrategy())
+    out = stack.tick(0.0, plant.state(), ())
+    plant.step(out.target, stack.period_s)
+
+
 class Node:
-    """One UAV in real time. ``transport`` is any :class:`~uavmpc.comms.link.Transport` that
-    also offers ``put(topic, bytes)`` and ``subscribe(suffix) -> .drain()`` (the Zenoh one)."""
+    """One UAV in real time: a driver (the wall clock, a transport, a simulated plant) around
+    one :class:`~uavmpc.onboard.OnboardStack`. ``transport`` is any
+    :class:`~uavmpc.comms.link.Transport` that also offers ``put(topic, bytes)`` and
+    ``subscribe(suffix) -> .drain()`` (the Zenoh one)."""
 
     def __init__(
         self,
@@ -103,6 +112,7 @@ class Node:
         start_m: Sequence[float] = (0.0, 0.0, 5.0),
         heading_rad: float = 0.0,
         avoidance: bool = True,
+        params: AvoidanceParams | None = None,
         key: bytes | None = None,
         state_rate_hz: float = 50.0,
         phase_s: float = 0.0,
@@ -115,8 +125,7 @@ class Node:
         self.start_m = tuple(float(v) for v in start_m)
         self.heading_rad = float(heading_rad)
         self.avoidance = avoidance
-        self.params = AvoidanceParams()
-        self.inbox = Inbox(uav_id, max_age_s=self.params.timeout_s, key=key)
+        self.params = params if params is not None else AvoidanceParams()
         self._missions = transport.subscribe(f"{uav_id}/mission", maxlen=16)
         self._pending_mission: Reference | None = None
         self._lock = threading.Lock()
@@ -126,18 +135,21 @@ class Node:
         self._stop = threading.Event()
         self.stack: OnboardStack | None = None
 
-    def _build(self) -> None:
+    def _build(self) -> OnboardStack:
         # Built when the flight starts, so the virtual UAV's clock starts on the wall clock
-        # (stamps are absolute; loading the compiled kernels takes a while).
+        # (stamps are absolute), after the kernels are loaded.
+        warm_up(self.airframe)
         self.plant = Multirotor(self.airframe, position_m=self.start_m, yaw_rad=self.heading_rad,
                                 rotors_at_hover=self.start_m[2] > 0.0)
         now = time.time()
         self.stack = OnboardStack(
             self.airframe, position_m=self.start_m, heading_rad=self.heading_rad, t0_s=now,
             uav_id=self.uav_id, priority=self.priority,
-            avoidance=HeightOffsetStrategy(self.params) if self.avoidance else None)
+            avoidance=HeightOffsetStrategy(self.params) if self.avoidance else None,
+            params=self.params, key=self.key, broadcast_phase_s=self.phase_s)
         # Hold the start until a mission arrives (a mission starting later keeps this before).
         self.stack.set_mission(Reference.goto(*self.start_m, self.heading_rad, start_s=now))
+        return self.stack
 
     def set_mission(self, reference: Reference) -> None:
         """Fly ``reference`` (thread-safe; taken at the next tick)."""
@@ -152,15 +164,11 @@ class Node:
 
     def run(self, duration_s: float | None = None) -> NodeStats:
         """Fly until :meth:`stop` (or SIGINT/SIGTERM via :func:`run_node`) or ``duration_s``."""
-        self._build()
-        assert self.stack is not None
-        tracker = self.stack.tracker
+        stack = self._build()
+        tracker = stack.tracker
         t_end = None if duration_s is None else tracker.time_s + duration_s
-        next_broadcast = tracker.time_s + self.phase_s
         next_state = tracker.time_s
         intervals: list[float] = []
-        err_sq = 0.0
-        avoiding_ticks = 0
         cpu0 = time.process_time()
         wall0 = time.perf_counter()
         deadline = time.perf_counter()
@@ -169,23 +177,14 @@ class Node:
         while not self._stop.is_set() and (t_end is None or tracker.time_s < t_end):
             now = tracker.time_s
             self._take_missions(now)
-            for data in self.transport.receive(self.uav_id, now)[:MAX_MESSAGES_PER_TICK]:
-                self.inbox.accept(data, now)
-            others = self.inbox.latest if self.stack.avoidance is not None else None
-            out = self.stack.tick(state, others)
+            received = self.transport.receive(self.uav_id, now)[:MAX_MESSAGES_PER_TICK]
+            out = stack.tick(now, state, received)
             state = self.plant.step(out.target, PERIOD_S)
-            err = state.position_m - out.tracker.command.position_m
-            err_sq += float(err @ err)
-            decision = self.stack.decision
-            avoiding_ticks += bool(decision is not None and decision.avoiding)
-            self.stats.max_z_offset_m = max(self.stats.max_z_offset_m, tracker.z_offset_m)
-            if now >= next_broadcast:
-                next_broadcast += BROADCAST_PERIOD_S
-                self._broadcast(out, now)
+            if out.outgoing is not None:
+                self.transport.publish(out.outgoing, self.uav_id, now)
             if now >= next_state:
                 next_state += self.state_period_s
-                self._publish_state(now, state, out)
-            self.stats.ticks += 1
+                self._publish_state(now, state)
             # Real time: sleep to the next deadline; if far behind, skip ahead (never burst).
             deadline += PERIOD_S
             slack = deadline - time.perf_counter()
@@ -206,10 +205,14 @@ class Node:
             s.period_p50_ms = float(np.median(ms))
             s.period_p99_ms = float(np.percentile(ms, 99))
             s.period_max_ms = float(ms.max())
-        s.accepted = self.inbox.accepted
-        s.rejected = dict(self.inbox.rejected)
-        s.tracking_rmse_m = math.sqrt(err_sq / max(s.ticks, 1))
-        s.avoidance_active_s = avoiding_ticks * PERIOD_S
+        rep = stack.report()
+        s.ticks = rep.ticks
+        s.predictions_sent = rep.predictions_sent
+        s.accepted = rep.messages_accepted
+        s.rejected = dict(rep.messages_rejected)
+        s.tracking_rmse_m = rep.tracking_rmse_m
+        s.max_z_offset_m = rep.max_z_offset_m
+        s.avoidance_active_s = rep.avoidance_active_s
         s.final_position_m = state.position_m.tolist()
         return s
 
@@ -224,30 +227,21 @@ class Node:
         with self._lock:
             ref, self._pending_mission = self._pending_mission, None
         if ref is not None:
-            self.stack.set_mission(ref)  # type: ignore[union-attr]
+            assert self.stack is not None
+            self.stack.set_mission(ref)
 
-    def _broadcast(self, out: Any, now: float) -> None:
-        msg = from_prediction(out.tracker.prediction, uav_id=self.uav_id,
-                              priority=self.stack.priority, stamp_s=now,
-                              avoiding=self.stack.avoidance is not None)
-        data = encode(msg)
-        if self.key is not None:
-            from uavmpc.comms.auth import sign
-
-            data = sign(data, self.key)
-        self.transport.publish(data, self.uav_id, now)
-        self.stats.predictions_sent += 1
-
-    def _publish_state(self, now: float, state: Any, out: Any) -> None:
-        decision = self.stack.decision
-        cmd = out.tracker.command
+    def _publish_state(self, now: float, state: VehicleState) -> None:
+        stack = self.stack
+        assert stack is not None
+        decision = stack.decision
+        cmd = stack.command()
         self.transport.put("state", json.dumps({
             "t": now,
             "p": state.position_m.tolist(),
             "v": state.velocity_mps.tolist(),
             "heading": float(heading_of(state.attitude_wxyz)),
             "cmd": cmd.position_m.tolist(),
-            "z_offset": self.stack.tracker.z_offset_m,
+            "z_offset": stack.tracker.z_offset_m,
             "avoiding": bool(decision is not None and decision.avoiding),
             "conflicts": list(decision.conflicts) if decision is not None else [],
         }, separators=(",", ":")).encode())

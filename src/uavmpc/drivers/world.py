@@ -1,0 +1,479 @@
+"""Many UAVs, one sky: N onboard stacks, N plants, one lossy link, one simulated clock.
+
+Each UAV runs its own :class:`~uavmpc.onboard.OnboardStack` and sees only the bytes the link
+delivered to it; nothing is shared between UAVs but the bytes on the link. The world itself only
+advances the clock, moves the bytes, and watches for collisions (a 3-D distance between centres
+below :data:`COLLISION_DISTANCE_M`).
+
+Every tick is one compiled call for all UAVs (:func:`world_tick`): each UAV's numerical part of
+its stack (:func:`~uavmpc.onboard.onboard_row`) and its plant
+(:func:`~uavmpc.plant.kernels.plant_step`) on its own row of the records the world owns — the
+same functions a stack and a plant run when ticked alone (``World(..., batched=False)`` does
+that, UAV by UAV, and flies bit for bit the same). Messages, avoidance (10 Hz) and broadcasts
+(2 Hz) stay per UAV in Python, in the stacks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy, ResolutionStrategy
+from uavmpc.comms.link import SimulatedLink
+from uavmpc.config import ConfigError
+from uavmpc.jit import bind, kernel
+from uavmpc.log import FlightRecorder
+from uavmpc.onboard import (
+    BROADCAST_PERIOD_S,
+    OnboardBatch,
+    OnboardStack,
+    onboard_post,
+    onboard_pre,
+    onboard_row,
+)
+from uavmpc.plant import Airframe, PlantRows, Wind
+from uavmpc.plant.interface import heading_of
+from uavmpc.plant.kernels import attitude_target_ok, normalize_quat, plant_step
+from uavmpc.plant.multirotor import Multirotor
+from uavmpc.reference import Reference
+from uavmpc.scenarios import LinkSettings, Scenario
+from uavmpc.tracker import TrackerConfig
+from uavmpc.tracker.kernels import make_scratch
+
+COLLISION_DISTANCE_M = 1.0
+#: A UAV has reached its goal when it ends within this 3-D distance of it.
+GOAL_TOLERANCE_M = 1.0
+#: Log rate of poses and status (predictions are logged at each broadcast).
+POSE_LOG_PERIOD_S = 0.05
+
+
+@dataclass
+class Collision:
+    """One contact: from when two UAVs came closer than the threshold, its closest distance."""
+
+    t: float
+    a: str
+    b: str
+    distance_m: float
+
+
+@dataclass
+class _Uav:
+    """One UAV of the world: its program, its plant, where it should end."""
+
+    uav_id: str
+    goal_m: np.ndarray
+    stack: OnboardStack
+    plant: Multirotor
+    clock_offset_s: float = 0.0  # its clock minus the world's
+
+
+@dataclass(frozen=True)
+class UavOutcome:
+    """How one UAV's flight went (``summary.json``'s per-UAV entry).
+
+    Attributes:
+        max_z_offset_m, avoidance_active_s, tracking_rmse_m, limit_violations,
+        max_limit_excess, tracker_fallbacks: from its stack (:class:`~uavmpc.onboard.StackReport`).
+        reached_goal: it ended within :data:`GOAL_TOLERANCE_M` of its goal.
+        final_position_m: where it ended (ENU, m).
+        messages_rejected: messages its inbox rejected.
+    """
+
+    max_z_offset_m: float
+    avoidance_active_s: float
+    tracking_rmse_m: float
+    reached_goal: bool
+    final_position_m: list[float]
+    limit_violations: int
+    max_limit_excess: float
+    tracker_fallbacks: int
+    messages_rejected: int
+
+
+@dataclass
+class WorldResult:
+    """What a run produced (``summary()`` gives the summary.json dictionary).
+
+    Attributes:
+        t_s: (K,) sample times of the traces (every tick).
+        positions_m: (K, N, 3) true positions; z_offset_m: (K, N); min_distance_m: (K,).
+    """
+
+    scenario: str
+    seed: int
+    avoidance: bool
+    duration_s: float
+    uav_ids: list[str]
+    t_s: np.ndarray
+    positions_m: np.ndarray
+    z_offset_m: np.ndarray
+    min_distance_m: np.ndarray
+    collisions: list[Collision]
+    per_uav: dict[str, UavOutcome]
+    messages: dict[str, int]
+    wall_s: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "scenario": self.scenario,
+            "seed": self.seed,
+            "avoidance": self.avoidance,
+            "duration_s": self.duration_s,
+            "collisions": [c.__dict__ for c in self.collisions],
+            "min_distance_m": float(self.min_distance_m.min()),
+            "uavs": {k: dataclasses.asdict(v) for k, v in self.per_uav.items()},
+            "messages": self.messages,
+            "wall_s": self.wall_s,
+            "realtime_factor": self.duration_s / self.wall_s if self.wall_s > 0 else None,
+            **self.extra,
+        }
+
+
+def broadcast_phase(i: int, n: int) -> float:
+    """When UAV i of n first broadcasts: the phases are spread over the period."""
+    return BROADCAST_PERIOD_S * (i + 0.5) / n
+
+
+@kernel
+def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
+               pair_d):
+    """One 10 ms tick of every UAV, the compiled solver inline: each UAV's stack
+    (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true state, then the
+    plant flies the target (:func:`~uavmpc.plant.kernels.plant_step`); row ``k`` of the traces
+    (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the pair distances
+    ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the index of a UAV whose attitude
+    target could not be flown (the tick stops there)."""
+    n = plant.x.shape[0]
+    sc = make_scratch(consts.horizon_s.shape[0])
+    qd = np.empty(4)
+    ff = np.empty(3)
+    for i in range(n):
+        x = plant.x[i]
+        thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, sc,
+                             qd, ff)
+        if not attitude_target_ok(qd, thrust, ff):
+            return i
+        normalize_quat(qd)
+        plant_step(i, plant, n_sub, qd, thrust, ff)
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    return -1
+
+
+@kernel
+def world_pre(trk, stats, plant):
+    """:func:`world_tick`'s bookkeeping before the trackers tick (Python solvers)."""
+    for i in range(plant.x.shape[0]):
+        onboard_pre(i, trk, stats, plant.x[i, 0:3])
+
+
+@kernel
+def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
+               pair_d):
+    """:func:`world_tick` after the trackers ticked (Python solvers): control and plants."""
+    qd = np.empty(4)
+    ff = np.empty(3)
+    for i in range(plant.x.shape[0]):
+        x = plant.x[i]
+        thrust = onboard_post(i, trk, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, qd, ff)
+        if not attitude_target_ok(qd, thrust, ff):
+            return i
+        normalize_quat(qd)
+        plant_step(i, plant, n_sub, qd, thrust, ff)
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    return -1
+
+
+@kernel
+def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
+    n = plant.x.shape[0]
+    for i in range(n):
+        for j in range(3):
+            pos_out[k, i, j] = plant.x[i, j]
+        zoff_out[k, i] = trk.z_offset_m[i]
+    best = math.inf
+    p = 0
+    for a in range(n):
+        for b in range(a + 1, n):
+            d0 = pos_out[k, a, 0] - pos_out[k, b, 0]
+            d1 = pos_out[k, a, 1] - pos_out[k, b, 1]
+            d2 = pos_out[k, a, 2] - pos_out[k, b, 2]
+            d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            pair_d[p] = d
+            best = min(best, d)
+            p += 1
+    dmin_out[k] = best
+
+
+class World:
+    """A scenario flown by its UAVs.
+
+    Args:
+        scenario: who flies where (see :mod:`uavmpc.scenarios`).
+        avoidance: run collision avoidance on every UAV (else: none, flags down).
+        seed: fixes the link's randomness and the wind.
+        link: overrides the scenario's link settings.
+        wind_mps: mean wind along x (each UAV its own seeded gusts, σ = 0.3 × mean).
+        recorder: optional MCAP recorder.
+        strategy: makes each UAV's conflict-resolution strategy from the scenario's avoidance
+            parameters (any :class:`~uavmpc.avoidance.ResolutionStrategy`).
+        tracker_config: the tracker set-up of every UAV (default: packaged data/tracker.toml).
+        clock_offsets_s: per UAV, how far its clock is ahead of the world's [s] (default: all
+            synchronised). A UAV stamps its messages, judges their age and schedules itself
+            on its own clock; its mission's times are read on it too.
+        batched: tick every UAV in one compiled call (default); False ticks each stack and
+            plant on its own (:meth:`OnboardStack.tick`, :meth:`Multirotor.step`): the same
+            kernels, bit for bit the same flight, slower.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        avoidance: bool = True,
+        seed: int = 0,
+        link: LinkSettings | None = None,
+        wind_mps: float = 0.0,
+        recorder: FlightRecorder | None = None,
+        strategy: Callable[[AvoidanceParams], ResolutionStrategy] = HeightOffsetStrategy,
+        tracker_config: TrackerConfig | None = None,
+        clock_offsets_s: Sequence[float] | None = None,
+        batched: bool = True,
+    ) -> None:
+        self.scenario = scenario
+        self.avoidance = avoidance
+        self.seed = seed
+        self.recorder = recorder
+        self.batched = bool(batched)
+        settings = link if link is not None else scenario.link
+        try:
+            params = AvoidanceParams.from_dict(scenario.avoidance)
+        except TypeError as exc:
+            raise ConfigError(f"avoidance: {exc}") from None
+        self.params = params
+        self._positions: dict[str, np.ndarray] = {}
+        self.link = SimulatedLink(
+            [u.uav_id for u in scenario.uavs], latency_s=settings.latency_s,
+            jitter_s=settings.jitter_s, loss=settings.loss,
+            range_m=settings.range_m or None, position_of=self._positions.__getitem__,
+            seed=seed,
+        )
+        airframes: dict[str, Airframe] = {}
+        for spec in scenario.uavs:
+            if spec.airframe not in airframes:
+                airframes[spec.airframe] = (Airframe.from_toml(spec.airframe)
+                                            if spec.airframe.endswith(".toml")
+                                            else Airframe.packaged(spec.airframe))
+        n = len(scenario.uavs)
+        offsets = np.zeros(n) if clock_offsets_s is None else np.asarray(clock_offsets_s, float)
+        if offsets.shape != (n,) or not np.all(np.isfinite(offsets)):
+            raise ValueError(f"clock_offsets_s: need {n} finite offsets [s], got "
+                             f"{clock_offsets_s!r}")
+        #: The records of every UAV's numbers, one row each: their stacks' and their plants'.
+        self.onboard = OnboardBatch(tracker_config, n)
+        self.plants = PlantRows.empty(n, max(a.n_rotors for a in airframes.values()))
+        self.uavs: list[_Uav] = []
+        period = self.onboard.tracker.config.first_step_s
+        for i, spec in enumerate(scenario.uavs):
+            af = airframes[spec.airframe]
+            wind = None
+            if wind_mps > 0.0:
+                wind = Wind(mean_mps=(wind_mps, 0.0, 0.0), gust_sigma_mps=0.3 * wind_mps,
+                            seed=seed * 1000 + i)
+            plant = Multirotor(af, position_m=spec.start_m, yaw_rad=spec.heading_rad, wind=wind,
+                               rotors_at_hover=spec.start_m[2] > 0.0, rows=self.plants, row=i)
+            # Each UAV broadcasts at its own phase, spread over the period.
+            off = float(offsets[i])
+            stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
+                                 t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
+                                 avoidance=strategy(params) if avoidance else None,
+                                 params=params, broadcast_phase_s=broadcast_phase(i, n),
+                                 batch=self.onboard, row=i)
+            mission = spec.mission
+            if off:
+                mission = Reference(mission.times_s + off, mission.points, mission.loop)
+            stack.set_mission(mission)
+            self.uavs.append(_Uav(spec.uav_id, np.array(spec.goal_m), stack, plant, off))
+            self._positions[spec.uav_id] = np.array(spec.start_m, dtype=float)
+        self.t_s = 0.0
+        self.period_s = period
+        self.n_sub = self.uavs[0].plant.substeps(period)
+        if any(u.plant.substeps(period) != self.n_sub for u in self.uavs):
+            raise ValueError("the plants' substeps differ; a world steps them together")
+        self._kernels: tuple[Any, Any] | None = None
+
+    def run(self, duration_s: float | None = None) -> WorldResult:
+        """Fly for ``duration_s`` (default: the scenario's) and return the result."""
+        duration = self.scenario.duration_s if duration_s is None else float(duration_s)
+        if not (math.isfinite(duration) and duration > 0):
+            raise ValueError(f"duration_s must be > 0, got {duration_s}")
+        ticks = round(duration / self.period_s)
+        if ticks < 1:
+            raise ValueError(f"duration_s must be at least one tick ({self.period_s} s)")
+        n = len(self.uavs)
+        ids = [u.uav_id for u in self.uavs]
+        pos = np.empty((ticks, n, 3))
+        zoff = np.empty((ticks, n))
+        dmin = np.full(ticks, np.inf)
+        t_log = np.empty(ticks)
+        iu = np.triu_indices(n, 1)
+        pair_d = np.empty(max(1, n * (n - 1) // 2))
+        contact: dict[tuple[int, int], Collision] = {}
+        collisions: list[Collision] = []
+        ranged = self.link.range_m is not None
+        next_log = self.t_s
+        wall0 = time.perf_counter()
+        for k in range(ticks):
+            now = self.t_s
+            if self.batched:
+                self._tick_batched(now, k, pos, zoff, dmin, pair_d)
+            else:
+                self._tick_objects(now, k, pos, zoff, dmin, pair_d)
+            self.t_s = now + self.period_s
+            t_log[k] = self.t_s
+            if ranged:  # the link's range check sees where the UAVs are
+                for i, u in enumerate(self.uavs):
+                    self._positions[u.uav_id] = pos[k, i]
+            if n > 1 and (dmin[k] < COLLISION_DISTANCE_M or contact):
+                self._collisions(pair_d, iu, ids, contact, collisions)
+            if self.recorder is not None and self.t_s >= next_log - 1e-9:
+                next_log = self.t_s + POSE_LOG_PERIOD_S
+                self._log()
+        wall = time.perf_counter() - wall0
+        for i, u in enumerate(self.uavs):
+            self._positions[u.uav_id] = pos[ticks - 1, i].copy()
+        per_uav = {}
+        for i, u in enumerate(self.uavs):
+            final = pos[-1, i]
+            rep = u.stack.report()
+            per_uav[u.uav_id] = UavOutcome(
+                max_z_offset_m=rep.max_z_offset_m, avoidance_active_s=rep.avoidance_active_s,
+                tracking_rmse_m=rep.tracking_rmse_m,
+                reached_goal=bool(np.linalg.norm(final - u.goal_m) < GOAL_TOLERANCE_M),
+                final_position_m=final.tolist(), limit_violations=rep.limit_violations,
+                max_limit_excess=rep.max_limit_excess, tracker_fallbacks=rep.tracker_fallbacks,
+                messages_rejected=rep.messages_rejected_total)
+        st = self.link.stats
+        messages = {"sent": st.sent, "delivered": st.delivered,
+                    "dropped": st.dropped + st.dropped_range, "published": st.published}
+        return WorldResult(self.scenario.name, self.seed, self.avoidance, ticks * self.period_s,
+                           ids, t_log, pos, zoff, dmin, collisions, per_uav, messages, wall)
+
+    # ------------------------------------------------------------------------------ one tick
+    def _receive_and_plan(self, now: float) -> None:
+        rec = self.recorder
+        for u in self.uavs:
+            data = self.link.receive(u.uav_id, now)
+            rejected = u.stack.inbox.rejected_total
+            kept = u.stack.receive(now + u.clock_offset_s, data)
+            if rec is not None:
+                for msg in kept:
+                    if msg is not None:
+                        rec.link(now, "delivered", msg.uav_id, u.uav_id, msg.stamp_s)
+                for _ in range(u.stack.inbox.rejected_total - rejected):
+                    rec.link(now, "rejected", "?", u.uav_id)
+            u.stack.plan(now + u.clock_offset_s)
+
+    def _emit(self, now: float) -> None:
+        for u in self.uavs:
+            data = u.stack.emit(now + u.clock_offset_s)
+            if data is not None:
+                self._publish(u, data, now)
+
+    def _tick_batched(self, now: float, k: int, pos: np.ndarray, zoff: np.ndarray,
+                      dmin: np.ndarray, pair_d: np.ndarray) -> None:
+        self._receive_and_plan(now)
+        for u in self.uavs:
+            if u.plant.wind is not None:
+                u.plant.hold_wind(self.period_s)
+        ob = self.onboard
+        trk = ob.tracker
+        table = trk.table()
+        traces = (k, pos, zoff, dmin, pair_d)
+        if ob.inline:
+            if self._kernels is None or self._kernels[0] is not table:
+                self._kernels = (table, bind(world_tick, trk.rows, table, trk.consts,
+                                             ob.control, ob.stats, self.plants, self.n_sub,
+                                             self.period_s, *traces))
+            bad = self._kernels[1](trk.rows, table, trk.consts, ob.control, ob.stats,
+                                   self.plants, self.n_sub, self.period_s, *traces)
+        else:
+            world_pre(trk.rows, ob.stats, self.plants)
+            trk.step()
+            bad = world_post(trk.rows, trk.consts, ob.control, ob.stats, self.plants,
+                             self.n_sub, self.period_s, *traces)
+        if bad >= 0:
+            raise ValueError(f"invalid attitude target for {self.uavs[bad].uav_id} "
+                             "(not finite): the controller got a degenerate state")
+        self._emit(now)
+
+    def _tick_objects(self, now: float, k: int, pos: np.ndarray, zoff: np.ndarray,
+                      dmin: np.ndarray, pair_d: np.ndarray) -> None:
+        # Receive and plan for everyone first, as the batched tick does: a UAV must not see a
+        # message another UAV sent in this same tick.
+        self._receive_and_plan(now)
+        for u in self.uavs:
+            # received and planned above: those phases are no-ops here
+            out = u.stack.tick(now + u.clock_offset_s, u.plant.state())
+            u.plant.step(out.target, self.period_s)
+            if out.outgoing is not None:
+                self._publish(u, out.outgoing, now)
+        _trace(self.onboard.tracker.rows, self.plants, k, pos, zoff, dmin, pair_d)
+
+    # ------------------------------------------------------------------------------ internals
+    def _publish(self, u: _Uav, data: bytes, now: float) -> None:
+        self.link.publish(data, u.uav_id, now)
+        pred = u.stack.last_broadcast
+        if self.recorder is not None and pred is not None:
+            self.recorder.prediction(u.uav_id, now, pred.position_m, pred.heading_rad)
+            self.recorder.link(now, "sent", u.uav_id, stamp_s=now)
+
+    def _collisions(self, d: np.ndarray, iu: tuple[np.ndarray, np.ndarray], ids: list[str],
+                    contact: dict[tuple[int, int], Collision],
+                    collisions: list[Collision]) -> None:
+        close = d < COLLISION_DISTANCE_M
+        if not close.any() and not contact:
+            return
+        for j in range(d.shape[0]):
+            key = (int(iu[0][j]), int(iu[1][j]))
+            if close[j]:
+                c = contact.get(key)
+                if c is None:
+                    c = Collision(self.t_s, ids[key[0]], ids[key[1]], float(d[j]))
+                    contact[key] = c
+                    collisions.append(c)
+                c.distance_m = min(c.distance_m, float(d[j]))
+            else:
+                contact.pop(key, None)
+
+    def _log(self) -> None:
+        rec = self.recorder
+        assert rec is not None
+        for u in self.uavs:
+            last = u.stack.last_output
+            if last is None:
+                continue
+            s = u.plant.state()
+            rec.pose(u.uav_id, "state", self.t_s, s.position_m, float(heading_of(s.attitude_wxyz)))
+            c = last.command
+            rec.pose(u.uav_id, "command", self.t_s, c.position_m, c.heading_rad)
+            ref = u.stack.tracker.reference
+            if ref is not None:
+                r = ref.sample(np.array([self.t_s]))[0]
+                rec.pose(u.uav_id, "reference", self.t_s, r[:3], float(r[3]))
+            decision = u.stack.decision
+            rec.status(u.uav_id, self.t_s,
+                       velocity_mps=s.velocity_mps.tolist(),
+                       command_velocity_mps=c.velocity_mps.tolist(),
+                       z_offset_m=u.stack.tracker.z_offset_m,
+                       avoiding=bool(decision is not None and decision.avoiding),
+                       conflicts=list(decision.conflicts) if decision is not None else [],
+                       limit_excess=u.stack.tracker.limit_excess(),
+                       braking=bool(last.braking))
