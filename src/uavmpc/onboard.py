@@ -47,6 +47,7 @@ from uavmpc.tracker.kernels import (
     TrackerConsts,
     TrackerRows,
     limit_excess,
+    scratch_views,
     tick_row,
 )
 from uavmpc.tracker.tracker import TrackerOutput
@@ -136,6 +137,17 @@ def onboard_row(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerC
     return onboard_post(i, trk, consts, ctl, stats, p, v, q, dt, q_out, ff_out)
 
 
+@kernel
+def onboard_one(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
+                ctl: ControlRows, stats: StackStats, p: np.ndarray, v: np.ndarray,
+                q: np.ndarray, dt: float, buf: np.ndarray, skip: np.ndarray, q_out: np.ndarray,
+                ff_out: np.ndarray) -> float:
+    """:func:`onboard_row` for one stack ticking alone (work arrays from the batch's buffers,
+    :func:`~uavmpc.tracker.kernels.scratch_views`)."""
+    sc = scratch_views(buf, skip, consts.horizon_s.shape[0])
+    return onboard_row(i, trk, refs, consts, ctl, stats, p, v, q, dt, sc, q_out, ff_out)
+
+
 class OnboardBatch:
     """The numerical state of N onboard stacks of one tracker set-up, one row each.
 
@@ -168,10 +180,10 @@ class OnboardBatch:
                                       dt, q_out, ff_out))
         table = t.table()
         if self._one is None or self._one[0] is not table:
-            self._one = (table, bind(onboard_row, row, t.rows, table, t.consts, self.control,
-                                     self.stats, p, v, q, dt, t.scratch, q_out, ff_out))
+            self._one = (table, bind(onboard_one, row, t.rows, table, t.consts, self.control,
+                                     self.stats, p, v, q, dt, *t.scratch, q_out, ff_out))
         return float(self._one[1](row, t.rows, table, t.consts, self.control, self.stats, p, v,
-                                  q, dt, t.scratch, q_out, ff_out))
+                                  q, dt, *t.scratch, q_out, ff_out))
 
 
 @dataclass(frozen=True, eq=False)

@@ -89,11 +89,16 @@ def _forward(lf: np.ndarray, n: int, rhs: np.ndarray, out: np.ndarray) -> None:
 @kernel(fastmath=FASTMATH)
 def _backward(lf: np.ndarray, n: int, rhs: np.ndarray, out: np.ndarray) -> None:
     """Solve Lᵀ out = rhs for the leading n×n lower-triangular block of lf."""
+    # Column by column of Lᵀ, i.e. along the rows of L: contiguous memory, vectorised (the
+    # dot-product form would walk down the columns of L).
+    for k in range(n):
+        out[k] = rhs[k]
     for i in range(n - 1, -1, -1):
-        s = rhs[i]
-        for k in range(i + 1, n):
-            s -= lf[k, i] * out[k]
-        out[i] = s / lf[i, i]
+        x = out[i] / lf[i, i]
+        out[i] = x
+        row = lf[i]
+        for k in range(i):
+            out[k] -= row[k] * x
 
 
 @kernel(fastmath=FASTMATH)
@@ -202,6 +207,26 @@ def _refine(
 
 
 @kernel(fastmath=FASTMATH)
+def unconstrained(f: np.ndarray, hinv: np.ndarray, cmat: np.ndarray, u: np.ndarray,
+                  rows: np.ndarray) -> None:
+    """The unconstrained optimum U_free = −H⁻¹ f into ``u`` (m,) and its rows G U_free =
+    [U_free; C U_free] into ``rows`` (n,): what :func:`solve_one` starts from."""
+    m = f.shape[0]
+    for i in range(m):
+        s = 0.0
+        for k in range(m):
+            s -= hinv[i, k] * f[k]
+        u[i] = s
+    for i in range(m):
+        rows[i] = u[i]
+    for r in range(rows.shape[0] - m):
+        s = 0.0
+        for k in range(m):
+            s += cmat[r, k] * u[k]
+        rows[m + r] = s
+
+
+@kernel(fastmath=FASTMATH)
 def solve_one(
     f: np.ndarray, lower: np.ndarray, upper: np.ndarray, warm: np.ndarray,
     hess: np.ndarray, hinv: np.ndarray, cmat: np.ndarray, q: np.ndarray, gram: np.ndarray,
@@ -212,14 +237,15 @@ def solve_one(
 ) -> tuple[int, int, int]:
     """One QP; writes u (m,) and ws (n,); returns (status, iterations, |W|). See module doc.
 
-    ``lf`` (m+1, m+1), ``widx``/``wside`` (m+1,) are this problem's own factor of Gram[W, W]
-    and its ordered working set, kept from the previous call; ``nw_cached`` is their size then
-    (−1: unknown). They are reused when ``warm`` is exactly that set, else rebuilt.
+    On entry ``u`` holds the unconstrained optimum U_free = −H⁻¹ f and ``rows`` (n,) its rows
+    G U_free (:func:`unconstrained`; a caller that has them already, as the tracker does,
+    passes its own). ``lf`` (m+1, m+1), ``widx``/``wside`` (m+1,) are this problem's own
+    factor of Gram[W, W] and its ordered working set, kept from the previous call;
+    ``nw_cached`` is their size then (−1: unknown). They are reused when ``warm`` is exactly
+    that set, else rebuilt.
     """
     m = f.shape[0]
     n = lower.shape[0]
-    for i in range(m):
-        u[i] = 0.0
     bad = 0
     for i in range(m):
         if not math.isfinite(f[i]):
@@ -232,21 +258,10 @@ def solve_one(
     if bad != 0:
         for i in range(n):
             ws[i] = 0
+        for i in range(m):
+            u[i] = 0.0
         return bad, 0, 0
 
-    # Unconstrained optimum and the bounds shifted into the LDP's coordinates.
-    for i in range(m):
-        s = 0.0
-        for k in range(m):
-            s -= hinv[i, k] * f[k]
-        u[i] = s
-    for i in range(m):
-        rows[i] = u[i]
-    for r in range(n - m):
-        s = 0.0
-        for k in range(m):
-            s += cmat[r, k] * u[k]
-        rows[m + r] = s
     # The iteration works with these shifted bounds, whose round-off grows with the shift (a
     # far reference: |G U_free| ≈ 1e4): a row's "violation" below NEAR_TOL at that scale is
     # round-off, not infeasibility.
@@ -450,8 +465,8 @@ def solve_warm(
     skip: np.ndarray,
 ) -> tuple[int, int]:
     """:func:`solve_one` for problem slot ``p`` with its factor cache (``c_nw[p]``,
-    ``c_age[p]``, ``lf``, ``widx``, ``wside``), and a cold retry; returns (status,
-    iterations).
+    ``c_age[p]``, ``lf``, ``widx``, ``wside``), and retries; returns (status, iterations).
+    ``u`` and ``rows`` hold the unconstrained start on entry, as for :func:`solve_one`.
 
     At a degenerate vertex (the braking plan sits on dozens of bounds at once: 46 active rows
     for 40 inputs) the iteration can end on a row that no multiplier makes room for, which
@@ -497,6 +512,7 @@ def solve_warm(
             lo[j] = lower[j] - r * max(1.0, abs(lower[j]))
             hi[j] = upper[j] + r * max(1.0, abs(upper[j]))
         ws[:] = 0
+        unconstrained(f, hinv, cmat, u, rows)
         st, it2, nw = solve_one(f, lo, hi, ws, hess, hinv, cmat, q, gram, inv_norm, budget, u,
                                 ws, lf, widx, wside, -1, lam, lam_star, blo, bhi, y, col, ell, z,
                                 rows, skip)
@@ -548,6 +564,7 @@ def solve_batch(
     rows = np.empty(n)
     skip = np.zeros(n, dtype=np.int8)
     for p in range(n_prob):
+        unconstrained(f[p], hinv, cmat, u[p], rows)
         st, it = solve_warm(f[p], lower[p], upper[p], warm[p], hess, hinv, cmat, q, gram,
                             inv_norm, iter_limit, u[p], ws[p], c_lf[p], c_widx[p], c_wside[p],
                             c_nw, c_age, p, lam, lam_star, blo, bhi, y, col, ell, z, rows, skip)

@@ -57,6 +57,8 @@ class TrackerConsts(NamedTuple):
         use_vref: the velocity weight is on (the reference's velocity enters f).
         free_t: (3, 3m), forced_t: (m, 3m): the plan ``X = s0 free_t + U forced_t``.
         ldp: the QP solver's data for (H, C); iter_limit: its iteration limit.
+        spans: (5, m, 2) int64 the nonzero columns of each row of f_ref_t, vref_of_ref,
+            f_vref_t, neg_hinv and c_t (:func:`nonzero_spans`).
     """
 
     horizon_s: np.ndarray
@@ -76,6 +78,17 @@ class TrackerConsts(NamedTuple):
     forced_t: np.ndarray
     ldp: LdpData
     iter_limit: int
+    spans: np.ndarray
+
+
+def nonzero_spans(x: np.ndarray) -> np.ndarray:
+    """(K, 2) per row of x (K, W): [first, last + 1) of its nonzero columns ([0, 0) if none).
+    The products of the tick skip the exact zeros outside (half of most of these matrices:
+    an input only acts on later steps), which changes no sum."""
+    nz = x != 0.0
+    first = np.where(nz.any(axis=1), nz.argmax(axis=1), 0)
+    last = np.where(nz.any(axis=1), x.shape[1] - nz[:, ::-1].argmax(axis=1), 0)
+    return np.stack([first, last], axis=1).astype(np.int64)
 
 
 class TrackerRows(NamedTuple):
@@ -97,7 +110,9 @@ class TrackerRows(NamedTuple):
             braked because their QP failed; qp_solves, iterations: (N,) solver work.
     The QPs between :func:`prepare_row` and :func:`advance_row`:
         f: (N, 4, m); lower, upper: (N, 4, n); need: (N, 4) the axis needs the solver;
-        solved: (N, 4) its solver reported an optimum (written by the solver step);
+        solved: (N, 4) int8 what its solver reported (written by the solver step): 0 no
+            solution, 1 a solution (that :func:`advance_row` checks against the bounds), 2 a
+            solution the solver checked itself against the actual rows (our compiled one);
         brake_u: (N, 4, m) the braking plan's inputs (valid when braking or fallen back).
     The dual active-set solver's warm start per axis:
         ws: (N, 4, n) int8 working sets; lf: (N, 4, m + 1, m + 1) Cholesky factors;
@@ -148,7 +163,7 @@ class TrackerRows(NamedTuple):
             np.zeros(n, dtype=np.bool_), np.zeros((n, N_AXES), dtype=np.bool_),
             np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
             np.zeros((n, N_AXES, m)), np.zeros((n, N_AXES, nr)), np.zeros((n, N_AXES, nr)),
-            np.zeros((n, N_AXES), dtype=np.bool_), np.zeros((n, N_AXES), dtype=np.bool_),
+            np.zeros((n, N_AXES), dtype=np.bool_), np.zeros((n, N_AXES), dtype=np.int8),
             np.zeros((n, N_AXES, m)),
             np.zeros((n, N_AXES, nr), dtype=np.int8), np.zeros((n, N_AXES, m1, m1)),
             np.zeros((n, N_AXES, m1), dtype=np.int64), np.zeros((n, N_AXES, m1), dtype=np.int64),
@@ -223,15 +238,16 @@ def braking_plan(rel: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray, tau: float
 
 
 @kernel(fastmath=FASTMATH)
-def _axpy4(a: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+def _axpy4(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray) -> None:
     """y[j] += Σ_k a[j, k] x[k] for the 4 rows j of a (4, K) and y (4, W), x (K, W): rows of
-    x scaled and summed, k in order, each read once for all four."""
-    w = y.shape[1]
+    x scaled and summed, k in order, each read once for all four; only the columns
+    ``span[k, 0] ≤ j < span[k, 1]`` of row k, outside of which it is exactly zero (the
+    model's matrices are triangular or banded: :func:`nonzero_spans`)."""
     for k in range(x.shape[0]):
         xk = x[k]
         a0, a1, a2, a3 = a[0, k], a[1, k], a[2, k], a[3, k]
         y0, y1, y2, y3 = y[0], y[1], y[2], y[3]
-        for j in range(w):
+        for j in range(span[k, 0], span[k, 1]):
             xj = xk[j]
             y0[j] += a0 * xj
             y1[j] += a1 * xj
@@ -240,15 +256,15 @@ def _axpy4(a: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
 
 
 @kernel(fastmath=FASTMATH)
-def excess4(u: np.ndarray, c_t: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-            cu: np.ndarray, worst: np.ndarray) -> None:
+def excess4(u: np.ndarray, c_t: np.ndarray, c_t_span: np.ndarray, lower: np.ndarray,
+            upper: np.ndarray, cu: np.ndarray, worst: np.ndarray) -> None:
     """The largest violation of lower ≤ [u; u C_tᵀ] ≤ upper for each of the four axes (inputs
     ``u`` (4, m), bounds (4, m + r)) into ``worst`` (4,): −inf if none, NaN for an axis with
     a NaN input (callers test ``not worst <= tol``). ``cu`` (4, r): scratch for the rows."""
     m = u.shape[1]
     nr = c_t.shape[1]
     cu[:] = 0.0
-    _axpy4(u, c_t, cu)
+    _axpy4(u, c_t, c_t_span, cu)
     for ax in range(4):
         w = -math.inf
         for k in range(m):
@@ -288,14 +304,60 @@ class Scratch(NamedTuple):
 
 
 @kernel
+def scratch_floats(m: int) -> int:
+    """Length of the float buffer :func:`scratch_views` cuts a :class:`Scratch` from."""
+    return 45 * m + 18
+
+
+@kernel
+def scratch_views(buf: np.ndarray, skip: np.ndarray, m: int) -> Scratch:
+    """The work arrays of a tick as views of one float buffer (:func:`scratch_floats` long)
+    and one int8 buffer (2m + 1): a driver passes two arrays to a kernel, not nineteen."""
+    n = 2 * m + 1
+    o = 0
+    times = buf[o:o + m]
+    o += m
+    rr = buf[o:o + 4 * m].reshape((m, 4))
+    o += 4 * m
+    r_rel = buf[o:o + 4 * m].reshape((4, m))
+    o += 4 * m
+    brake_s = buf[o:o + 12 * m].reshape((4, m, 3))
+    o += 12 * m
+    vref = buf[o:o + 4 * m].reshape((4, m))
+    o += 4 * m
+    rows_free = buf[o:o + m + 1]
+    o += m + 1
+    rows = buf[o:o + n]
+    o += n
+    h_orig = buf[o:o + m]
+    o += m
+    cu = buf[o:o + 4 * (m + 1)].reshape((4, m + 1))
+    o += 4 * (m + 1)
+    lam = buf[o:o + m + 1]
+    o += m + 1
+    lam_star = buf[o:o + m + 1]
+    o += m + 1
+    blo = buf[o:o + n]
+    o += n
+    bhi = buf[o:o + n]
+    o += n
+    y = buf[o:o + n]
+    o += n
+    col = buf[o:o + n]
+    o += n
+    ell = buf[o:o + m + 1]
+    o += m + 1
+    z = buf[o:o + m + 1]
+    o += m + 1
+    worst = buf[o:o + 4]
+    return Scratch(times, rr, r_rel, brake_s, vref, rows_free, rows, h_orig, cu, lam, lam_star,
+                   blo, bhi, y, col, ell, z, skip[:n], worst)
+
+
+@kernel
 def make_scratch(m: int) -> Scratch:
-    """Work arrays of one row's tick (shared by the rows of one call)."""
-    return Scratch(np.empty(m), np.empty((m, 4)), np.empty((4, m)), np.empty((4, m, 3)),
-                    np.empty((4, m)), np.empty(m + 1), np.empty(2 * m + 1), np.empty(m),
-                    np.empty((4, m + 1)), np.zeros(m + 1), np.zeros(m + 1),
-                    np.empty(2 * m + 1), np.empty(2 * m + 1), np.empty(2 * m + 1),
-                    np.empty(2 * m + 1), np.empty(m + 1), np.empty(m + 1),
-                    np.zeros(2 * m + 1, dtype=np.int8), np.empty(4))
+    """Fresh work arrays of one row's tick (shared by the rows of one call)."""
+    return scratch_views(np.empty(scratch_floats(m)), np.zeros(2 * m + 1, dtype=np.int8), m)
 
 
 @kernel(fastmath=FASTMATH)
@@ -393,15 +455,15 @@ def prepare_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConst
         r1, r2, up = rel[ax, 1], rel[ax, 2], rows.u_prev[i, ax]
         for k in range(m):
             f[ax, k] = r1 * c.f_state_t[1, k] + r2 * c.f_state_t[2, k] + up * c.f_uprev[k]
-    _axpy4(r_rel, c.f_ref_t, f)
+    _axpy4(r_rel, c.f_ref_t, c.spans[0], f)
     if c.use_vref:
         # The reference's own velocity, clipped: a jump in it is not a speed to match.
         vref[:] = 0.0
-        _axpy4(r_rel, c.vref_of_ref, vref)
+        _axpy4(r_rel, c.vref_of_ref, c.spans[1], vref)
         for ax in range(4):
             for k in range(m):
                 vref[ax, k] = min(max(vref[ax, k], v_lo[ax]), v_hi[ax])
-        _axpy4(vref, c.f_vref_t, f)
+        _axpy4(vref, c.f_vref_t, c.spans[2], f)
     for ax in range(4):
         r1, r2 = rel[ax, 1], rel[ax, 2]
         for k in range(nr):
@@ -409,14 +471,14 @@ def prepare_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConst
             lower[ax, m + k] -= rows_free[k]
             upper[ax, m + k] -= rows_free[k]
     u[:] = 0.0
-    _axpy4(f, c.neg_hinv, u)
+    _axpy4(f, c.neg_hinv, c.spans[3], u)
     # Bound check of the unconstrained optima.
     worst4 = sc.worst
-    excess4(u, c.c_t, lower, upper, sc.cu, worst4)
+    excess4(u, c.c_t, c.spans[4], lower, upper, sc.cu, worst4)
     for ax in range(4):
         worst = worst4[ax]
         rows.need[i, ax] = not worst <= 0.0  # a bound is active (or NaN): solve the QP
-        rows.solved[i, ax] = False
+        rows.solved[i, ax] = 0
 
 
 @kernel(fastmath=FASTMATH)
@@ -428,15 +490,20 @@ def advance_row(i: int, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> Non
     braking = rows.braking[i]
     fell_back = False
     solves = 0
-    need = rows.need[i]
-    if need[0] or need[1] or need[2] or need[3]:
-        excess4(u, c.c_t, rows.lower[i], rows.upper[i], sc.cu, sc.worst)
+    need, solved = rows.need[i], rows.solved[i]
+    # Never trust a solver's word alone: a solution is checked against the bounds here unless
+    # the solver checked it itself (ours: the rows G U of its final solution, within 1e-8).
+    check = False
+    for ax in range(4):
+        check = check or (need[ax] and solved[ax] == 1)
+    if check:
+        excess4(u, c.c_t, c.spans[4], rows.lower[i], rows.upper[i], sc.cu, sc.worst)
     for ax in range(4):
         rows.fallback[i, ax] = False
         if not need[ax]:
             continue
         solves += 1
-        ok = rows.solved[i, ax] and sc.worst[ax] <= FEASIBILITY_TOL
+        ok = solved[ax] == 2 or (solved[ax] == 1 and sc.worst[ax] <= FEASIBILITY_TOL)
         if not ok:
             if not fell_back and not braking:
                 braking_plan(rel, rows.a_lo[i], rows.a_hi[i], c.tau_s, c.t_grid_s, c.step_len_s,
@@ -473,12 +540,18 @@ def solve_row(i: int, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> None:
         if not rows.need[i, ax]:
             continue
         ws = rows.ws[i, ax]
+        # Its start, as prepare_row left it: U_free in u_plan, the rows C U_free in sc.cu.
+        m = rows.u_plan.shape[2]
+        for k in range(m):
+            sc.rows[k] = rows.u_plan[i, ax, k]
+        for k in range(sc.cu.shape[1]):
+            sc.rows[m + k] = sc.cu[ax, k]
         st, it = solve_warm(
             rows.f[i, ax], rows.lower[i, ax], rows.upper[i, ax], ws, ld.hess, ld.hinv, ld.cmat,
             ld.q, ld.gram, ld.inv_norm, c.iter_limit, rows.u_plan[i, ax], ws, rows.lf[i, ax],
             rows.widx[i, ax], rows.wside[i, ax], nw_flat, age_flat, 4 * i + ax, sc.lam,
             sc.lam_star, sc.blo, sc.bhi, sc.y, sc.col, sc.ell, sc.z, sc.rows, sc.skip)
-        rows.solved[i, ax] = st == OPTIMAL
+        rows.solved[i, ax] = 2 if st == OPTIMAL else 0
         iterations += it
     rows.iterations[i] = iterations
 
@@ -494,24 +567,28 @@ def tick_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
 
 @kernel
 def tick_rows(idx: np.ndarray, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
-              sc: Scratch) -> None:
-    """:func:`tick_row` for the rows ``idx``."""
+              buf: np.ndarray, skip: np.ndarray) -> None:
+    """:func:`tick_row` for the rows ``idx`` (work arrays: :func:`scratch_views`' buffers)."""
+    sc = scratch_views(buf, skip, c.horizon_s.shape[0])
     for i in idx:
         tick_row(i, rows, refs, c, sc)
 
 
 @kernel
 def prepare_rows(idx: np.ndarray, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
-                 sc: Scratch) -> None:
+                 buf: np.ndarray, skip: np.ndarray) -> None:
     """:func:`prepare_row` for the rows ``idx`` (a Python solver takes the marked axes)."""
+    sc = scratch_views(buf, skip, c.horizon_s.shape[0])
     for i in idx:
         prepare_row(i, rows, refs, c, sc)
         rows.iterations[i] = 0
 
 
 @kernel
-def advance_rows(idx: np.ndarray, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> None:
+def advance_rows(idx: np.ndarray, rows: TrackerRows, c: TrackerConsts, buf: np.ndarray,
+                 skip: np.ndarray) -> None:
     """:func:`advance_row` for the rows ``idx``."""
+    sc = scratch_views(buf, skip, c.horizon_s.shape[0])
     for i in idx:
         advance_row(i, rows, c, sc)
 
@@ -561,3 +638,12 @@ def snapshot_row(i: int, rows: TrackerRows, out: np.ndarray) -> tuple[bool, int,
         if rows.fallback[i, ax]:
             bits |= 1 << ax
     return rows.braking[i], rows.qp_solves[i], rows.iterations[i], bits
+
+
+@kernel
+def tick_snapshot(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
+                  buf: np.ndarray, skip: np.ndarray, out: np.ndarray
+                  ) -> tuple[bool, int, int, int]:
+    """:func:`tick_row`, then :func:`snapshot_row`: one call for a tracker ticking alone."""
+    tick_row(i, rows, refs, c, scratch_views(buf, skip, c.horizon_s.shape[0]))
+    return snapshot_row(i, rows, out)

@@ -32,11 +32,13 @@ from uavmpc.tracker.kernels import (
     TrackerRows,
     advance_rows,
     limit_excess,
-    make_scratch,
+    nonzero_spans,
     plan,
     prepare_rows,
+    scratch_floats,
     snapshot_row,
     tick_rows,
+    tick_snapshot,
 )
 from uavmpc.tracker.model import CondensedModel
 from uavmpc.tracker.params import DynamicLimits, TrackerConfig
@@ -168,6 +170,8 @@ def build_consts(config: TrackerConfig, model: CondensedModel) -> TrackerConsts:
         vref_of_ref[k - 1, k], vref_of_ref[k, k] = -1.0 / lengths[k], 1.0 / lengths[k]
     vref_of_ref[:, 0] = vref_of_ref[:, 1]
     c = np.ascontiguousarray
+    products = (c(model.f_ref.T), vref_of_ref, c(model.f_vref.T), c(-model.hessian_inv),
+                c(model.constraint_matrix.T))
     return TrackerConsts(
         horizon_s=c(config.horizon_times_s), step_len_s=c(lengths),
         t_grid_s=np.concatenate([[0.0], config.horizon_times_s]), tau_s=float(config.tau_s),
@@ -178,6 +182,7 @@ def build_consts(config: TrackerConfig, model: CondensedModel) -> TrackerConsts:
         free_t=c(model.free.T), forced_t=c(model.forced.T),
         ldp=LdpData.build(model.hessian, model.constraint_matrix),
         iter_limit=int(config.iter_limit),
+        spans=np.stack([nonzero_spans(x) for x in products]),
     )
 
 
@@ -223,8 +228,11 @@ class TrackerBatch:
         self._table_type: tuple[object, ...] | None = None
         self._kernels: tuple[Callable[..., None], ...] | None = None
         self._snapshot: Callable[..., None] | None = None
-        #: Work arrays of the kernels, allocated once (one row is ticked at a time).
-        self.scratch = make_scratch(self.config.steps)
+        self._alone: tuple[ReferenceTable, Callable[..., tuple[bool, int, int, int]]] | None = None
+        #: Work arrays of the kernels, allocated once (one row is ticked at a time): the
+        #: buffers :func:`~uavmpc.tracker.kernels.scratch_views` cuts them from.
+        self.scratch = (np.empty(scratch_floats(self.config.steps)),
+                        np.zeros(2 * self.config.steps + 1, dtype=np.int8))
         self._inline = np.arange(self.n, dtype=np.int64)
         self._python = np.zeros(0, dtype=np.int64)
         if self.config.solver != "batchqp":
@@ -307,7 +315,7 @@ class TrackerBatch:
         tick, prepare, advance = kernels
         sc = self.scratch
         if rows is not None and not self._python.size:  # the common case, kept short
-            tick(rows, self.rows, table, self.consts, sc)
+            tick(rows, self.rows, table, self.consts, *sc)
             return
         if rows is None:
             inline, python = self._inline, self._python
@@ -317,20 +325,20 @@ class TrackerBatch:
             has = np.array([self.solvers[i] is not None for i in rows], dtype=bool)
             inline, python = rows[~has], rows[has]
         if inline.size:
-            tick(inline, self.rows, table, self.consts, sc)
+            tick(inline, self.rows, table, self.consts, *sc)
         if python.size:
-            prepare(python, self.rows, table, self.consts, sc)
+            prepare(python, self.rows, table, self.consts, *sc)
             for i in python.tolist():
                 self._solve_python(i)
-            advance(python, self.rows, self.consts, sc)
+            advance(python, self.rows, self.consts, *sc)
 
     def _bind(self, table: ReferenceTable) -> tuple[Callable[..., None], ...]:
         # Bound once per table: the record types are fixed, numba's per-call inference is not
         # free (≈ 6 µs for these records, a third of a tick).
         idx, sc = self._inline, self.scratch
-        return (bind(tick_rows, idx, self.rows, table, self.consts, sc),
-                bind(prepare_rows, idx, self.rows, table, self.consts, sc),
-                bind(advance_rows, idx, self.rows, self.consts, sc))
+        return (bind(tick_rows, idx, self.rows, table, self.consts, *sc),
+                bind(prepare_rows, idx, self.rows, table, self.consts, *sc),
+                bind(advance_rows, idx, self.rows, self.consts, *sc))
 
     def _solve_python(self, i: int) -> None:
         r = self.rows
@@ -346,7 +354,7 @@ class TrackerBatch:
             self._python_status[i][axis] = result.status
             if result.inputs is not None:
                 r.u_plan[i, axis] = result.inputs
-                r.solved[i, axis] = True
+                r.solved[i, axis] = 1
         r.iterations[i] = iterations
 
     # ------------------------------------------------------------------ outputs
@@ -367,6 +375,22 @@ class TrackerBatch:
         if self._snapshot is None:
             self._snapshot = bind(snapshot_row, row, r, record)
         braking, solves, iterations, bits = self._snapshot(row, r, record)
+        return TrackerOutput(_AXES_OF_BITS[bits], braking, solves, iterations, record,
+                             self.consts)
+
+    def step_output(self, row: int) -> TrackerOutput:
+        """:meth:`step` of one row, then its :meth:`output` (one compiled call when the row
+        solves inline: a tracker ticking alone)."""
+        if self.solvers[row] is not None:
+            self.step(np.array([row], dtype=np.int64))
+            return self.output(row)
+        table = self._table if self._table is not None else self.table()
+        record = np.empty(29 + 4 * self.config.steps)
+        if self._alone is None or self._alone[0] is not table:
+            self._alone = (table, bind(tick_snapshot, row, self.rows, table, self.consts,
+                                       *self.scratch, record))
+        braking, solves, iterations, bits = self._alone[1](row, self.rows, table, self.consts,
+                                                           *self.scratch, record)
         return TrackerOutput(_AXES_OF_BITS[bits], braking, solves, iterations, record,
                              self.consts)
 
@@ -538,8 +562,7 @@ class MpcTracker:
     # ------------------------------------------------------------------ the tick
     def step(self) -> TrackerOutput:
         """Advance the virtual UAV by one tick and return the command and the prediction."""
-        self.batch.step(self._idx)
-        return self.batch.output(self.row)
+        return self.batch.step_output(self.row)
 
     def prediction(self) -> Prediction:
         """The plan of the last tick (as in its output), stamped."""
