@@ -326,3 +326,21 @@ class Se3Oracle:
         if h > h_max:
             return np.array([force[0] * h_max / h, force[1] * h_max / h, fz])
         return np.array([force[0], force[1], fz])
+
+
+def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray,
+                at_times_s: np.ndarray, extrapolate_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Numpy oracle of :func:`uavmpc.avoidance.proximity.align_into` for k predictions:
+    positions (k, m, 3) and known (k, m)."""
+    times = np.asarray(other_times_s, dtype=float)
+    pos = np.asarray(other_positions_m, dtype=float)
+    at = np.asarray(at_times_s, dtype=float)
+    n = times.shape[1]
+    count = (times[:, None, :] <= at[None, :, None]).sum(axis=2)
+    j = np.clip(count - 1, 0, n - 2)
+    t0 = np.take_along_axis(times, j, axis=1)
+    t1 = np.take_along_axis(times, j + 1, axis=1)
+    p0 = np.take_along_axis(pos, j[..., None], axis=1)
+    p1 = np.take_along_axis(pos, (j + 1)[..., None], axis=1)
+    w = np.maximum((at[None, :] - t0) / (t1 - t0), 0.0)
+    return p0 + w[..., None] * (p1 - p0), at[None, :] <= times[:, -1:] + extrapolate_s

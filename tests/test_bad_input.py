@@ -118,3 +118,42 @@ def test_tracker_config_files_are_validated(tmp_path) -> None:
             TrackerConfig.from_toml(path)
     with pytest.raises(ConfigError, match="file not found"):
         TrackerConfig.from_toml(tmp_path / "missing.toml")
+
+
+def test_a_bad_estimate_is_refused_by_name_and_changes_nothing() -> None:
+    """An autopilot link or a simulator may hand over anything: the stack names the field and
+    its state stays as it was (the next good estimate flies on)."""
+    import dataclasses
+
+    from uavmpc.onboard import OnboardStack
+    from uavmpc.plant import Airframe, Multirotor
+
+    af = Airframe.packaged("x500")
+    plant = Multirotor(af, position_m=(0.0, 0.0, 5.0))
+    stack = OnboardStack(af, position_m=(0.0, 0.0, 5.0))
+    good = plant.state()
+    stack.tick(0.0, good)
+    before = stack.tracker.state
+    for field, value, match in [("position_m", np.array([0.0, np.nan, 5.0]), "position_m"),
+                                ("velocity_mps", np.zeros(2), "velocity_mps"),
+                                ("attitude_wxyz", "level", "attitude_wxyz")]:
+        with pytest.raises(ValueError, match=match):
+            stack.tick(0.01, dataclasses.replace(good, **{field: value}))
+    assert np.array_equal(stack.tracker.state, before)
+    assert stack.report().ticks == 1
+    # A read-only, strided view (as a driver may hand over) is taken as the same numbers.
+    wide = np.zeros(6)
+    wide[::2] = good.position_m
+    wide.flags.writeable = False
+    stack.tick(0.01, dataclasses.replace(good, position_m=wide[::2]))
+    assert stack.report().ticks == 2
+
+
+def test_batch_rows_out_of_range_are_refused() -> None:
+    from uavmpc.tracker import TrackerBatch
+
+    batch = TrackerBatch(n=2)
+    with pytest.raises(IndexError, match="rows"):
+        batch.step(np.array([0, 2]))
+    batch.step([1])  # any sequence of indices
+    assert batch.rows.t_s[1] > 0.0 and batch.rows.t_s[0] == 0.0

@@ -14,7 +14,7 @@ def test_sampling_matches_np_interp(uniform: bool) -> None:
     pts = rng.normal(scale=10.0, size=(n, 4))
     pts[:, 3] = np.cumsum(rng.uniform(-1.0, 1.0, n))  # already continuous headings
     ref = Reference(times, pts)
-    assert (ref._uniform_period > 0.0) == uniform
+    assert (ref.uniform_period_s > 0.0) == uniform
     t = rng.uniform(times[0] - 5.0, times[-1] + 5.0, 500)
     expected = np.column_stack([np.interp(t, times, pts[:, i]) for i in range(4)])
     np.testing.assert_allclose(ref.sample(t), expected, atol=1e-9)

@@ -320,14 +320,14 @@ class OnboardStack:
         """One control period at ``now_s``: take the received messages, reshape the reference
         if the avoidance is due, advance the virtual UAV, steer the real one towards it, and
         broadcast the plan when due."""
+        p = _estimate_part(estimate, "position_m", 3)
+        v = _estimate_part(estimate, "velocity_mps", 3)
+        q_now = _estimate_part(estimate, "attitude_wxyz", 4)
         self.receive(now_s, received)
         self.plan(now_s)
         q = np.empty(4)
         ff = np.empty(3)
-        thrust = self.batch.tick_row(
-            self.row, np.asarray(estimate.position_m, dtype=float),
-            np.asarray(estimate.velocity_mps, dtype=float),
-            np.asarray(estimate.attitude_wxyz, dtype=float), self.period_s, q, ff)
+        thrust = self.batch.tick_row(self.row, p, v, q_now, self.period_s, q, ff)
         target = AttitudeTarget(attitude_wxyz=q, thrust_n=thrust, body_rates_ff_radps=ff)
         return OnboardOutput(target, self.emit(now_s))
 
@@ -422,6 +422,20 @@ class OnboardStack:
         if key != self._limits_key:
             self._limits_key = key
             self.tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
+
+
+def _estimate_part(estimate: VehicleState, name: str, n: int) -> np.ndarray:
+    """A fresh, writable float64 (n,) copy of one field of the estimate (the exact array type
+    the bound kernels take), or a ValueError naming the field."""
+    try:
+        out = np.array(getattr(estimate, name), dtype=float).reshape(n)
+    except (AttributeError, TypeError, ValueError):
+        raise ValueError(f"estimate.{name}: must be {n} numbers, got "
+                         f"{getattr(estimate, name, None)!r}") from None
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"estimate.{name}: not finite ({out.tolist()}); the stack refuses to "
+                         "steer on it")
+    return out
 
 
 def avoidance_limits(nominal: DynamicLimits, horizontal_scale: float,

@@ -17,8 +17,9 @@ Outside the other prediction's time span:
   count as a conflict.
 
 Everything is vectorised over points and over senders (arrays ``(k, m)``).
-:func:`near_and_dz` is the compiled form the avoidance calls at 10 Hz per UAV (``align_batch``
-stays the readable reference; a test proves they agree bit for bit).
+:func:`align_into` is the alignment law (compiled, one prediction); :func:`near_and_dz` the
+form the avoidance calls at 10 Hz per UAV (alignment, then the horizontal test), and
+:func:`align_batch` the array form for k senders.
 """
 
 from __future__ import annotations
@@ -28,9 +29,60 @@ import numpy as np
 from uavmpc.jit import kernel
 
 
+@kernel
+def align_into(other_times_s: np.ndarray, other_positions_m: np.ndarray,
+               at_times_s: np.ndarray, extrapolate_s: float, out: np.ndarray,
+               known: np.ndarray) -> None:
+    """The alignment law: one prediction (times (n,) strictly increasing, n ≥ 2, positions
+    (n, 3)) re-sampled at ``at_times_s`` (m,) into ``out`` (m, 3); ``known`` (m,) is False
+    where a sample lies more than ``extrapolate_s`` after its end (see the module doc)."""
+    n = other_times_s.shape[0]
+    t_end = other_times_s[n - 1] + extrapolate_s
+    count = 0
+    for i in range(at_times_s.shape[0]):
+        at = at_times_s[i]
+        if i > 0 and at < at_times_s[i - 1]:
+            count = 0  # the times went back: walk again from the start
+        while count < n and other_times_s[count] <= at:
+            count += 1
+        # The segment [j, j+1] holding the sample, clipped to the first/last segment. w < 0
+        # only before the first time: clamped, the first point is held. w > 1 only after the
+        # last time: left as is, the constant-velocity extrapolation of the last segment.
+        j = min(max(count - 1, 0), n - 2)
+        t0 = other_times_s[j]
+        w = max((at - t0) / (other_times_s[j + 1] - t0), 0.0)
+        for ax in range(3):
+            p0 = other_positions_m[j, ax]
+            out[i, ax] = p0 + w * (other_positions_m[j + 1, ax] - p0)
+        known[i] = at <= t_end
+
+
+@kernel
+def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
+                extrapolate_s: float, own_positions_m: np.ndarray, radius_m: float,
+                near_out: np.ndarray, dz_out: np.ndarray) -> None:
+    """One other prediction against ours: :func:`align_into`, then per point whether it is
+    known and horizontally within ``radius_m`` (``near_out`` (m,) bool) and our height minus
+    theirs (``dz_out`` (m,)).
+
+    Args:
+        other_times_s: (n,) strictly increasing, n ≥ 2; other_positions_m: (n, 3).
+        at_times_s: (m,) our prediction times; own_positions_m: (m, 3).
+    """
+    m = at_times_s.shape[0]
+    aligned = np.empty((m, 3))
+    align_into(other_times_s, other_positions_m, at_times_s, extrapolate_s, aligned, near_out)
+    r2 = radius_m**2
+    for i in range(m):
+        dx = aligned[i, 0] - own_positions_m[i, 0]
+        dy = aligned[i, 1] - own_positions_m[i, 1]
+        near_out[i] = near_out[i] and dx**2 + dy**2 <= r2
+        dz_out[i] = own_positions_m[i, 2] - aligned[i, 2]
+
+
 def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
                 extrapolate_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Re-sample k predictions of n points each at m times.
+    """Re-sample k predictions of n points each at m times (:func:`align_into` for each).
 
     Args:
         other_times_s: (k, n) strictly increasing times of each prediction (s), n ≥ 2.
@@ -42,59 +94,15 @@ def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_tim
         positions: (k, m, 3) sampled positions (m).
         known: (k, m) False where the sample lies more than ``extrapolate_s`` after the end.
     """
-    times = np.asarray(other_times_s, dtype=float)
-    pos = np.asarray(other_positions_m, dtype=float)
-    at = np.asarray(at_times_s, dtype=float)
-    n = times.shape[1]
-    # Index of the segment [j, j+1] holding each sample; clipped to the first/last segment so
-    # that samples outside the span use the first/last segment (held/extrapolated below).
-    # A (k, m, n) comparison is cheaper than k searchsorted calls for n ≈ 40.
-    count = (times[:, None, :] <= at[None, :, None]).sum(axis=2)
-    j = np.clip(count - 1, 0, n - 2)
-    t0 = np.take_along_axis(times, j, axis=1)
-    t1 = np.take_along_axis(times, j + 1, axis=1)
-    p0 = np.take_along_axis(pos, j[..., None], axis=1)
-    p1 = np.take_along_axis(pos, (j + 1)[..., None], axis=1)
-    # w < 0 only before the first time: clamp to hold the first point. w > 1 only after the
-    # last time: left as is, that is the constant-velocity extrapolation of the last segment.
-    w = np.maximum((at[None, :] - t0) / (t1 - t0), 0.0)
-    out = p0 + w[..., None] * (p1 - p0)
-    known = at[None, :] <= times[:, -1:] + extrapolate_s
+    times = np.ascontiguousarray(other_times_s, dtype=float)
+    pos = np.ascontiguousarray(other_positions_m, dtype=float)
+    at = np.ascontiguousarray(at_times_s, dtype=float)
+    k, m = times.shape[0], at.shape[0]
+    out = np.empty((k, m, 3))
+    known = np.empty((k, m), dtype=bool)
+    for i in range(k):
+        align_into(times[i], pos[i], at, float(extrapolate_s), out[i], known[i])
     return out, known
-
-
-@kernel
-def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
-                extrapolate_s: float, own_positions_m: np.ndarray, radius_m: float,
-                near_out: np.ndarray, dz_out: np.ndarray) -> None:
-    """One other prediction against ours, in one pass: :func:`align_batch`, then per point
-    whether it is known and horizontally within ``radius_m`` (``near_out`` (m,) bool) and our
-    height minus theirs (``dz_out`` (m,)). The same operations as the numpy version, in the
-    same order, so the results are identical.
-
-    Args:
-        other_times_s: (n,) strictly increasing, n ≥ 2; other_positions_m: (n, 3).
-        at_times_s: (m,) our prediction times (increasing); own_positions_m: (m, 3).
-    """
-    n = other_times_s.shape[0]
-    t_end = other_times_s[n - 1] + extrapolate_s
-    r2 = radius_m**2
-    count = 0
-    for i in range(at_times_s.shape[0]):
-        at = at_times_s[i]
-        while count < n and other_times_s[count] <= at:
-            count += 1
-        j = min(max(count - 1, 0), n - 2)
-        t0 = other_times_s[j]
-        w = max((at - t0) / (other_times_s[j + 1] - t0), 0.0)
-        dx = (other_positions_m[j, 0] + w * (other_positions_m[j + 1, 0]
-                                             - other_positions_m[j, 0])) - own_positions_m[i, 0]
-        dy = (other_positions_m[j, 1] + w * (other_positions_m[j + 1, 1]
-                                             - other_positions_m[j, 1])) - own_positions_m[i, 1]
-        dz = (other_positions_m[j, 2] + w * (other_positions_m[j + 1, 2]
-                                             - other_positions_m[j, 2])) - own_positions_m[i, 2]
-        near_out[i] = at <= t_end and dx**2 + dy**2 <= r2
-        dz_out[i] = -dz
 
 
 def align(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,

@@ -8,7 +8,7 @@ One tick of row ``i`` (SPEC §2), split along its natural seam:
   outside the limits), build the four axis QPs (only the linear term and the bounds change) and
   their unconstrained optima; mark the axes whose optimum breaks a bound (``need``).
 - the solve of the marked axes: inline with our dual active-set solver
-  (:func:`uavmpc.solvers.batchqp.solve_one`, in :func:`tick_row`) or, between the two compiled
+  (:func:`uavmpc.solvers.batchqp.solve_warm`, in :func:`tick_row`) or, between the two compiled
   halves, by any Python solver behind the solver contract (DAQP, Clarabel).
 - :func:`advance_row`: never trust a solver's word alone (every solution is checked against its
   bounds), brake on the axes that failed, and advance the virtual UAV by one step of the *same*

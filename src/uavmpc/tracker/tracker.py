@@ -191,6 +191,15 @@ _AXES_OF_BITS = tuple(tuple(a for a in range(N_AXES) if bits >> a & 1)
                       for bits in range(1 << N_AXES))
 
 
+def _row_indices(rows: object, n: int) -> np.ndarray:
+    """``rows`` as the exact array type the bound kernels take, each index checked (the
+    compiled code does not check bounds)."""
+    idx = np.array(rows, dtype=np.int64).reshape(-1)
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise IndexError(f"rows: indices must be in [0, {n}), got {rows!r}")
+    return idx
+
+
 def _table_type(table: ReferenceTable) -> tuple[object, ...]:
     return tuple((a.dtype, a.ndim, a.flags.c_contiguous, a.flags.writeable) for a in table)
 
@@ -307,7 +316,9 @@ class TrackerBatch:
 
     # ------------------------------------------------------------------ the tick
     def step(self, rows: np.ndarray | None = None) -> None:
-        """One tick of the given rows (int64 array; default all)."""
+        """One tick of the given rows (indices; default all)."""
+        if rows is not None:
+            rows = _row_indices(rows, self.n)
         table = self._table if self._table is not None else self.table()
         kernels = self._kernels
         if kernels is None:
