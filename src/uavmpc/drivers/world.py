@@ -39,7 +39,7 @@ from uavmpc.onboard import (
 )
 from uavmpc.plant import Airframe, PlantRows, Wind
 from uavmpc.plant.interface import heading_of
-from uavmpc.plant.kernels import attitude_target_ok, normalize_quat, plant_step
+from uavmpc.plant.kernels import fly_target
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario
@@ -147,7 +147,7 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
                pair_d):
     """One 10 ms tick of every UAV, the compiled solver inline: each UAV's stack
     (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true state, then the
-    plant flies the target (:func:`~uavmpc.plant.kernels.plant_step`); row ``k`` of the traces
+    plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row ``k`` of the traces
     (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the pair distances
     ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the index of a UAV whose attitude
     target could not be flown (the tick stops there)."""
@@ -159,10 +159,8 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
         x = plant.x[i]
         thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, sc,
                              qd, ff)
-        if not attitude_target_ok(qd, thrust, ff):
+        if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
-        normalize_quat(qd)
-        plant_step(i, plant, n_sub, qd, thrust, ff)
     _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
     return -1
 
@@ -183,10 +181,8 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
     for i in range(plant.x.shape[0]):
         x = plant.x[i]
         thrust = onboard_post(i, trk, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, qd, ff)
-        if not attitude_target_ok(qd, thrust, ff):
+        if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
-        normalize_quat(qd)
-        plant_step(i, plant, n_sub, qd, thrust, ff)
     _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
     return -1
 

@@ -27,7 +27,8 @@ from uavmpc.plant.attitude import attitude_kernel
 N_RIGID = 13
 """Rigid-body part of the state vector: p (3), v (3), q (4), Ω (3)."""
 
-__all__ = ["N_RIGID", "attitude_target_ok", "ground", "normalize_quat", "plant_step",
+__all__ = ["N_RIGID", "attitude_target_ok", "fly_target", "ground", "normalize_quat",
+           "plant_step",
            "plant_step_motors", "quat_norm", "quat_rotation", "rhs", "settle"]
 
 
@@ -259,3 +260,15 @@ def plant_step_motors(i: int, rows: Any, n_sub: int, omega_cmd: np.ndarray) -> N
     instead of the attitude loop's (the loop and its state are left alone)."""
     cmd = omega_cmd[:rows.n_rotors[i]].copy()
     _integrate(i, rows, n_sub, True, cmd, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, np.zeros(3))
+
+
+@kernel
+def fly_target(i: int, rows: Any, n_sub: int, qd: np.ndarray, thrust_n: float,
+               ff: np.ndarray) -> bool:
+    """What a plant does with an attitude target: refuse it (False) unless
+    :func:`attitude_target_ok`, else normalise ``qd`` in place and :func:`plant_step`."""
+    if not attitude_target_ok(qd, thrust_n, ff):
+        return False
+    normalize_quat(qd)
+    plant_step(i, rows, n_sub, qd, thrust_n, ff)
+    return True

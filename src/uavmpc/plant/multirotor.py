@@ -41,8 +41,8 @@ from uavmpc.plant.interface import AttitudeTarget, VehicleState
 from uavmpc.plant.kernels import (
     N_RIGID,
     attitude_target_ok,
+    fly_target,
     normalize_quat,
-    plant_step,
     plant_step_motors,
     settle,
 )
@@ -146,11 +146,10 @@ class Multirotor:
         qd = np.array(target.attitude_wxyz, dtype=float).reshape(4)
         ff = np.array(target.body_rates_ff_radps, dtype=float).reshape(3)
         thrust = float(target.thrust_n)
-        if not attitude_target_ok(qd, thrust, ff):
+        if not attitude_target_ok(qd, thrust, ff):  # before the wind moves on
             raise ValueError(f"invalid attitude target: {target}")
-        normalize_quat(qd)
         n_sub = self.hold_wind(dt_s)
-        plant_step(self._row, self._rows, n_sub, qd, thrust, ff)
+        fly_target(self._row, self._rows, n_sub, qd, thrust, ff)
         return self.state()
 
     # -- extras for tests and other simulators ------------------------------------------------

@@ -28,17 +28,19 @@ from uavmpc.tracker.kernels import (
     INSIDE_TOL,
     N_AXES,
     ReferenceTable,
+    TrackerBundle,
     TrackerConsts,
     TrackerRows,
     advance_rows,
     limit_excess,
+    make_bundle,
     nonzero_spans,
     plan,
     prepare_rows,
     scratch_floats,
     snapshot_row,
+    tick_bundle,
     tick_rows,
-    tick_snapshot,
 )
 from uavmpc.tracker.model import CondensedModel
 from uavmpc.tracker.params import DynamicLimits, TrackerConfig
@@ -237,7 +239,7 @@ class TrackerBatch:
         self._table_type: tuple[object, ...] | None = None
         self._kernels: tuple[Callable[..., None], ...] | None = None
         self._snapshot: Callable[..., None] | None = None
-        self._alone: tuple[ReferenceTable, Callable[..., tuple[bool, int, int, int]]] | None = None
+        self._alone: tuple[ReferenceTable, TrackerBundle] | None = None
         #: Work arrays of the kernels, allocated once (one row is ticked at a time): the
         #: buffers :func:`~uavmpc.tracker.kernels.scratch_views` cuts them from.
         self.scratch = (np.empty(scratch_floats(self.config.steps)),
@@ -398,10 +400,8 @@ class TrackerBatch:
         table = self._table if self._table is not None else self.table()
         record = np.empty(29 + 4 * self.config.steps)
         if self._alone is None or self._alone[0] is not table:
-            self._alone = (table, bind(tick_snapshot, row, self.rows, table, self.consts,
-                                       *self.scratch, record))
-        braking, solves, iterations, bits = self._alone[1](row, self.rows, table, self.consts,
-                                                           *self.scratch, record)
+            self._alone = (table, make_bundle(self.rows, table, self.consts, *self.scratch))
+        braking, solves, iterations, bits = tick_bundle(row, self._alone[1], record)
         return TrackerOutput(_AXES_OF_BITS[bits], braking, solves, iterations, record,
                              self.consts)
 
