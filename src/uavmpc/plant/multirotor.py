@@ -33,9 +33,11 @@ a batched driver allocated for many vehicles (``rows=``, ``row=``) and may step 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
+from uavmpc.jit import bind
 from uavmpc.plant.airframe import Airframe
 from uavmpc.plant.interface import AttitudeTarget, VehicleState
 from uavmpc.plant.kernels import (
@@ -93,6 +95,7 @@ class Multirotor:
         self.substep_s = float(substep_s)
         self._rows = rows
         self._row = int(row)
+        self._fly: Callable[..., bool] | None = None
         rows.configure(self._row, airframe, self.substep_s)
         rows.t_s[self._row] = float(t0_s)
         x = rows.x[self._row]
@@ -149,7 +152,9 @@ class Multirotor:
         if not attitude_target_ok(qd, thrust, ff):  # before the wind moves on
             raise ValueError(f"invalid attitude target: {target}")
         n_sub = self.hold_wind(dt_s)
-        fly_target(self._row, self._rows, n_sub, qd, thrust, ff)
+        if self._fly is None:  # the record's types are fixed: infer them once (jit.bind)
+            self._fly = bind(fly_target, self._row, self._rows, n_sub, qd, thrust, ff)
+        self._fly(self._row, self._rows, n_sub, qd, thrust, ff)
         return self.state()
 
     # -- extras for tests and other simulators ------------------------------------------------
