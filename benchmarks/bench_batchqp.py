@@ -16,9 +16,9 @@ import platform
 import time
 
 import numpy as np
-from uavmpc.tracker.batchqp import OPTIMAL, BatchQpSolver
 
 from uavmpc.apps.bench import _fly, demanding_events
+from uavmpc.solvers.batchqp import OPTIMAL, BatchQpSolver
 from uavmpc.tracker import CondensedModel, DaqpSolver, MpcTracker, QpResult, TrackerConfig
 
 

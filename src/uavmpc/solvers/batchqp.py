@@ -1,6 +1,6 @@
 """A batched dual active-set QP solver for many tracker axes in one compiled call.
 
-Every axis of every UAV solves the same kind of QP (:mod:`uavmpc.tracker.qp`)::
+Every axis of every UAV solves the same kind of QP (:mod:`uavmpc.solvers.contract`)::
 
     min ½ Uᵀ H U + fᵀ U   s.t.  lower ≤ G U ≤ upper,   G = [I; C]   (n = m + rows of C)
 
@@ -694,7 +694,7 @@ class BatchQpSolver:
 
 
 class BatchAxisSolver:
-    """The batched kernel with K = 1, as a drop-in :class:`~uavmpc.tracker.qp.AxisQpSolver`.
+    """The batched kernel with K = 1, as a drop-in :class:`~uavmpc.solvers.contract.AxisQpSolver`.
 
     Keeps its own working set between calls (the warm start), reset after a failure.
     """
@@ -713,7 +713,7 @@ class BatchAxisSolver:
         self._iterations = np.zeros(1, dtype=np.int64)
 
     def solve(self, f: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> QpResult:
-        """Solve with f (m,) and bounds (n,); see :class:`~uavmpc.tracker.qp.AxisQpSolver`."""
+        """Solve with f (m,) and bounds (n,); see :class:`~uavmpc.solvers.contract.AxisQpSolver`."""
         self._f[0] = f
         self._lower[0] = lower
         self._upper[0] = upper
