@@ -92,27 +92,24 @@ def plot_world(t_s: np.ndarray, positions_m: np.ndarray, min_distance_m: np.ndar
     ax.legend()
     alt.tight_layout()
 
-    dist, ax = plt.subplots(figsize=(8, 4))
-    ax.plot(t_s, min_distance_m, label="closest pair")
-    ax.axhline(collision_m, color="r", ls="--", label=f"collision ({collision_m:g} m)")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("min pairwise distance [m]")
-    ax.set_ylim(bottom=0.0)
-    ax.set_title(f"{title}: minimum distance between any two UAVs")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    dist.tight_layout()
+    dist = plot_min_distance_trace(t_s, min_distance_m, collision_m, "time [s]",
+                                   f"{title}: minimum distance between any two UAVs")
     return top, alt, dist
 
 
-def plot_min_distance_trace(t_s: list[float], d_m: list[float], collision_m: float) -> Figure:
-    """The closest pairwise distance of a swarm over time since the mission start."""
+def plot_min_distance_trace(t_s: object, d_m: object, collision_m: float,
+                            xlabel: str = "time since mission start [s]",
+                            title: str | None = None) -> Figure:
+    """The closest pairwise distance over time, with the collision threshold (a world's
+    third figure, and the swarm's only one)."""
     fig, ax = plt.subplots(figsize=(8, 4))
     ax.plot(t_s, d_m, label="closest pair")
     ax.axhline(collision_m, color="r", ls="--", label=f"collision ({collision_m:g} m)")
-    ax.set_xlabel("time since mission start [s]")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("min pairwise distance [m]")
     ax.set_ylim(bottom=0.0)
+    if title is not None:
+        ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
