@@ -88,3 +88,15 @@ def test_no_circle_between_units() -> None:
 def test_the_plant_knows_nothing_of_its_controllers() -> None:
     """The autopilot's side of the contract stands alone (an autopilot link replaces it)."""
     assert _imports()["plant"] <= {"config", "jit"}
+
+
+def test_the_compile_cache_key_covers_what_kernels_can_read_and_no_driver() -> None:
+    from uavmpc import jit
+
+    root = Path(jit.__file__).resolve().parent
+    names = {str(p.relative_to(root)) for p in jit._compiled_sources(root)}
+    # Kernel modules, and what they import (constants and helpers frozen into machine code).
+    assert {"jit.py", "tracker/kernels.py", "plant/kernels.py", "drivers/world.py",
+            "onboard.py", "tracker/params.py"} <= names
+    # Drivers and applications outside that closure change without a recompilation.
+    assert not {"apps/cli.py", "drivers/node.py", "drivers/px4/sitl.py"} & names

@@ -4,8 +4,10 @@ numba's on-disk cache checks only the source file of the function it caches: a k
 calls a kernel from another file would keep running stale machine code after that other file
 changed. uavmpc's kernels call each other across its stages (the world's batched tick calls the
 tracker, the SE(3) law and the plant), so every kernel of the package is cached in a folder
-named after a hash of *all* the package's sources: any edit anywhere starts a fresh cache, and
-an unchanged install shares one cache between processes (campaign workers, nodes).
+named after a hash of the sources compiled code can depend on (the modules that hold kernels
+and, transitively, the package modules they import): any edit there starts a fresh cache, an
+edit to a driver or an application outside them does not, and an unchanged install shares one
+cache between processes (campaign workers, nodes).
 
 The folder is ``$UAVMPC_CACHE_DIR`` or ``~/.cache/uavmpc/numba``, one sub-folder per hash; older
 sub-folders are left for the user to delete. Only uavmpc's kernels use it: numba's global cache
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -29,10 +32,41 @@ F = TypeVar("F", bound=Callable[..., Any])
 FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
 
 
+_IMPORT = re.compile(r"^\s*(?:from|import)\s+(uavmpc(?:\.\w+)*)", re.MULTILINE)
+
+
+def _compiled_sources(root: Path) -> list[Path]:
+    """The modules compiled code can depend on: those that use this module (they hold
+    kernels) and, transitively, every package module they import (constants and helpers a
+    kernel reads are frozen into its machine code). A driver or an application outside that
+    closure can change without a recompilation."""
+    files = {p: p.read_text(encoding="utf-8") for p in root.rglob("*.py")}
+
+    def resolve(name: str) -> list[Path]:
+        parts = name.split(".")[1:]
+        for n in range(len(parts), -1, -1):
+            base = root.joinpath(*parts[:n])
+            for cand in (base.with_suffix(".py"), base / "__init__.py"):
+                if cand in files:
+                    return [cand]
+        return []
+
+    todo = [p for p, text in files.items() if "uavmpc.jit" in text]
+    seen = set(todo)
+    while todo:
+        path = todo.pop()
+        for name in _IMPORT.findall(files[path]):
+            for dep in resolve(name):
+                if dep not in seen:
+                    seen.add(dep)
+                    todo.append(dep)
+    return sorted(seen)
+
+
 def _sources_hash() -> str:
     root = Path(__file__).resolve().parent
     digest = hashlib.sha1(usedforsecurity=False)
-    for path in sorted(root.rglob("*.py")):
+    for path in _compiled_sources(root):
         digest.update(str(path.relative_to(root)).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]

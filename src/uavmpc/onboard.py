@@ -33,6 +33,7 @@ from uavmpc.comms.message import PredictionMessage, encode, from_prediction
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
 from uavmpc.jit import bind, kernel
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
+from uavmpc.plant.interface import heading_of
 from uavmpc.reference import Reference
 from uavmpc.tracker import (
     DynamicLimits,
@@ -304,6 +305,9 @@ class OnboardStack:
         self.last_broadcast: Prediction | None = None
         self.predictions_sent = 0
         self._next_avoidance_s = float(t0_s)
+        #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
+        #: the broadcast flag down.
+        self.cooperative = True
         self._limits_key: tuple[float, float | None, float | None] = (1.0, None, None)
         self._ticked = False
         self._idx = np.array([self.row], dtype=np.int64)
@@ -331,6 +335,30 @@ class OnboardStack:
         target = AttitudeTarget(attitude_wxyz=q, thrust_n=thrust, body_rates_ff_radps=ff)
         return OnboardOutput(target, self.emit(now_s))
 
+    def follow(self, now_s: float, estimate: VehicleState) -> None:
+        """The vehicle is not ours to steer (its autopilot holds it after a failsafe, a pilot
+        took it over): re-anchor the virtual UAV at its measured state, holding there, so that
+        the plan we broadcast says what it will really do — and broadcast with the avoidance
+        flag down from now on, since it will not yield (others avoid it)."""
+        p = _estimate_part(estimate, "position_m", 3)
+        v = _estimate_part(estimate, "velocity_mps", 3)
+        heading = float(heading_of(_estimate_part(estimate, "attitude_wxyz", 4)))
+        self.cooperative = False
+        self.decision = None
+        self.batch.stats.avoiding[self.row] = False
+        if self._limits_key != (1.0, None, None):
+            self._limits_key = (1.0, None, None)
+            self.tracker.set_limits(self.nominal_limits)
+        lo, hi = self.tracker.limits.velocity_bounds()
+        state = np.zeros((4, 3))
+        state[:3, 0] = p
+        state[:3, 1] = np.clip(v, lo[:3] * (1.0 - 1e-6), hi[:3] * (1.0 - 1e-6))
+        now_heading = self.tracker.state[3, 0]  # continuous: keep its turns
+        state[3, 0] = now_heading + (heading - now_heading + np.pi) % (2.0 * np.pi) - np.pi
+        self.tracker.set_z_offset(0.0)
+        self.tracker.set_state(state, now_s)
+        self.tracker.set_reference(Reference.goto(*p, state[3, 0], start_s=now_s))
+
     # ------------------------------------------------------------------ the phases
     def receive(self, now_s: float, received: Iterable[bytes]) -> list[PredictionMessage | None]:
         """Verify, decode and validate what arrived; one entry per datagram: the message it
@@ -340,7 +368,7 @@ class OnboardStack:
     def plan(self, now_s: float) -> None:
         """Avoidance (every :data:`AVOIDANCE_PERIOD_S`, once there is a plan): the z offset
         and the limits for the next tracker tick."""
-        if self.avoidance is None or not self._ticked:
+        if self.avoidance is None or not self.cooperative or not self._ticked:
             return
         plan_s = self.tracker.time_s
         if plan_s < self._next_avoidance_s - _SCHEDULE_TOL_S:
@@ -358,7 +386,7 @@ class OnboardStack:
         self.next_broadcast_s += self.broadcast_period_s
         pred = self.tracker.prediction()
         msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
-                              avoiding=self.avoidance is not None)
+                              avoiding=self.avoidance is not None and self.cooperative)
         data = encode(msg)
         if self.key is not None:
             data = sign(data, self.key)

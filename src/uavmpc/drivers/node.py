@@ -1,7 +1,9 @@
 """One UAV's onboard stack as its own process, in real time, over a real network (issue 6).
 
-A :class:`Node` flies the same :class:`~uavmpc.onboard.OnboardStack` as the simulated world,
-against its own simulated plant (software in the loop), on the wall clock:
+A :class:`Node` flies the same :class:`~uavmpc.onboard.OnboardStack` as the simulated world, on
+the wall clock, against a vehicle: its own simulated plant (:class:`SimulatedVehicle`, software
+in the loop) or a PX4 autopilot over MAVLink (:class:`~uavmpc.drivers.px4.vehicle.Px4Vehicle`,
+which takes off from the ground, flies the mission, lands and disarms):
 
 - every 10 ms: hand the stack what the transport delivered (at most a bounded number of
   messages per tick, so a flood cannot starve the loop), step the plant with its target, and
@@ -23,14 +25,14 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.link import Transport
 from uavmpc.onboard import OnboardStack
-from uavmpc.plant import Airframe, VehicleState
+from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import InvalidReferenceError, Reference
@@ -40,6 +42,15 @@ PERIOD_S = 0.01
 MAX_MESSAGES_PER_TICK = 32
 #: A loop this many periods late skips ahead instead of trying to catch up.
 RESYNC_PERIODS = 5
+#: A vehicle this far below its start position takes off to it before its mission [m].
+TAKEOFF_BELOW_M = 0.5
+#: Landing: down at the tracker's pace to this height above the ground, then slowly [m, m/s],
+#: aiming this far below the ground so that the vehicle settles on it.
+FLARE_HEIGHT_M = 1.0
+FLARE_SPEED_MPS = 0.5
+LANDING_DEPTH_M = 0.3
+#: Longest landing before the node gives up waiting (the vehicle is left to its autopilot).
+LANDING_TIMEOUT_S = 60.0
 
 
 def parse_mission(payload: bytes, now_s: float) -> Reference:
@@ -84,6 +95,83 @@ class NodeStats:
     final_position_m: list[float] = field(default_factory=list)
     cpu_s: float = 0.0
     wall_s: float = 0.0
+    #: The vehicle driver's report (the MAVLink link's phases, commands, rates), if any.
+    vehicle: dict[str, Any] = field(default_factory=dict)
+
+
+class VehicleDriver(Protocol):
+    """What a node flies: it gives the state, takes each tick's target, and has a life cycle
+    (:class:`SimulatedVehicle` is always flying; a PX4 vehicle walks offboard → arm → fly →
+    land)."""
+
+    @property
+    def commanding(self) -> bool:
+        """Our targets steer the vehicle (False: it is its autopilot's or a pilot's)."""
+        ...
+
+    @property
+    def flying(self) -> bool:
+        """Ours to fly a mission now."""
+        ...
+
+    @property
+    def done(self) -> bool:
+        """Nothing left to do (landed)."""
+        ...
+
+    @property
+    def ground_z_m(self) -> float:
+        """Height of the ground it started from [m]."""
+        ...
+
+    def start(self, timeout_s: float = 20.0) -> VehicleState: ...
+
+    def update(self, now_s: float) -> VehicleState | None: ...
+
+    def actuate(self, now_s: float, target: AttitudeTarget, command: Any) -> None: ...
+
+    def land(self, now_s: float) -> None: ...
+
+    def abort(self, now_s: float, reason: str) -> None: ...
+
+    def report(self) -> dict[str, Any]: ...
+
+    def close(self) -> None: ...
+
+
+class SimulatedVehicle:
+    """The node's own simulated plant, stepped one period per tick (software in the loop)."""
+
+    commanding = True
+    flying = True
+    ground_z_m = 0.0
+
+    def __init__(self, airframe: Airframe, start_m: Sequence[float], heading_rad: float) -> None:
+        self.plant = Multirotor(airframe, position_m=start_m, yaw_rad=heading_rad,
+                                rotors_at_hover=start_m[2] > 0.0)
+        self.done = False
+        self._state = self.plant.state()
+
+    def start(self, timeout_s: float = 20.0) -> VehicleState:
+        return self._state
+
+    def update(self, now_s: float) -> VehicleState | None:
+        return self._state
+
+    def actuate(self, now_s: float, target: AttitudeTarget, command: Any) -> None:
+        self._state = self.plant.step(target, PERIOD_S)
+
+    def land(self, now_s: float) -> None:
+        self.done = True  # a simulated flight simply ends where it is
+
+    def abort(self, now_s: float, reason: str) -> None:
+        self.done = True
+
+    def report(self) -> dict[str, Any]:
+        return {}
+
+    def close(self) -> None:
+        pass
 
 
 def warm_up(airframe: Airframe) -> None:
@@ -97,10 +185,12 @@ def warm_up(airframe: Airframe) -> None:
 
 
 class Node:
-    """One UAV in real time: a driver (the wall clock, a transport, a simulated plant) around
-    one :class:`~uavmpc.onboard.OnboardStack`. ``transport`` is any
+    """One UAV in real time: a driver (the wall clock, a transport, a vehicle) around one
+    :class:`~uavmpc.onboard.OnboardStack`. ``transport`` is any
     :class:`~uavmpc.comms.link.Transport` that also offers ``put(topic, bytes)`` and
-    ``subscribe(suffix) -> .drain()`` (the Zenoh one)."""
+    ``subscribe(suffix) -> .drain()`` (the Zenoh one). ``vehicle`` is what it flies (default:
+    a :class:`SimulatedVehicle` at ``start_m``); a vehicle on the ground below ``start_m``
+    takes off to it once it is ours to fly, before the mission."""
 
     def __init__(
         self,
@@ -116,6 +206,7 @@ class Node:
         key: bytes | None = None,
         state_rate_hz: float = 50.0,
         phase_s: float = 0.0,
+        vehicle: VehicleDriver | None = None,
     ) -> None:
         self.uav_id = uav_id
         self.priority = priority
@@ -126,6 +217,7 @@ class Node:
         self.heading_rad = float(heading_rad)
         self.avoidance = avoidance
         self.params = params if params is not None else AvoidanceParams()
+        self.vehicle: VehicleDriver | None = vehicle
         self._missions = transport.subscribe(f"{uav_id}/mission", maxlen=16)
         self._pending_mission: Reference | None = None
         self._lock = threading.Lock()
@@ -133,38 +225,47 @@ class Node:
         self.phase_s = phase_s
         self.stats = NodeStats(uav_id)
         self._stop = threading.Event()
+        self._stop_requests = 0
+        self._launched = False
         self.stack: OnboardStack | None = None
 
-    def _build(self) -> OnboardStack:
+    def _build(self) -> tuple[OnboardStack, VehicleState]:
         # Built when the flight starts, so the virtual UAV's clock starts on the wall clock
-        # (stamps are absolute), after the kernels are loaded.
+        # (stamps are absolute), after the kernels are loaded, at the vehicle's own state.
         warm_up(self.airframe)
-        self.plant = Multirotor(self.airframe, position_m=self.start_m, yaw_rad=self.heading_rad,
-                                rotors_at_hover=self.start_m[2] > 0.0)
+        if self.vehicle is None:
+            self.vehicle = SimulatedVehicle(self.airframe, self.start_m, self.heading_rad)
+        first = self.vehicle.start()
         now = time.time()
+        heading = float(heading_of(first.attitude_wxyz))
         self.stack = OnboardStack(
-            self.airframe, position_m=self.start_m, heading_rad=self.heading_rad, t0_s=now,
+            self.airframe, position_m=first.position_m, heading_rad=heading, t0_s=now,
             uav_id=self.uav_id, priority=self.priority,
             avoidance=HeightOffsetStrategy(self.params) if self.avoidance else None,
             params=self.params, key=self.key, broadcast_phase_s=self.phase_s)
-        # Hold the start until a mission arrives (a mission starting later keeps this before).
-        self.stack.set_mission(Reference.goto(*self.start_m, self.heading_rad, start_s=now))
-        return self.stack
+        # Hold where it is until it may fly (a mission starting later keeps this before).
+        self.stack.set_mission(Reference.goto(*first.position_m, heading, start_s=now))
+        return self.stack, first
 
     def set_mission(self, reference: Reference) -> None:
-        """Fly ``reference`` (thread-safe; taken at the next tick)."""
+        """Fly ``reference`` (thread-safe; taken at the next tick once the vehicle flies)."""
         if not isinstance(reference, Reference):
             raise TypeError(f"reference must be a uavmpc.Reference, got {type(reference).__name__}")
         with self._lock:
             self._pending_mission = reference
 
     def stop(self) -> None:
-        """Ask the loop to end after the current tick (thread- and signal-safe)."""
+        """End the flight (thread- and signal-safe): a vehicle in the air lands first; a second
+        stop ends the loop at once."""
+        self._stop_requests += 1
         self._stop.set()
 
     def run(self, duration_s: float | None = None) -> NodeStats:
-        """Fly until :meth:`stop` (or SIGINT/SIGTERM via :func:`run_node`) or ``duration_s``."""
-        stack = self._build()
+        """Fly until :meth:`stop` (or SIGINT/SIGTERM via :func:`run_node`) or ``duration_s``,
+        then land (a vehicle that can) and return the statistics."""
+        stack, state = self._build()
+        vehicle = self.vehicle
+        assert vehicle is not None
         tracker = stack.tracker
         t_end = None if duration_s is None else tracker.time_s + duration_s
         next_state = tracker.time_s
@@ -173,30 +274,50 @@ class Node:
         wall0 = time.perf_counter()
         deadline = time.perf_counter()
         last = None
-        state = self.plant.state()
-        while not self._stop.is_set() and (t_end is None or tracker.time_s < t_end):
-            now = tracker.time_s
-            self._take_missions(now)
-            received = self.transport.receive(self.uav_id, now)[:MAX_MESSAGES_PER_TICK]
-            out = stack.tick(now, state, received)
-            state = self.plant.step(out.target, PERIOD_S)
-            if out.outgoing is not None:
-                self.transport.publish(out.outgoing, self.uav_id, now)
-            if now >= next_state:
-                next_state += self.state_period_s
-                self._publish_state(now, state)
-            # Real time: sleep to the next deadline; if far behind, skip ahead (never burst).
-            deadline += PERIOD_S
-            slack = deadline - time.perf_counter()
-            if slack > 0:
-                time.sleep(slack)
-            elif -slack > RESYNC_PERIODS * PERIOD_S:
-                self.stats.overruns += 1
-                deadline = time.perf_counter()
-            tick_end = time.perf_counter()
-            if last is not None:
-                intervals.append(tick_end - last)
-            last = tick_end
+        landing_until: float | None = None
+        ticks = 0
+        try:
+            while True:
+                now = tracker.time_s
+                if landing_until is None and (self._stop.is_set()
+                                              or (t_end is not None and now >= t_end)):
+                    landing_until = now + LANDING_TIMEOUT_S
+                    self._land(now, state)
+                    vehicle.land(time.time())
+                if landing_until is not None and (vehicle.done or now >= landing_until
+                                                  or self._stop_requests >= 2):
+                    break
+                fresh = vehicle.update(time.time())
+                if fresh is not None:
+                    state = fresh
+                if vehicle.flying and not self._launched:
+                    self._launch(now, state)
+                self._take_missions(now)
+                if not vehicle.commanding and fresh is not None and ticks % 10 == 0:
+                    stack.follow(now, fresh)  # say what the vehicle really does
+                received = self.transport.receive(self.uav_id, now)[:MAX_MESSAGES_PER_TICK]
+                out = stack.tick(now, state, received)
+                vehicle.actuate(time.time(), out.target, stack.command())
+                ticks += 1
+                if out.outgoing is not None:
+                    self.transport.publish(out.outgoing, self.uav_id, now)
+                if now >= next_state:
+                    next_state += self.state_period_s
+                    self._publish_state(now, state)
+                # Real time: sleep to the next deadline; if far behind, skip ahead (never burst).
+                deadline += PERIOD_S
+                slack = deadline - time.perf_counter()
+                if slack > 0:
+                    time.sleep(slack)
+                elif -slack > RESYNC_PERIODS * PERIOD_S:
+                    self.stats.overruns += 1
+                    deadline = time.perf_counter()
+                tick_end = time.perf_counter()
+                if last is not None:
+                    intervals.append(tick_end - last)
+                last = tick_end
+        finally:
+            vehicle.close()
         s = self.stats
         s.wall_s = time.perf_counter() - wall0
         s.cpu_s = time.process_time() - cpu0
@@ -214,7 +335,35 @@ class Node:
         s.max_z_offset_m = rep.max_z_offset_m
         s.avoidance_active_s = rep.avoidance_active_s
         s.final_position_m = state.position_m.tolist()
+        s.vehicle = vehicle.report()
         return s
+
+    def _launch(self, now: float, state: VehicleState) -> None:
+        """The vehicle is ours to fly: take off to the start position if on the ground below
+        it, then fly the missions that waited."""
+        assert self.stack is not None
+        self._launched = True
+        if self.start_m[2] - state.position_m[2] > TAKEOFF_BELOW_M:
+            self.stack.set_mission(Reference.goto(*self.start_m, self.heading_rad,
+                                                  start_s=now))
+
+    def _land(self, now: float, state: VehicleState) -> None:
+        """Fly down where it is: at the tracker's pace to the flare height, then slowly to
+        below the ground (the vehicle's driver disarms once it rests)."""
+        assert self.stack is not None and self.vehicle is not None
+        if not self.vehicle.flying:
+            return
+        x, y, z = (float(v) for v in state.position_m)
+        heading = float(heading_of(state.attitude_wxyz))
+        ground = self.vehicle.ground_z_m
+        flare = ground + FLARE_HEIGHT_M
+        descend = self.stack.tracker.limits.descend_speed_mps
+        t1 = now + max(z - flare, 0.0) / descend + 0.01  # knots strictly increase
+        t2 = t1 + (max(min(z, flare) - ground, 0.0) + LANDING_DEPTH_M) / FLARE_SPEED_MPS
+        self.stack.set_mission(Reference(
+            np.array([now, t1, t2]),
+            np.array([[x, y, z, heading], [x, y, min(z, flare), heading],
+                      [x, y, ground - LANDING_DEPTH_M, heading]])))
 
     def _take_missions(self, now: float) -> None:
         for _key, payload in self._missions.drain(4):
@@ -224,6 +373,8 @@ class Node:
                 self.stats.missions_rejected += 1
                 continue
             self.set_mission(ref)
+        if not self._launched:
+            return  # missions wait until the vehicle is ours to fly
         with self._lock:
             ref, self._pending_mission = self._pending_mission, None
         if ref is not None:

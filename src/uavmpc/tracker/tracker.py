@@ -542,12 +542,15 @@ class MpcTracker:
         """Fly to a point and hold it, starting now."""
         self.set_reference(Reference.goto(x, y, z, heading, start_s=self.time_s))
 
-    def set_state(self, state: np.ndarray) -> None:
-        """Replace the virtual state ((4, 3): rows x, y, z, heading; columns [p, v, a]).
+    def set_state(self, state: np.ndarray, t_s: float | None = None) -> None:
+        """Replace the virtual state ((4, 3): rows x, y, z, heading; columns [p, v, a]), and
+        its time when ``t_s`` is given.
 
         The state must lie inside the limits in force, including ``|v + τ a|`` (see
         :mod:`uavmpc.tracker.model`), so that the QP stays feasible.
         """
+        if t_s is not None and not np.isfinite(float(t_s)):
+            raise InvalidStateError(f"t_s must be finite, got {t_s!r}")
         s = np.asarray(state, dtype=float)
         if s.shape != (N_AXES, 3):
             raise InvalidStateError(f"state must have shape (4, 3), got {s.shape}")
@@ -560,6 +563,8 @@ class MpcTracker:
                 "(|v|, |a| and |v + τ·a| must respect the velocity/acceleration limits)"
             )
         self.batch.rows.state[self.row] = s
+        if t_s is not None:
+            self.batch.rows.t_s[self.row] = float(t_s)
 
     def limit_excess(self, state: np.ndarray | None = None) -> float:
         """How far ``state`` (default: the current one) lies outside the limits in force.

@@ -1,0 +1,608 @@
+"""The companion computer's side of a PX4 vehicle: its state in, setpoints out, and the life
+cycle PX4 expects of an offboard controller.
+
+:class:`Px4Vehicle` is what a :class:`~uavmpc.drivers.node.Node` flies instead of its
+simulated plant. It reads the vehicle's state from ``ODOMETRY`` (or ``LOCAL_POSITION_NED`` +
+``ATTITUDE_QUATERNION``), sends the stack's target at the node's 100 Hz as
+``SET_ATTITUDE_TARGET`` (default) or ``SET_POSITION_TARGET_LOCAL_NED``, and walks the phases::
+
+    connecting → streaming (setpoints > 1 s) → offboard (MAV_CMD_DO_SET_MODE, retried while
+    refused) → arming → flying (the node takes off and flies its mission) → landing →
+    disarming → landed
+
+Every command's ``COMMAND_ACK`` is checked, a rejection reported with its result name. Our
+failsafes: an estimate older than ``estimate_timeout_s`` (0.2 s), an autopilot that leaves
+offboard or disarms, or a lost link (no HEARTBEAT) → **stopped**: no more setpoints, the reason
+reported; the node then broadcasts what the vehicle really does (:meth:`OnboardStack.follow
+<uavmpc.onboard.OnboardStack.follow>`). A stopped vehicle is never taken back: a pilot who
+switched modes keeps the vehicle.
+
+Frames: PX4's local frame is NED with its origin where its estimator started; ``origin_m`` is
+that origin in the swarm's ENU world (the conversions are :mod:`.frames`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+
+from uavmpc.drivers.px4.dialect import (
+    FORCE_DISARM,
+    OFFBOARD,
+    OFFBOARD_STREAM_S,
+    Px4Mode,
+    command_name,
+    mavlink,
+    result_name,
+)
+from uavmpc.drivers.px4.endpoint import MavlinkEndpoint
+from uavmpc.drivers.px4.frames import (
+    enu_flu_quat_to_ned_frd,
+    enu_to_ned,
+    flu_to_frd,
+    frd_to_flu,
+    heading_enu_to_ned,
+    ned_frd_quat_to_enu_flu,
+    ned_to_enu,
+)
+from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
+from uavmpc.plant.interface import quat_to_rot
+
+__all__ = ["SETPOINT_MODES", "Phase", "Px4Vehicle", "VehicleLost"]
+
+#: An estimate older than this is no estimate (the issue's 0.2 s).
+ESTIMATE_TIMEOUT_S = 0.2
+#: No HEARTBEAT for this long is a lost link (PX4 sends one per second).
+HEARTBEAT_TIMEOUT_S = 2.5
+#: A command without COMMAND_ACK is sent again after this, up to COMMAND_ATTEMPTS times.
+COMMAND_RETRY_S = 0.5
+COMMAND_ATTEMPTS = 3
+#: After a refused mode change or arm, ask again after this; give up after GIVE_UP_S.
+RETRY_S = 1.0
+GIVE_UP_S = 30.0
+#: After an accepted mode change, the HEARTBEAT must show it within this.
+MODE_CONFIRM_S = 3.0
+#: Landed: within this height of the take-off point and slower than LANDED_SPEED_MPS for
+#: LANDED_HOLD_S (or the autopilot's EXTENDED_SYS_STATE says on ground).
+LANDED_HEIGHT_M = 0.15
+LANDED_SPEED_MPS = 0.25
+LANDED_HOLD_S = 0.5
+#: MAV_COMP_ID_ONBOARD_COMPUTER: who we are on the vehicle's MAVLink network.
+ONBOARD_COMPONENT = 191
+SETPOINT_MODES = ("attitude", "position")
+
+_M = mavlink
+_ODOMETRY_CHILD_BODY = (_M.MAV_FRAME_BODY_FRD, _M.MAV_FRAME_BODY_NED, _M.MAV_FRAME_BODY_OFFSET_NED)
+# Roll and pitch rates ignored: PX4 then flies the attitude, with the yaw rate as its
+# feed-forward (all rates given would make it fly rates instead).
+_ATT_TYPE_MASK = (_M.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+                  | _M.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE)
+_POS_TYPE_MASK = 0  # position, velocity, acceleration, yaw, yaw rate all used
+
+
+class Phase(StrEnum):
+    CONNECTING = "connecting"
+    STREAMING = "streaming"
+    OFFBOARD = "offboard"
+    ARMING = "arming"
+    FLYING = "flying"
+    LANDING = "landing"
+    DISARMING = "disarming"
+    LANDED = "landed"
+    STOPPED = "stopped"
+
+
+class VehicleLost(RuntimeError):
+    """No autopilot (or no estimate) within the time given to :meth:`Px4Vehicle.start`."""
+
+
+@dataclass
+class _Command:
+    command: int
+    params: tuple[float, ...]
+    sent_s: float
+    attempts: int = 1
+    result: int | None = None
+
+
+@dataclass
+class Px4Report:
+    """What the link did (the node's report has it under ``"px4"``)."""
+
+    phase: str = Phase.CONNECTING.value
+    stop_reason: str | None = None
+    system_id: int | None = None
+    hover_thrust: float | None = None
+    hover_thrust_source: str = ""
+    setpoint_mode: str = "attitude"
+    setpoints_sent: int = 0
+    setpoint_period_p50_ms: float = 0.0
+    setpoint_period_p99_ms: float = 0.0
+    setpoint_period_max_ms: float = 0.0
+    estimate_age_p50_ms: float = 0.0
+    estimate_age_p99_ms: float = 0.0
+    odometry_received: int = 0
+    heartbeats_received: int = 0
+    garbage: int = 0
+    foreign: int = 0
+    commands: list[dict[str, Any]] = field(default_factory=list)
+    modes: list[str] = field(default_factory=list)
+    status_texts: list[str] = field(default_factory=list)
+
+
+class Px4Vehicle:
+    """One PX4 vehicle over MAVLink, as the node sees it.
+
+    Args:
+        address: where the autopilot talks (``udp://:14540`` listens, as PX4 SITL expects of an
+            offboard API; ``udpout://HOST:PORT`` sends).
+        airframe: the vehicle's mass (thrust normalisation) and, without a hover thrust from
+            the autopilot, its thrust range.
+        setpoints: ``"attitude"`` (SET_ATTITUDE_TARGET from our SE(3) controller) or
+            ``"position"`` (SET_POSITION_TARGET_LOCAL_NED with the tracker's p, v, a, heading;
+            PX4's own position controller flies it).
+        system_id: the autopilot's MAVLink system id (None: the first autopilot heard).
+        hover_thrust: normalised hover thrust in (0, 1) (None: read ``MPC_THR_HOVER`` from
+            the autopilot, else the airframe's m·g / T_max).
+        origin_m: the ENU world position of the autopilot's local-frame origin.
+        offboard_after_s: how long to stream setpoints before asking for offboard (PX4 needs
+            more than 1 s).
+        estimate_timeout_s: estimate age that stops the commanding.
+    """
+
+    def __init__(self, address: str, airframe: Airframe, *, setpoints: str = "attitude",
+                 system_id: int | None = None, hover_thrust: float | None = None,
+                 origin_m: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
+                 offboard_after_s: float = OFFBOARD_STREAM_S + 0.2,
+                 estimate_timeout_s: float = ESTIMATE_TIMEOUT_S,
+                 own_system_id: int | None = None) -> None:
+        if setpoints not in SETPOINT_MODES:
+            raise ValueError(f"setpoints: must be one of {SETPOINT_MODES}, got {setpoints!r}")
+        if hover_thrust is not None and not 0.0 < float(hover_thrust) < 1.0:
+            raise ValueError(f"hover_thrust: must be in (0, 1), got {hover_thrust!r}")
+        origin = np.asarray(origin_m, dtype=float)
+        if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+            raise ValueError(f"origin_m: must be 3 finite numbers, got {origin_m!r}")
+        if system_id is not None and not 1 <= int(system_id) <= 255:
+            raise ValueError(f"system_id: must be in 1..255, got {system_id!r}")
+        self.airframe = airframe
+        self.setpoints = setpoints
+        self.origin_m = origin
+        self.offboard_after_s = float(offboard_after_s)
+        self.estimate_timeout_s = float(estimate_timeout_s)
+        self.system_id = None if system_id is None else int(system_id)
+        self.component_id = 1
+        # A companion computer shares its autopilot's system id; before we know it, 245.
+        self.link = MavlinkEndpoint(address, system_id=own_system_id or self.system_id or 245,
+                                    component_id=ONBOARD_COMPONENT)
+        self.report_data = Px4Report(setpoint_mode=setpoints)
+        self.hover_thrust = None if hover_thrust is None else float(hover_thrust)
+        if self.hover_thrust is not None:
+            self.report_data.hover_thrust_source = "given"
+        self.phase = Phase.CONNECTING
+        self.armed = False
+        self.mode: Px4Mode | None = None
+        self.landed_state = 0  # MAV_LANDED_STATE_UNDEFINED until the autopilot says
+        self.last_heartbeat_s = -math.inf
+        self._odom: tuple[float, VehicleState] | None = None  # (receipt wall time, state)
+        self._lpn: Any = None
+        self._att: Any = None
+        self._clock_offset_s: float | None = None
+        self._clock_seen_s = 0.0
+        self._pending: _Command | None = None
+        self._phase_s = 0.0
+        self._first_request_s = 0.0
+        self._stream_start_s: float | None = None
+        self._mode_accepted_s: float | None = None
+        self._offboard_seen = False
+        self._ground_z_m: float | None = None
+        self._landed_since_s: float | None = None
+        self._last_send_s: float | None = None
+        self._periods: list[float] = []
+        self._ages: list[float] = []
+        self._t0_s = time.time()
+
+    # ------------------------------------------------------------------ what the node uses
+    @property
+    def commanding(self) -> bool:
+        """True while our setpoints go out (before offboard too: PX4 needs the stream)."""
+        return self.phase not in (Phase.CONNECTING, Phase.LANDED, Phase.STOPPED)
+
+    @property
+    def flying(self) -> bool:
+        """Armed in offboard and ours to fly (the node may take off and fly its mission)."""
+        return self.phase == Phase.FLYING
+
+    @property
+    def done(self) -> bool:
+        """Landed and disarmed: nothing left to do."""
+        return self.phase == Phase.LANDED
+
+    @property
+    def ground_z_m(self) -> float:
+        """World height of the point we took off from (where landing ends)."""
+        return 0.0 if self._ground_z_m is None else self._ground_z_m
+
+    def start(self, timeout_s: float = 20.0) -> VehicleState:
+        """Wait for the autopilot's HEARTBEAT and a fresh estimate, learn the hover thrust;
+        return the first estimate.
+
+        Raises:
+            VehicleLost: nothing usable within ``timeout_s`` (the message says what is missing).
+        """
+        t_end = time.time() + timeout_s
+        requested = -math.inf
+        while time.time() < t_end:
+            now = time.time()
+            self.poll(now)
+            if self.system_id is not None and self.hover_thrust is None \
+                    and now - requested > 0.5:
+                requested = now
+                self.link.send(_M.MAVLink_param_request_read_message(
+                    self.system_id, self.component_id, b"MPC_THR_HOVER", -1))
+            est = self.estimate(now)
+            if est is not None and self.hover_thrust is not None:
+                break
+            if est is not None and now - self._t0_s > 3.0:  # the autopilot kept its param
+                self.hover_thrust = self.airframe.mass_kg * 9.80665 / self.airframe.max_thrust_n
+                self.report_data.hover_thrust_source = "airframe (MPC_THR_HOVER not answered)"
+                break
+            self.link.wait(0.02)
+        else:
+            what = ("no HEARTBEAT from an autopilot" if self.system_id is None
+                    else "no ODOMETRY or LOCAL_POSITION_NED + ATTITUDE_QUATERNION")
+            raise VehicleLost(f"{what} on {self.link.address} within {timeout_s:g} s")
+        self.report_data.hover_thrust = self.hover_thrust
+        self._ground_z_m = float(est.position_m[2])
+        self._enter(Phase.STREAMING, time.time())
+        return est
+
+    def update(self, now_s: float) -> VehicleState | None:
+        """Take what arrived, advance the life cycle; the fresh estimate, or None."""
+        self.poll(now_s)
+        est = self.estimate(now_s)
+        self._advance(now_s, est)
+        return est
+
+    def actuate(self, now_s: float, target: AttitudeTarget, command: Any) -> None:
+        """Send the setpoint of this tick (when commanding): the attitude target, or the
+        tracker's ``command`` (p, v, a, heading) in position mode."""
+        if not self.commanding or self.system_id is None:
+            return
+        ms = int((now_s - self._t0_s) * 1e3) & 0xFFFFFFFF
+        if self.setpoints == "attitude":
+            q = enu_flu_quat_to_ned_frd(target.attitude_wxyz)
+            rates = flu_to_frd(target.body_rates_ff_radps)  # only the yaw rate is used
+            thrust = float(np.clip(target.thrust_n / (self.airframe.mass_kg * 9.80665)
+                                   * self.hover_thrust, 0.0, 1.0))
+            msg = _M.MAVLink_set_attitude_target_message(
+                ms, self.system_id, self.component_id, _ATT_TYPE_MASK, q.tolist(),
+                float(rates[0]), float(rates[1]), float(rates[2]), thrust)
+        else:
+            p = enu_to_ned(np.asarray(command.position_m) - self.origin_m)
+            v = enu_to_ned(command.velocity_mps)
+            a = enu_to_ned(command.acceleration_mps2)
+            msg = _M.MAVLink_set_position_target_local_ned_message(
+                ms, self.system_id, self.component_id, _M.MAV_FRAME_LOCAL_NED, _POS_TYPE_MASK,
+                *map(float, p), *map(float, v), *map(float, a),
+                heading_enu_to_ned(command.heading_rad), -float(command.heading_rate_radps))
+        if not self.link.send(msg):
+            return
+        self.report_data.setpoints_sent += 1
+        if self._stream_start_s is None:
+            self._stream_start_s = now_s
+        if self._last_send_s is not None:
+            self._periods.append(now_s - self._last_send_s)
+        self._last_send_s = now_s
+        if self._odom is not None:
+            self._ages.append(now_s - self._odom[0])
+
+    def land(self, now_s: float) -> None:
+        """The mission is over: the node now flies down; disarm when on the ground."""
+        if self.phase == Phase.FLYING:
+            self._enter(Phase.LANDING, now_s)
+        elif self.commanding:  # not airborne yet: nothing to land
+            self._stop(now_s, "stopped before take-off")
+
+    def abort(self, now_s: float, reason: str) -> None:
+        """Stop commanding now (PX4 then fails safe after COM_OF_LOSS_T)."""
+        if self.commanding:
+            self._stop(now_s, reason)
+
+    def report(self) -> dict[str, Any]:
+        r = self.report_data
+        r.phase = self.phase.value
+        r.garbage = self.link.garbage
+        if self._periods:
+            ms = np.array(self._periods) * 1e3
+            r.setpoint_period_p50_ms = float(np.median(ms))
+            r.setpoint_period_p99_ms = float(np.percentile(ms, 99))
+            r.setpoint_period_max_ms = float(ms.max())
+        if self._ages:
+            ms = np.array(self._ages) * 1e3
+            r.estimate_age_p50_ms = float(np.median(ms))
+            r.estimate_age_p99_ms = float(np.percentile(ms, 99))
+        return {k: getattr(r, k) for k in r.__dataclass_fields__}
+
+    def close(self) -> None:
+        self.link.close()
+
+    # ------------------------------------------------------------------ receiving
+    def poll(self, now_s: float) -> None:
+        """Handle what arrived (bounded); anything not from our autopilot is counted, ignored."""
+        for msg, sender in self.link.receive():
+            kind = msg.get_type()
+            sysid = msg.get_srcSystem()
+            if self.system_id is None:
+                if kind != "HEARTBEAT" or msg.autopilot == _M.MAV_AUTOPILOT_INVALID \
+                        or msg.get_srcComponent() != 1:
+                    self.report_data.foreign += 1
+                    continue
+                self.system_id = sysid
+                self.link.mav.srcSystem = sysid
+                self.report_data.system_id = sysid
+            if sysid != self.system_id or msg.get_srcComponent() != self.component_id:
+                self.report_data.foreign += 1
+                continue
+            self.link.trust(sender)
+            handler = _HANDLERS.get(kind)
+            if handler is not None:
+                handler(self, msg, now_s)
+
+    def _on_heartbeat(self, msg: Any, now_s: float) -> None:
+        self.report_data.heartbeats_received += 1
+        self.last_heartbeat_s = now_s
+        self.armed = bool(msg.base_mode & _M.MAV_MODE_FLAG_SAFETY_ARMED)
+        mode = Px4Mode.decode(msg.custom_mode)
+        if mode != self.mode:
+            self.report_data.modes.append(f"{now_s - self._t0_s:.2f} s: {mode}")
+        self.mode = mode
+
+    def _on_odometry(self, msg: Any, now_s: float) -> None:
+        if msg.frame_id not in (_M.MAV_FRAME_LOCAL_NED, _M.MAV_FRAME_LOCAL_FRD):
+            self.report_data.foreign += 1  # not a local-frame odometry we know how to read
+            return
+        q_ned = np.array(msg.q, dtype=float)
+        vals = np.array([msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, msg.rollspeed,
+                         msg.pitchspeed, msg.yawspeed], dtype=float)
+        if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(q_ned))
+                and abs(np.linalg.norm(q_ned) - 1.0) < 1e-2):
+            return  # the estimator has no valid solution
+        q_ned /= np.linalg.norm(q_ned)
+        v_ned = vals[3:6]
+        if msg.child_frame_id in _ODOMETRY_CHILD_BODY:  # velocity given in the body frame
+            v_ned = quat_to_rot(q_ned) @ v_ned
+        t = self._stamp(msg.time_usec * 1e-6, now_s)
+        self.report_data.odometry_received += 1
+        self._odom = (now_s, VehicleState(
+            t_s=t, position_m=self.origin_m + ned_to_enu(vals[0:3]),
+            velocity_mps=ned_to_enu(v_ned), attitude_wxyz=ned_frd_quat_to_enu_flu(q_ned),
+            body_rates_radps=frd_to_flu(vals[6:9])))
+
+    def _on_local_position(self, msg: Any, now_s: float) -> None:
+        self._lpn = (now_s, msg)
+
+    def _on_attitude(self, msg: Any, now_s: float) -> None:
+        self._att = (now_s, msg)
+
+    def _on_ack(self, msg: Any, now_s: float) -> None:
+        cmd = self._pending
+        if cmd is None or msg.command != cmd.command:
+            return
+        if msg.result == _M.MAV_RESULT_IN_PROGRESS:
+            return
+        cmd.result = int(msg.result)
+        self.report_data.commands.append({
+            "t_s": round(now_s - self._t0_s, 3), "command": command_name(cmd.command),
+            "params": list(cmd.params[:3]), "result": result_name(msg.result),
+            "attempts": cmd.attempts})
+
+    def _on_param(self, msg: Any, now_s: float) -> None:
+        name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else ""
+        if name == "MPC_THR_HOVER" and self.hover_thrust is None \
+                and 0.0 < msg.param_value < 1.0:
+            self.hover_thrust = float(msg.param_value)
+            self.report_data.hover_thrust_source = "MPC_THR_HOVER"
+
+    def _on_extended_state(self, msg: Any, now_s: float) -> None:
+        self.landed_state = int(msg.landed_state)
+
+    def _on_status_text(self, msg: Any, now_s: float) -> None:
+        text = msg.text.rstrip("\x00") if isinstance(msg.text, str) else repr(msg.text)
+        self.report_data.status_texts.append(f"{now_s - self._t0_s:.2f} s: {text}")
+        del self.report_data.status_texts[:-20]
+
+    def _stamp(self, t_autopilot_s: float, now_s: float) -> float:
+        """Autopilot time → our time: the offset follows the lowest-latency sample (a minimum
+        that may creep up by 100 ppm, so that the two clocks may drift apart slowly)."""
+        if t_autopilot_s <= 0.0:
+            return now_s
+        sample = now_s - t_autopilot_s
+        if self._clock_offset_s is None:
+            self._clock_offset_s = sample
+        else:
+            creep = 1e-4 * max(now_s - self._clock_seen_s, 0.0)
+            self._clock_offset_s = min(sample, self._clock_offset_s + creep)
+        self._clock_seen_s = now_s
+        return t_autopilot_s + self._clock_offset_s
+
+    def estimate(self, now_s: float) -> VehicleState | None:
+        """The latest estimate if younger than ``estimate_timeout_s``, else None."""
+        est = None
+        if self._odom is not None:
+            est = self._odom[1]
+        elif self._lpn is not None and self._att is not None:
+            (t_p, p), (t_a, a) = self._lpn, self._att
+            q_ned = np.array([a.q1, a.q2, a.q3, a.q4])
+            est = VehicleState(
+                t_s=min(t_p, t_a),
+                position_m=self.origin_m + ned_to_enu(np.array([p.x, p.y, p.z])),
+                velocity_mps=ned_to_enu(np.array([p.vx, p.vy, p.vz])),
+                attitude_wxyz=ned_frd_quat_to_enu_flu(q_ned / np.linalg.norm(q_ned)),
+                body_rates_radps=frd_to_flu(np.array([a.rollspeed, a.pitchspeed,
+                                                      a.yawspeed])))
+        if est is None or now_s - est.t_s > self.estimate_timeout_s:
+            return None
+        return est
+
+    # ------------------------------------------------------------------ the life cycle
+    def _enter(self, phase: Phase, now_s: float) -> None:
+        self.phase = phase
+        self._phase_s = now_s
+
+    def _stop(self, now_s: float, reason: str) -> None:
+        self.report_data.stop_reason = reason
+        self._pending = None
+        self._enter(Phase.STOPPED, now_s)
+
+    def _send_command(self, now_s: float, command: int, *params: float) -> None:
+        p = (list(params) + [0.0] * 7)[:7]
+        self._pending = _Command(command, tuple(p), now_s)
+        self._transmit(self._pending)
+
+    def _transmit(self, cmd: _Command) -> None:
+        assert self.system_id is not None
+        self.link.send(_M.MAVLink_command_long_message(
+            self.system_id, self.component_id, cmd.command, cmd.attempts - 1, *cmd.params))
+
+    def _command_state(self, now_s: float) -> str:
+        """``"waiting"``, ``"accepted"``, ``"rejected"`` or ``"lost"`` (no ACK at all)."""
+        cmd = self._pending
+        assert cmd is not None
+        if cmd.result is not None:
+            return "accepted" if cmd.result == _M.MAV_RESULT_ACCEPTED else "rejected"
+        if now_s - cmd.sent_s > COMMAND_RETRY_S:
+            if cmd.attempts >= COMMAND_ATTEMPTS:
+                self.report_data.commands.append({
+                    "t_s": round(now_s - self._t0_s, 3), "command": command_name(cmd.command),
+                    "params": list(cmd.params[:3]), "result": "no COMMAND_ACK",
+                    "attempts": cmd.attempts})
+                return "lost"
+            cmd.attempts += 1
+            cmd.sent_s = now_s
+            self._transmit(cmd)
+        return "waiting"
+
+    def _advance(self, now_s: float, est: VehicleState | None) -> None:
+        if not self.commanding:
+            return
+        if now_s - self.last_heartbeat_s > HEARTBEAT_TIMEOUT_S:
+            self._stop(now_s, f"link lost: no HEARTBEAT for {HEARTBEAT_TIMEOUT_S:g} s")
+            return
+        if est is None:
+            age = (now_s - self._odom[1].t_s) if self._odom is not None else math.inf
+            self._stop(now_s, f"estimate stale: the last is {age:.3f} s old "
+                              f"(limit {self.estimate_timeout_s:g} s)")
+            return
+        if self._offboard_seen and self.mode is not None and not self.mode.is_offboard:
+            self._stop(now_s, f"the autopilot left offboard (now {self.mode})")
+            return
+        if self.phase in (Phase.FLYING, Phase.LANDING) and not self.armed:
+            self._stop(now_s, "the autopilot disarmed")
+            return
+        if self.mode is not None and self.mode.is_offboard:
+            self._offboard_seen = True
+        getattr(self, f"_in_{self.phase.value}")(now_s, est)
+
+    def _in_streaming(self, now_s: float, est: VehicleState) -> None:
+        if self._stream_start_s is None or now_s - self._stream_start_s < self.offboard_after_s:
+            return
+        if now_s - self._phase_s < RETRY_S and self.report_data.commands:
+            return  # after a refusal: wait before asking again
+        if not self._first_request_s:
+            self._first_request_s = now_s
+        self._send_command(now_s, _M.MAV_CMD_DO_SET_MODE,
+                           float(_M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(OFFBOARD.main),
+                           float(OFFBOARD.sub))
+        self._enter(Phase.OFFBOARD, now_s)
+
+    def _in_offboard(self, now_s: float, est: VehicleState) -> None:
+        if self._pending is not None:
+            state = self._command_state(now_s)
+            if state == "waiting":
+                return
+            if state != "accepted":
+                self._pending = None
+                if now_s - self._first_request_s > GIVE_UP_S:
+                    self._stop(now_s, "the autopilot refused offboard for "
+                                      f"{GIVE_UP_S:g} s: {self._last_result()}")
+                else:
+                    self._enter(Phase.STREAMING, now_s)  # keep streaming, ask again
+                return
+            self._pending = None
+            self._mode_accepted_s = now_s
+        if self._offboard_seen:
+            self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+            self._enter(Phase.ARMING, now_s)
+        elif self._mode_accepted_s is not None and now_s - self._mode_accepted_s > MODE_CONFIRM_S:
+            self._stop(now_s, "offboard was accepted but the HEARTBEAT never showed it")
+
+    def _in_arming(self, now_s: float, est: VehicleState) -> None:
+        if self._pending is None:
+            if now_s - self._phase_s >= RETRY_S:
+                self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+            return
+        state = self._command_state(now_s)
+        if state == "accepted":
+            self._pending = None
+            self._enter(Phase.FLYING, now_s)
+        elif state != "waiting":
+            self._pending = None
+            attempts = sum(c["command"] == "MAV_CMD_COMPONENT_ARM_DISARM"
+                           for c in self.report_data.commands)
+            if attempts >= COMMAND_ATTEMPTS:
+                self._stop(now_s, f"arming refused: {self._last_result()}")
+            else:
+                self._phase_s = now_s
+
+    def _in_flying(self, now_s: float, est: VehicleState) -> None:
+        pass
+
+    def _in_landing(self, now_s: float, est: VehicleState) -> None:
+        on_ground = self.landed_state == _M.MAV_LANDED_STATE_ON_GROUND or (
+            est.position_m[2] - self.ground_z_m < LANDED_HEIGHT_M
+            and float(np.linalg.norm(est.velocity_mps)) < LANDED_SPEED_MPS)
+        if not on_ground:
+            self._landed_since_s = None
+            return
+        if self._landed_since_s is None:
+            self._landed_since_s = now_s
+        if now_s - self._landed_since_s >= LANDED_HOLD_S:
+            self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
+            self._enter(Phase.DISARMING, now_s)
+
+    def _in_disarming(self, now_s: float, est: VehicleState) -> None:
+        if self._pending is None:
+            if now_s - self._phase_s >= RETRY_S:
+                self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
+            return
+        state = self._command_state(now_s)
+        if state == "accepted":
+            self._pending = None
+            self._enter(Phase.LANDED, now_s)
+        elif state != "waiting":
+            self._pending = None
+            self._phase_s = now_s
+            if now_s - self._landed_since_s > GIVE_UP_S:  # type: ignore[operator]
+                self._stop(now_s, f"disarm refused: {self._last_result()}; forcing is left "
+                                  f"to the pilot (param2 = {FORCE_DISARM:g})")
+
+    def _last_result(self) -> str:
+        return self.report_data.commands[-1]["result"] if self.report_data.commands else "?"
+
+
+_HANDLERS = {
+    "HEARTBEAT": Px4Vehicle._on_heartbeat,
+    "ODOMETRY": Px4Vehicle._on_odometry,
+    "LOCAL_POSITION_NED": Px4Vehicle._on_local_position,
+    "ATTITUDE_QUATERNION": Px4Vehicle._on_attitude,
+    "COMMAND_ACK": Px4Vehicle._on_ack,
+    "PARAM_VALUE": Px4Vehicle._on_param,
+    "EXTENDED_SYS_STATE": Px4Vehicle._on_extended_state,
+    "STATUSTEXT": Px4Vehicle._on_status_text,
+}
