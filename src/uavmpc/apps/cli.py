@@ -112,14 +112,53 @@ def _node(args: argparse.Namespace) -> int:
     except (OSError, KeyError, ValueError, InvalidReferenceError) as exc:
         print(f"uavmpc node: bad mission: {exc}", file=sys.stderr)
         return 2
+    vehicle = None
+    lost: tuple[type[Exception], ...] = ()
+    if args.mavlink:
+        from uavmpc.drivers.px4.vehicle import Px4Vehicle, VehicleLost
+
+        lost = (VehicleLost,)
+        try:
+            vehicle = Px4Vehicle(args.mavlink, airframe, setpoints=args.setpoints,
+                                 system_id=args.system_id, hover_thrust=args.hover_thrust,
+                                 origin_m=args.origin)
+        except (ValueError, OSError) as exc:
+            print(f"uavmpc node: --mavlink: {exc}", file=sys.stderr)
+            return 2
     with ZenohTransport(args.id, swarm=args.swarm, listen=args.listen or [],
                         connect=args.connect or []) as transport:
         node = Node(args.id, args.priority, airframe, transport, start_m=args.start,
-                    heading_rad=args.heading, avoidance=not args.no_avoidance, key=key)
+                    heading_rad=args.heading, avoidance=not args.no_avoidance, key=key,
+                    vehicle=vehicle)
         if mission is not None:
             node.set_mission(mission)
-        stats = run_node(node, args.duration)
+        try:
+            stats = run_node(node, args.duration)
+        except lost as exc:  # the autopilot never answered
+            print(f"uavmpc node: {exc}", file=sys.stderr)
+            return 1
     print(json.dumps(dataclasses.asdict(stats)), flush=True)
+    return 0
+
+
+def _sitl(args: argparse.Namespace) -> int:
+    from uavmpc.drivers.px4.sitl import StandInPx4, run_sitl
+    from uavmpc.plant import Airframe
+
+    airframe = Airframe.from_toml(args.airframe) if args.airframe.endswith(".toml") else (
+        Airframe.packaged(args.airframe))
+    try:
+        sitl = StandInPx4(airframe, args.connect, position_m=args.position,
+                          heading_rad=args.heading, system_id=args.system_id,
+                          odometry_rate_hz=args.odometry_rate)
+    except (ValueError, OSError) as exc:
+        print(f"uavmpc sitl: {exc}", file=sys.stderr)
+        return 2
+    print(f"uavmpc sitl: PX4 stand-in (system {args.system_id}) on UDP port "
+          f"{sitl.link.local_port}, talking to {sitl.link.address}", file=sys.stderr, flush=True)
+    run_sitl(sitl, args.duration)
+    print(json.dumps({"events": sitl.events, "final_position_m":
+                      sitl.plant.state().position_m.tolist()}), flush=True)
     return 0
 
 
@@ -136,18 +175,29 @@ def _swarm(args: argparse.Namespace) -> int:
         plot_min_distance_trace(t_s, d_m, COLLISION_DISTANCE_M).savefig(
             out / "min_distance.png", dpi=110)
 
+    if args.mavlink:
+        import uavmpc.drivers.px4.dialect  # noqa: F401  (fail early if pymavlink is missing)
     s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
-                  duration_s=args.duration, key_file=args.key_file, on_trace=draw)
+                  duration_s=args.duration, key_file=args.key_file, on_trace=draw,
+                  mavlink=args.mavlink, setpoints=args.setpoints)
     verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
     closest = s["min_distance_m"]
-    print(f"{s['scenario']} as {len(s['uavs'])} node processes over Zenoh: {verdict}; closest "
-          f"approach {closest if closest is None else round(closest, 2)} m")
+    via = " each flying a PX4 stand-in over MAVLink" if args.mavlink else ""
+    print(f"{s['scenario']} as {len(s['uavs'])} node processes over Zenoh{via}: {verdict}; "
+          f"closest approach {closest if closest is None else round(closest, 2)} m")
     for uav, u in s["uavs"].items():
         node = u["node"]
-        print(f"  {uav}: climbed {u['max_z_offset_m']:.0f} m, "
-              f"{'reached' if u['reached_goal'] else 'MISSED'} its goal; "
-              f"tick period p50 {node.get('period_p50_ms', float('nan')):.2f} ms, "
-              f"p99 {node.get('period_p99_ms', float('nan')):.2f} ms")
+        line = (f"  {uav}: climbed {u['max_z_offset_m']:.0f} m, "
+                f"{'reached' if u['reached_goal'] else 'MISSED'} its goal, tracking RMSE "
+                f"{u['tracking_rmse_m'] or float('nan'):.3f} m; tick period p50 "
+                f"{node.get('period_p50_ms', float('nan')):.2f} ms, "
+                f"p99 {node.get('period_p99_ms', float('nan')):.2f} ms")
+        px4 = node.get("vehicle") or {}
+        if px4:
+            line += (f"; MAVLink {px4.get('phase')}"
+                     + (f" ({px4['stop_reason']})" if px4.get("stop_reason") else "")
+                     + f", setpoints p99 {px4.get('setpoint_period_p99_ms', 0.0):.2f} ms")
+        print(line)
     print(f"wrote {out}/summary.json, flight.mcap, min_distance.png")
     return 0
 
@@ -272,14 +322,47 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument("--mission-file", help="initial mission: JSON {times_s, points, loop}")
     node.add_argument("--no-avoidance", action="store_true")
     node.add_argument("--key-file", help="shared key: sign predictions, drop unsigned ones")
-    node.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    node.add_argument("--duration", type=float, default=None,
+                      help="stop after S seconds (with --mavlink: then land)")
+    node.add_argument("--mavlink", metavar="URL",
+                      help="fly a PX4 autopilot instead of the simulated plant: udp://:14540 "
+                           "listens (PX4 SITL's offboard port), udpout://HOST:PORT sends; "
+                           "--start is then where to take off to")
+    node.add_argument("--setpoints", choices=["attitude", "position"], default="attitude",
+                      help="--mavlink: SET_ATTITUDE_TARGET from our SE(3) controller (default) "
+                           "or SET_POSITION_TARGET_LOCAL_NED for PX4's position controller")
+    node.add_argument("--origin", type=float, nargs=3, default=[0.0, 0.0, 0.0],
+                      metavar=("X", "Y", "Z"),
+                      help="--mavlink: the autopilot's local-frame origin in the world (ENU)")
+    node.add_argument("--hover-thrust", type=float, default=None,
+                      help="--mavlink: normalised hover thrust (default: MPC_THR_HOVER)")
+    node.add_argument("--system-id", type=int, default=None,
+                      help="--mavlink: the autopilot's system id (default: the first heard)")
     node.set_defaults(func=_node)
+    sitl = sub.add_parser("sitl", help="a stand-in PX4 autopilot (our plant) on MAVLink/UDP")
+    sitl.add_argument("--connect", default="udpout://127.0.0.1:14540",
+                      help="where its MAVLink goes (default udpout://127.0.0.1:14540, as PX4 "
+                           "SITL; udp://:PORT listens instead)")
+    sitl.add_argument("--airframe", default="f550", help="f550, x500 or a TOML file")
+    sitl.add_argument("--position", type=float, nargs=3, default=[0.0, 0.0, 0.0],
+                      metavar=("X", "Y", "Z"), help="boot position (ENU) [m], on the ground")
+    sitl.add_argument("--heading", type=float, default=0.0, help="boot heading [rad]")
+    sitl.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default 1)")
+    sitl.add_argument("--odometry-rate", type=float, default=100.0, help="ODOMETRY [Hz]")
+    sitl.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    sitl.set_defaults(func=_sitl)
     swarm = sub.add_parser("swarm", help="a scenario as one node process per UAV on loopback")
     swarm.add_argument("scenario", help="swap_through_static, converge_center or a TOML file")
     swarm.add_argument("--out", default="out/swarm", help="output folder (default out/swarm)")
     swarm.add_argument("--no-avoidance", action="store_true")
     swarm.add_argument("--duration", type=float, default=None, help="seconds after the start")
     swarm.add_argument("--key-file", help="shared key file given to every node")
+    swarm.add_argument("--mavlink", action="store_true",
+                       help="each node flies its own stand-in PX4 (uavmpc sitl) over "
+                            "MAVLink/UDP on 127.0.0.1: take-off from the ground, mission, "
+                            "landing")
+    swarm.add_argument("--setpoints", choices=["attitude", "position"], default="attitude",
+                       help="--mavlink: the setpoint message the nodes send")
     swarm.set_defaults(func=_swarm)
     tdemo = sub.add_parser("tracker-demo", help="the virtual UAV flies a 50 m step; plot it")
     tdemo.add_argument("--out", default="out/tracker-demo", help="output folder")
@@ -326,6 +409,11 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args))
     except ConfigError as exc:
         print(f"uavmpc: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:
+        if "pip install" not in str(exc):
+            raise
+        print(f"uavmpc: {exc}", file=sys.stderr)  # an optional extra is missing
         return 2
 
 

@@ -276,6 +276,7 @@ class Node:
         last = None
         landing_until: float | None = None
         ticks = 0
+        commanded = False
         try:
             while True:
                 now = tracker.time_s
@@ -293,11 +294,13 @@ class Node:
                 if vehicle.flying and not self._launched:
                     self._launch(now, state)
                 self._take_missions(now)
-                if not vehicle.commanding and fresh is not None and ticks % 10 == 0:
-                    stack.follow(now, fresh)  # say what the vehicle really does
+                if commanded and not vehicle.commanding and fresh is not None \
+                        and ticks % 10 == 0:
+                    stack.follow(now, fresh)  # no longer ours: say what it really does
                 received = self.transport.receive(self.uav_id, now)[:MAX_MESSAGES_PER_TICK]
                 out = stack.tick(now, state, received)
                 vehicle.actuate(time.time(), out.target, stack.command())
+                commanded = commanded or vehicle.commanding
                 ticks += 1
                 if out.outgoing is not None:
                     self.transport.publish(out.outgoing, self.uav_id, now)

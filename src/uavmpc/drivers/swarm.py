@@ -8,6 +8,11 @@ simulated world, detects collisions and writes the same ``summary.json`` as ``ua
 Topology: node 0 listens first; every other node and the monitor connect to it (Zenoh's gossip
 completes the mesh). All missions start at a common epoch a few seconds after launch, once the
 peers have found each other.
+
+With ``mavlink=True`` every UAV is a pair of processes: a stand-in PX4 (``uavmpc sitl``) booted
+on the ground below the UAV's start, and its node, connected over MAVLink/UDP on 127.0.0.1. The
+node takes off to its start before the epoch, flies the mission, then lands and disarms; the
+monitor keeps watching until every node has landed.
 """
 
 from __future__ import annotations
@@ -37,6 +42,10 @@ from uavmpc.scenarios import Scenario
 
 #: Seconds from launch to the common mission start (discovery takes ≈ 1 s; numba loads ≈ 1 s).
 STARTUP_S = 4.0
+#: Extra seconds with MAVLink: stream > 1 s, offboard, arm, and climb to the start.
+TAKEOFF_S = 8.0
+#: Longest wait for the nodes to land after the mission.
+LANDING_WAIT_S = 40.0
 
 
 def free_ports(n: int) -> list[int]:
@@ -54,7 +63,8 @@ def free_ports(n: int) -> list[int]:
 
 def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
                  mission_file: Path, avoidance: bool, duration_s: float,
-                 key_file: str | None = None) -> list[str]:
+                 key_file: str | None = None, mavlink: str | None = None,
+                 setpoints: str = "attitude") -> list[str]:
     """The ``uavmpc node`` command line of one UAV of a scenario."""
     cmd = [sys.executable, "-m", "uavmpc.apps.cli", "node", "--id", spec.uav_id,
            "--priority", str(spec.priority), "--airframe", spec.airframe,
@@ -67,19 +77,33 @@ def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
         cmd.append("--no-avoidance")
     if key_file:
         cmd += ["--key-file", key_file]
+    if mavlink:
+        ground = (*spec.start_m[:2], 0.0)
+        cmd += ["--mavlink", mavlink, "--setpoints", setpoints,
+                "--origin", *(repr(v) for v in ground)]
     return cmd
+
+
+def sitl_command(spec: Any, address: str) -> list[str]:
+    """The ``uavmpc sitl`` command line of the stand-in autopilot of one UAV: on the ground
+    below its start."""
+    return [sys.executable, "-m", "uavmpc.apps.cli", "sitl", "--connect", address,
+            "--airframe", spec.airframe, "--position", repr(spec.start_m[0]),
+            repr(spec.start_m[1]), "0.0", "--heading", repr(spec.heading_rad)]
 
 
 def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               duration_s: float | None = None, key_file: str | None = None,
               kill_at_s: dict[str, float] | None = None,
-              on_trace: Callable[[list[float], list[float]], None] | None = None
-              ) -> dict[str, Any]:
+              on_trace: Callable[[list[float], list[float]], None] | None = None,
+              mavlink: bool = False, setpoints: str = "attitude") -> dict[str, Any]:
     """Fly ``scenario`` as separate node processes; returns the summary (also written).
 
     ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
     (a UAV that drops out of the sky, as far as the link can tell). ``on_trace(t_s, d_m)``
-    gets the closest pairwise distance over time at the end (the CLI draws it)."""
+    gets the closest pairwise distance over time at the end (the CLI draws it). ``mavlink``:
+    every node flies its own stand-in PX4 over MAVLink/UDP (``setpoints``: the message it
+    sends); goals are judged where the UAVs are when the mission ends, before they land."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
     duration = scenario.duration_s if duration_s is None else float(duration_s)
@@ -88,15 +112,18 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     swarm = f"s{os.getpid()}"
     n = len(scenario.uavs)
     ports = free_ports(n + 1)
+    mav_ports = free_ports(n) if mavlink else []
     endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
     # Compile the kernels once here, into the cache every node loads them from, before the
     # clock of the mission starts.
     for name in sorted({u.airframe for u in scenario.uavs}):
         warm_up(Airframe.from_toml(name) if name.endswith(".toml") else Airframe.packaged(name))
-    epoch = time.time() + STARTUP_S
+    epoch = time.time() + STARTUP_S + (TAKEOFF_S if mavlink else 0.0)
     ids = [u.uav_id for u in scenario.uavs]
     goals = {u.uav_id: np.array(u.goal_m) for u in scenario.uavs}
     procs: dict[str, subprocess.Popen[str]] = {}
+    sitls: dict[str, subprocess.Popen[str]] = {}
+    at_end: dict[str, np.ndarray] = {}
     tmp = tempfile.TemporaryDirectory(prefix="uavmpc-swarm-")
     monitor = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
                              connect=[endpoints[0]], max_pending=4096)
@@ -117,16 +144,28 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
             mission.write_text(json.dumps({
                 "times_s": (spec.mission.times_s + epoch).tolist(),
                 "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
+            address = None
+            if mavlink:
+                address = f"udp://127.0.0.1:{mav_ports[i]}"
+                sitls[spec.uav_id] = subprocess.Popen(
+                    sitl_command(spec, f"udpout://127.0.0.1:{mav_ports[i]}"),
+                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             cmd = node_command(spec, swarm=swarm, listen=endpoints[i],
                                connect=[] if i == 0 else [endpoints[0]],
                                mission_file=mission, avoidance=avoidance,
                                duration_s=duration + (epoch - time.time()) + 1.0,
-                               key_file=key_file)
+                               key_file=key_file, mavlink=address, setpoints=setpoints)
             procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-        meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh"}
+        meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
+                "vehicle": "PX4 stand-in over MAVLink" if mavlink else "simulated plant"}
         with FlightRecorder(out / "flight.mcap", ids, meta) as rec:
             end = epoch + duration
-            while time.time() < end:
+            landing_end = end + (LANDING_WAIT_S if mavlink else 0.0)
+            while time.time() < end or (
+                    time.time() < landing_end
+                    and any(p.poll() is None for p in procs.values())):
+                if time.time() >= end and not at_end:
+                    at_end.update({u: p.copy() for u, p in latest.items()})
                 for topic, payload in states.drain():
                     uav = topic.split("/")[-2]
                     try:
@@ -182,6 +221,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
         node_stats: dict[str, dict[str, Any]] = {}
+        sitl_reports: dict[str, dict[str, Any]] = {}
         for uav, p in procs.items():
             try:
                 stdout, _ = p.communicate(timeout=15)
@@ -190,6 +230,16 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                 stdout, _ = p.communicate()
             lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
             node_stats[uav] = json.loads(lines[-1]) if lines else {"exit_code": p.returncode}
+        for uav, p in sitls.items():
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+            try:
+                stdout, _ = p.communicate(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                stdout, _ = p.communicate()
+            lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
+            sitl_reports[uav] = json.loads(lines[-1]) if lines else {"exit_code": p.returncode}
         monitor.close()
         tmp.cleanup()
     sent = sum(s.get("predictions_sent", 0) for s in node_stats.values()) * (n - 1)
@@ -198,18 +248,24 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     for uav in ids:
         st = node_stats.get(uav, {})
         final = np.array(st.get("final_position_m") or latest.get(uav, [np.nan] * 3))
+        judged = at_end.get(uav, final) if mavlink else final
         uavs[uav] = {
             "max_z_offset_m": offsets[uav],
             "avoidance_active_s": st.get("avoidance_active_s"),
             "tracking_rmse_m": st.get("tracking_rmse_m"),
-            "reached_goal": bool(np.linalg.norm(final - goals[uav]) < GOAL_TOLERANCE_M),
+            "reached_goal": bool(np.linalg.norm(judged - goals[uav]) < GOAL_TOLERANCE_M),
+            "mission_end_position_m": np.asarray(judged).tolist(),
             "final_position_m": final.tolist(),
             "last_state": last_state.get(uav, {}),
             "node": st,
         }
+        if mavlink:
+            uavs[uav]["sitl"] = sitl_reports.get(uav, {})
     summary = {
         "scenario": scenario.name, "avoidance": avoidance, "duration_s": duration,
         "transport": "zenoh (peer to peer, 127.0.0.1)",
+        "vehicles": (f"PX4 stand-ins over MAVLink/UDP, {setpoints} setpoints" if mavlink
+                     else "simulated plants in the nodes"),
         "collisions": collisions,
         "min_distance_m": min_d if math.isfinite(min_d) else None,
         "uavs": uavs,

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from pymavlink.dialects.v20 import common as mavlink
+try:
+    from pymavlink.dialects.v20 import common as mavlink
+except ImportError:  # an optional extra: one line saying what to install
+    raise ImportError("the PX4/MAVLink link needs pymavlink: pip install 'uavmpc[px4]'") from None
 
 __all__ = ["COM_OF_LOSS_T_S", "OFFBOARD_STREAM_S", "AutoSubMode", "MainMode", "Px4Mode",
            "command_name", "mavlink", "result_name"]

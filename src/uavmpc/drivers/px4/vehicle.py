@@ -206,11 +206,13 @@ class Px4Vehicle:
         self._periods: list[float] = []
         self._ages: list[float] = []
         self._t0_s = time.time()
+        self._connected = False
 
     # ------------------------------------------------------------------ what the node uses
     @property
     def commanding(self) -> bool:
-        """True while our setpoints go out (before offboard too: PX4 needs the stream)."""
+        """True while our setpoints go out (before offboard too: PX4 needs the stream).
+        The first goes out at the first :meth:`actuate` with a fresh estimate."""
         return self.phase not in (Phase.CONNECTING, Phase.LANDED, Phase.STOPPED)
 
     @property
@@ -259,7 +261,7 @@ class Px4Vehicle:
             raise VehicleLost(f"{what} on {self.link.address} within {timeout_s:g} s")
         self.report_data.hover_thrust = self.hover_thrust
         self._ground_z_m = float(est.position_m[2])
-        self._enter(Phase.STREAMING, time.time())
+        self._connected = True
         return est
 
     def update(self, now_s: float) -> VehicleState | None:
@@ -272,6 +274,9 @@ class Px4Vehicle:
     def actuate(self, now_s: float, target: AttitudeTarget, command: Any) -> None:
         """Send the setpoint of this tick (when commanding): the attitude target, or the
         tracker's ``command`` (p, v, a, heading) in position mode."""
+        if self.phase == Phase.CONNECTING and self._connected \
+                and self.estimate(now_s) is not None:
+            self._enter(Phase.STREAMING, now_s)  # the stream (and our failsafes) start here
         if not self.commanding or self.system_id is None:
             return
         ms = int((now_s - self._t0_s) * 1e3) & 0xFFFFFFFF
