@@ -139,7 +139,7 @@ def test_fuzzed_messages_never_crash_or_move_a_flying_node() -> None:
         time.sleep(8.0)
         assert f.thread.is_alive()  # no crash
         assert f.max_offset() == 0.0  # no change of flight
-        state = f.node.plant.state()
+        state = f.node.vehicle.plant.state()
         assert np.linalg.norm(state.position_m - [10.0, 0.0, 5.0]) < 0.5
     assert len(sent) >= 10_000
     assert f.node.stack.inbox.rejected_total > 1000  # most of the fuzz is malformed and counted
@@ -175,7 +175,7 @@ def test_missions_over_the_network_are_validated() -> None:
         assert f.node.stats.missions_rejected == len(bad)
         f.other.send("uav1", "mission", json.dumps({"goto": [3.0, 0.0, 5.0, 0.0]}).encode())
         time.sleep(6.0)
-        state = f.node.plant.state()
+        state = f.node.vehicle.plant.state()
         assert np.linalg.norm(state.position_m - [3.0, 0.0, 5.0]) < 0.3
 
 

@@ -557,10 +557,12 @@ class Px4Vehicle:
             self._pending = None
             self._enter(Phase.FLYING, now_s)
         elif state != "waiting":
+            # "Temporarily rejected" (e.g. no offboard signal yet) is asked again until
+            # GIVE_UP_S; a denial, an unsupported command or silence ends the attempt.
+            result = self._pending.result
             self._pending = None
-            attempts = sum(c["command"] == "MAV_CMD_COMPONENT_ARM_DISARM"
-                           for c in self.report_data.commands)
-            if attempts >= COMMAND_ATTEMPTS:
+            if result != _M.MAV_RESULT_TEMPORARILY_REJECTED \
+                    or now_s - self._first_request_s > GIVE_UP_S:
                 self._stop(now_s, f"arming refused: {self._last_result()}")
             else:
                 self._phase_s = now_s
