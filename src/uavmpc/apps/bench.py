@@ -23,9 +23,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import platform
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -315,6 +317,59 @@ def bench_world(sizes: tuple[int, ...] = (5, 20, 100), duration_s: float = 20.0,
     return {"duration_s": duration_s, "avoidance": avoidance, "worlds": rows,
             "batched_speedup": round(speedup, 2), "identical_to_per_object": identical,
             "python": platform.python_version(), "machine": platform.machine()}
+
+
+def bench_px4(duration_s: float = 20.0) -> dict[str, Any]:
+    """``swap_through_static`` as three node processes, each flying its own stand-in PX4 over
+    MAVLink/UDP on loopback, and (the reference, in the same run) the same three nodes flying
+    their built-in plants: setpoint rate and jitter, estimate-to-setpoint latency (the age of
+    the estimate a setpoint was computed from, when it is sent), CPU per node and per stand-in.
+    Six processes share this machine's cores, as on a busy companion computer."""
+    import tempfile
+
+    from uavmpc import scenarios
+    from uavmpc.drivers.swarm import run_swarm
+
+    sc = scenarios.load("swap_through_static")
+    result: dict[str, Any] = {"duration_s": duration_s, "cores": os.cpu_count()}
+    with tempfile.TemporaryDirectory(prefix="uavmpc-bench-px4-") as tmp:
+        for label, mavlink in (("built_in_plant", False), ("px4_stand_in", True)):
+            s = run_swarm(sc, Path(tmp) / label, duration_s=duration_s, mavlink=mavlink)
+            rows = {}
+            for uav, u in s["uavs"].items():
+                node = u["node"]
+                row = {"node_cpu_percent": 100.0 * node["cpu_s"] / node["wall_s"],
+                       "tick_period_p99_ms": node["period_p99_ms"],
+                       "tracking_rmse_m": node["tracking_rmse_m"]}
+                veh = node.get("vehicle") or {}
+                if veh:
+                    sitl = u.get("sitl", {})
+                    row.update({
+                        "phase": veh["phase"],
+                        "setpoint_rate_hz": 1e3 / veh["setpoint_period_p50_ms"],
+                        "setpoint_period_p50_ms": veh["setpoint_period_p50_ms"],
+                        "setpoint_period_p99_ms": veh["setpoint_period_p99_ms"],
+                        "setpoint_period_max_ms": veh["setpoint_period_max_ms"],
+                        "estimate_age_p50_ms": veh["estimate_age_p50_ms"],
+                        "estimate_age_p99_ms": veh["estimate_age_p99_ms"],
+                        "stand_in_cpu_percent": 100.0 * sitl.get("cpu_s", float("nan"))
+                        / max(sitl.get("wall_s", float("nan")), 1e-9)})
+                rows[uav] = row
+            result[label] = {"collisions": len(s["collisions"]),
+                             "min_distance_m": s["min_distance_m"], "uavs": rows}
+    for label in ("built_in_plant", "px4_stand_in"):
+        r = result[label]
+        print(f"{label}: {r['collisions']} collision(s), closest {r['min_distance_m']:.2f} m")
+        for uav, row in r["uavs"].items():
+            text = ", ".join(f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}"
+                             for k, v in row.items())
+            print(f"  {uav}: {text}")
+    return result
+
+
+def main_px4(duration_s: float) -> int:
+    print(json.dumps(bench_px4(duration_s)))
+    return 0
 
 
 def main_tracker(ticks: int, seed: int) -> int:

@@ -156,9 +156,12 @@ def _sitl(args: argparse.Namespace) -> int:
         return 2
     print(f"uavmpc sitl: PX4 stand-in (system {args.system_id}) on UDP port "
           f"{sitl.link.local_port}, talking to {sitl.link.address}", file=sys.stderr, flush=True)
+    cpu0, wall0 = time.process_time(), time.perf_counter()
     run_sitl(sitl, args.duration)
-    print(json.dumps({"events": sitl.events, "final_position_m":
-                      sitl.plant.state().position_m.tolist()}), flush=True)
+    print(json.dumps({"events": sitl.events,
+                      "final_position_m": sitl.plant.state().position_m.tolist(),
+                      "cpu_s": time.process_time() - cpu0,
+                      "wall_s": time.perf_counter() - wall0}), flush=True)
     return 0
 
 
@@ -275,7 +278,7 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavmpc.apps.bench import main_loop, main_tracker, main_world
+    from uavmpc.apps.bench import main_loop, main_px4, main_tracker, main_world
 
     if args.what == "tracker":
         return main_tracker(args.ticks, args.seed)
@@ -283,6 +286,8 @@ def _bench(args: argparse.Namespace) -> int:
         return main_loop(args.duration, args.repeats, args.airframe)
     if args.what == "world":
         return main_world(args.duration if args.duration != 60.0 else 20.0)
+    if args.what == "px4":
+        return main_px4(args.duration if args.duration != 60.0 else 20.0)
     raise AssertionError(args.what)
 
 
@@ -378,13 +383,14 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--out", default="out/track", help="output folder (default out/track)")
     track.set_defaults(func=_track)
     bench = sub.add_parser("bench", help="benchmarks; the last line printed is JSON")
-    bench.add_argument("what", choices=["tracker", "loop", "world"],
+    bench.add_argument("what", choices=["tracker", "loop", "world", "px4"],
                        help="tracker: one MpcTracker vs Clarabel; loop: the full one-UAV loop; "
-                            "world: random_walk worlds of 5, 20 and 100 UAVs")
+                            "world: random_walk worlds of 5, 20 and 100 UAVs; px4: three nodes "
+                            "flying stand-in PX4s over MAVLink vs their built-in plants")
     bench.add_argument("--ticks", type=int, default=3000, help="tracker ticks (≥ 2000 advised)")
     bench.add_argument("--seed", type=int, default=1)
     bench.add_argument("--duration", type=float, default=60.0,
-                       help="loop, world: simulated seconds (world default 20)")
+                       help="loop, world, px4: seconds (world and px4 default 20)")
     bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import select
 import socket
+import struct
+import sys
+import time
 from dataclasses import dataclass
 
 from uavmpc.drivers.px4.dialect import mavlink
@@ -18,6 +21,11 @@ __all__ = ["MavlinkAddress", "MavlinkEndpoint", "parse_address"]
 
 #: Largest datagram read (a MAVLink 2 frame is at most 280 bytes; routers may pack several).
 _MAX_DATAGRAM = 65535
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS): the kernel stamps each datagram on arrival, so
+#: the age of a state is measured from when it arrived, not from when we got round to reading.
+_SO_TIMESTAMPNS = 35
+_STAMPED = sys.platform == "linux"
+_TIMESPEC = struct.Struct("qq")
 
 
 class InvalidAddressError(ValueError):
@@ -76,6 +84,12 @@ class MavlinkEndpoint:
         self.mav.robust_parsing = True
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setblocking(False)
+        self._stamped = _STAMPED
+        if self._stamped:
+            try:
+                self.sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+            except OSError:
+                self._stamped = False
         if self.address.listen:
             try:
                 self.sock.bind((self.address.host, self.address.port))
@@ -112,13 +126,14 @@ class MavlinkEndpoint:
         return True
 
     def receive(self, max_datagrams: int = 64
-                ) -> list[tuple[mavlink.MAVLink_message, tuple[str, int]]]:
-        """What arrived, decoded, with its sender; at most ``max_datagrams`` datagrams (a flood
-        waits in the socket's buffer, where the kernel drops it, instead of starving us)."""
+                ) -> list[tuple[mavlink.MAVLink_message, tuple[str, int], float]]:
+        """What arrived: (message, sender, arrival time [s, Unix]); at most ``max_datagrams``
+        datagrams (a flood waits in the socket's buffer, where the kernel drops it, instead of
+        starving us)."""
         out = []
         for _ in range(max_datagrams):
             try:
-                data, sender = self.sock.recvfrom(_MAX_DATAGRAM)
+                data, arrived, sender = self._read()
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:  # e.g. ICMP port unreachable reported on the next read
@@ -138,8 +153,21 @@ class MavlinkEndpoint:
                 if m.get_type() == "BAD_DATA" or m.get_type().startswith("UNKNOWN_"):
                     self.garbage += 1
                 else:
-                    out.append((m, sender))
+                    out.append((m, sender, arrived))
         return out
+
+    def _read(self) -> tuple[bytes, float, tuple[str, int]]:
+        if not self._stamped:
+            data, sender = self.sock.recvfrom(_MAX_DATAGRAM)
+            return data, time.time(), sender
+        data, ancillary, _flags, sender = self.sock.recvmsg(_MAX_DATAGRAM,
+                                                            socket.CMSG_SPACE(16))
+        for level, kind, payload in ancillary:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(payload) >= 16:
+                sec, nsec = _TIMESPEC.unpack_from(payload)
+                if sec:
+                    return data, sec + nsec * 1e-9, sender
+        return data, time.time(), sender
 
     def _reset_parser(self) -> None:
         self.mav.buf = bytearray()

@@ -177,7 +177,7 @@ class StandInPx4:
 
     def tick(self, now_s: float) -> None:
         """One period: take messages, apply the mode's control, step the plant, send."""
-        for msg, sender in self.link.receive():
+        for msg, sender, _arrived in self.link.receive():
             self._handle(msg, sender, now_s)
         self._failsafes(now_s)
         self.plant.step(self._control(now_s), PERIOD_S)

@@ -304,8 +304,8 @@ class Px4Vehicle:
         if self._last_send_s is not None:
             self._periods.append(now_s - self._last_send_s)
         self._last_send_s = now_s
-        if self._odom is not None:
-            self._ages.append(now_s - self._odom[0])
+        if self._odom is not None:  # estimate-to-setpoint latency: from the sample's time
+            self._ages.append(now_s - self._odom[1].t_s)
 
     def land(self, now_s: float) -> None:
         """The mission is over: the node now flies down; disarm when on the ground."""
@@ -340,7 +340,7 @@ class Px4Vehicle:
     # ------------------------------------------------------------------ receiving
     def poll(self, now_s: float) -> None:
         """Handle what arrived (bounded); anything not from our autopilot is counted, ignored."""
-        for msg, sender in self.link.receive():
+        for msg, sender, arrived_s in self.link.receive():
             kind = msg.get_type()
             sysid = msg.get_srcSystem()
             if self.system_id is None:
@@ -357,7 +357,7 @@ class Px4Vehicle:
             self.link.trust(sender)
             handler = _HANDLERS.get(kind)
             if handler is not None:
-                handler(self, msg, now_s)
+                handler(self, msg, arrived_s)
 
     def _on_heartbeat(self, msg: Any, now_s: float) -> None:
         self.report_data.heartbeats_received += 1
