@@ -92,6 +92,18 @@ def sitl_command(spec: Any, address: str) -> list[str]:
             repr(spec.start_m[1]), "0.0", "--heading", repr(spec.heading_rad)]
 
 
+def _last_json_line(p: subprocess.Popen[str]) -> dict[str, Any]:
+    """The report a child process printed last (one JSON line), after it ended (killed if it
+    does not within 15 s); its exit code if it printed none."""
+    try:
+        stdout, _ = p.communicate(timeout=15)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        stdout, _ = p.communicate()
+    lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
+    return json.loads(lines[-1]) if lines else {"exit_code": p.returncode}
+
+
 def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               duration_s: float | None = None, key_file: str | None = None,
               kill_at_s: dict[str, float] | None = None,
@@ -220,26 +232,11 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
         for p in procs.values():
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
-        node_stats: dict[str, dict[str, Any]] = {}
-        sitl_reports: dict[str, dict[str, Any]] = {}
-        for uav, p in procs.items():
-            try:
-                stdout, _ = p.communicate(timeout=15)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                stdout, _ = p.communicate()
-            lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
-            node_stats[uav] = json.loads(lines[-1]) if lines else {"exit_code": p.returncode}
-        for uav, p in sitls.items():
+        node_stats = {uav: _last_json_line(p) for uav, p in procs.items()}
+        for p in sitls.values():  # the stand-ins end after their nodes
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
-            try:
-                stdout, _ = p.communicate(timeout=15)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                stdout, _ = p.communicate()
-            lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
-            sitl_reports[uav] = json.loads(lines[-1]) if lines else {"exit_code": p.returncode}
+        sitl_reports = {uav: _last_json_line(p) for uav, p in sitls.items()}
         monitor.close()
         tmp.cleanup()
     sent = sum(s.get("predictions_sent", 0) for s in node_stats.values()) * (n - 1)

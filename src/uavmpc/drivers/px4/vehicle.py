@@ -548,24 +548,7 @@ class Px4Vehicle:
             self._stop(now_s, "offboard was accepted but the HEARTBEAT never showed it")
 
     def _in_arming(self, now_s: float, est: VehicleState) -> None:
-        if self._pending is None:
-            if now_s - self._phase_s >= RETRY_S:
-                self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
-            return
-        state = self._command_state(now_s)
-        if state == "accepted":
-            self._pending = None
-            self._enter(Phase.FLYING, now_s)
-        elif state != "waiting":
-            # "Temporarily rejected" (e.g. no offboard signal yet) is asked again until
-            # GIVE_UP_S; a denial, an unsupported command or silence ends the attempt.
-            result = self._pending.result
-            self._pending = None
-            if result != _M.MAV_RESULT_TEMPORARILY_REJECTED \
-                    or now_s - self._first_request_s > GIVE_UP_S:
-                self._stop(now_s, f"arming refused: {self._last_result()}")
-            else:
-                self._phase_s = now_s
+        self._arm_or_disarm(now_s, True, Phase.FLYING, self._first_request_s)
 
     def _in_flying(self, now_s: float, est: VehicleState) -> None:
         pass
@@ -584,20 +567,32 @@ class Px4Vehicle:
             self._enter(Phase.DISARMING, now_s)
 
     def _in_disarming(self, now_s: float, est: VehicleState) -> None:
+        assert self._landed_since_s is not None
+        self._arm_or_disarm(now_s, False, Phase.LANDED, self._landed_since_s)
+
+    def _arm_or_disarm(self, now_s: float, arm: bool, then: Phase, since_s: float) -> None:
+        """MAV_CMD_COMPONENT_ARM_DISARM until accepted, then ``then``. "Temporarily rejected"
+        (e.g. no offboard signal yet) is asked again every RETRY_S until GIVE_UP_S after
+        ``since_s``; a denial, an unsupported command or silence ends the attempt."""
         if self._pending is None:
             if now_s - self._phase_s >= RETRY_S:
-                self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
+                self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, float(arm))
             return
         state = self._command_state(now_s)
+        if state == "waiting":
+            return
+        result = self._pending.result
+        self._pending = None
         if state == "accepted":
-            self._pending = None
-            self._enter(Phase.LANDED, now_s)
-        elif state != "waiting":
-            self._pending = None
+            self._enter(then, now_s)
+        elif result == _M.MAV_RESULT_TEMPORARILY_REJECTED and now_s - since_s <= GIVE_UP_S:
             self._phase_s = now_s
-            if now_s - self._landed_since_s > GIVE_UP_S:  # type: ignore[operator]
-                self._stop(now_s, f"disarm refused: {self._last_result()}; forcing is left "
-                                  f"to the pilot (param2 = {FORCE_DISARM:g})")
+        elif arm:
+            self._stop(now_s, f"arming refused: {self._last_result()}")
+        else:
+            self._stop(now_s, f"disarm refused: {self._last_result()}; the autopilot's "
+                              f"auto-disarm or the pilot (force: param2 = {FORCE_DISARM:g}) "
+                              "must end it")
 
     def _last_result(self) -> str:
         return self.report_data.commands[-1]["result"] if self.report_data.commands else "?"
