@@ -125,11 +125,23 @@ def _node(args: argparse.Namespace) -> int:
         except (ValueError, OSError) as exc:
             print(f"uavmpc node: --mavlink: {exc}", file=sys.stderr)
             return 2
+    graph = topics = None
+    if args.ros2:
+        from uavmpc.comms.ros2 import Ros2Graph, UavTopics
+
+        try:
+            graph = Ros2Graph(args.ros2, node_name=f"uavmpc_{args.id.replace('-', '_')}")
+        except (ValueError, OSError) as exc:
+            print(f"uavmpc node: --ros2: {exc}", file=sys.stderr)
+            return 2
+        # With a key, ROS 2 commands would be a way around it (ROS 2 has no signatures here):
+        # they are taken only when asked for.
+        topics = UavTopics(graph, args.id, commands=key is None or args.ros2_commands)
     with ZenohTransport(args.id, swarm=args.swarm, listen=args.listen or [],
                         connect=args.connect or []) as transport:
         node = Node(args.id, args.priority, airframe, transport, start_m=args.start,
                     heading_rad=args.heading, avoidance=not args.no_avoidance, key=key,
-                    vehicle=vehicle)
+                    vehicle=vehicle, ros2=topics)
         if mission is not None:
             node.set_mission(mission)
         try:
@@ -137,6 +149,9 @@ def _node(args: argparse.Namespace) -> int:
         except lost as exc:  # the autopilot never answered
             print(f"uavmpc node: {exc}", file=sys.stderr)
             return 1
+        finally:
+            if graph is not None:
+                graph.close()
     print(json.dumps(dataclasses.asdict(stats)), flush=True)
     return 0
 
@@ -180,9 +195,13 @@ def _swarm(args: argparse.Namespace) -> int:
 
     if args.mavlink:
         import uavmpc.drivers.px4.dialect  # noqa: F401  (fail early if pymavlink is missing)
+    if args.ros2:
+        from uavmpc.comms.ros2 import Ros2Codec
+
+        Ros2Codec()  # fail early, in one line, if the ros2 extra is missing
     s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
                   duration_s=args.duration, key_file=args.key_file, on_trace=draw,
-                  mavlink=args.mavlink, setpoints=args.setpoints)
+                  mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2)
     verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
     closest = s["min_distance_m"]
     via = " each flying a PX4 stand-in over MAVLink" if args.mavlink else ""
@@ -343,6 +362,13 @@ def build_parser() -> argparse.ArgumentParser:
                       help="--mavlink: normalised hover thrust (default: MPC_THR_HOVER)")
     node.add_argument("--system-id", type=int, default=None,
                       help="--mavlink: the autopilot's system id (default: the first heard)")
+    node.add_argument("--ros2", metavar="ROUTER",
+                      help="also appear on a ROS 2 graph (rmw_zenoh) through this Zenoh router, "
+                           "e.g. tcp/localhost:7447: /ID/pose, odom, prediction, avoidance out; "
+                           "/ID/goal, /ID/trajectory in (pip install 'uavmpc[ros2]')")
+    node.add_argument("--ros2-commands", action="store_true",
+                      help="--ros2 with --key-file: take goals and trajectories from ROS 2 anyway "
+                           "(they are not signed)")
     node.set_defaults(func=_node)
     sitl = sub.add_parser("sitl", help="a stand-in PX4 autopilot (our plant) on MAVLink/UDP")
     sitl.add_argument("--connect", default="udpout://127.0.0.1:14540",
@@ -368,6 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "landing")
     swarm.add_argument("--setpoints", choices=["attitude", "position"], default="attitude",
                        help="--mavlink: the setpoint message the nodes send")
+    swarm.add_argument("--ros2", metavar="ROUTER",
+                       help="every node also appears on a ROS 2 graph through this Zenoh router "
+                            "(rmw_zenohd, e.g. tcp/localhost:7447)")
     swarm.set_defaults(func=_swarm)
     tdemo = sub.add_parser("tracker-demo", help="the virtual UAV flies a 50 m step; plot it")
     tdemo.add_argument("--out", default="out/tracker-demo", help="output folder")

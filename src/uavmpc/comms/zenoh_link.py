@@ -222,8 +222,8 @@ class ZenohTransport:
                  config_overrides: Mapping[str, str] | None = None) -> None:
         _check_name(own_id, "own_id")
         _check_name(swarm, "swarm")
-        listen_eps = _check_endpoints(listen, "listen")
-        connect_eps = _check_endpoints(connect, "connect")
+        listen_eps = check_endpoints(listen, "listen")
+        connect_eps = check_endpoints(connect, "connect")
         _check_bound(max_pending, "max_pending")
         _check_bound(max_per_receive, "max_per_receive")
         if zenoh is None:
@@ -403,7 +403,7 @@ def _check_bound(value: Any, name: str) -> None:
         raise ValueError(f"{name}: must be an integer ≥ 1, got {value!r}")
 
 
-def _check_endpoints(endpoints: Sequence[str], name: str) -> list[str]:
+def check_endpoints(endpoints: Sequence[str], name: str) -> list[str]:
     if isinstance(endpoints, str | bytes):
         raise ValueError(f"{name}: expected a sequence of endpoints, got the string "
                          f"{endpoints!r} (wrap it in a list)")

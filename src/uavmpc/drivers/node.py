@@ -53,6 +53,16 @@ LANDING_DEPTH_M = 0.3
 LANDING_TIMEOUT_S = 60.0
 
 
+def _ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> Reference:
+    """A mission from ROS 2: one point is a go-to from now; a path has its stamps, or (all
+    zero) is sampled every 0.2 s from now. Validated like every mission."""
+    if len(points) == 1:
+        return Reference.goto(*points[0], start_s=now_s)
+    if times is None:
+        return Reference.sampled(points, 0.2, now_s)
+    return Reference(times, points)
+
+
 def parse_mission(payload: bytes, now_s: float) -> Reference:
     """A mission message: JSON ``{"goto": [x, y, z, heading]}`` or ``{"points": [[x, y, z, h],
     ...], "sample_period_s": 0.2, "start_s": t}`` (``start_s`` absolute; default now)."""
@@ -207,6 +217,7 @@ class Node:
         state_rate_hz: float = 50.0,
         phase_s: float = 0.0,
         vehicle: VehicleDriver | None = None,
+        ros2: Any = None,
     ) -> None:
         self.uav_id = uav_id
         self.priority = priority
@@ -218,6 +229,9 @@ class Node:
         self.avoidance = avoidance
         self.params = params if params is not None else AvoidanceParams()
         self.vehicle: VehicleDriver | None = vehicle
+        #: The UAV's ROS 2 topics (:class:`uavmpc.comms.ros2.UavTopics`), or None.
+        self.ros2 = ros2
+        self._ros2_ticks = 0
         self._missions = transport.subscribe(f"{uav_id}/mission", maxlen=16)
         self._pending_mission: Reference | None = None
         self._lock = threading.Lock()
@@ -304,9 +318,14 @@ class Node:
                 ticks += 1
                 if out.outgoing is not None:
                     self.transport.publish(out.outgoing, self.uav_id, now)
+                    if self.ros2 is not None and stack.last_broadcast is not None:
+                        b = stack.last_broadcast
+                        self.ros2.publish_prediction(now, b.times_s, b.position_m, b.heading_rad)
                 if now >= next_state:
                     next_state += self.state_period_s
                     self._publish_state(now, state)
+                    if self.ros2 is not None:
+                        self._publish_ros2(now, state)
                 # Real time: sleep to the next deadline; if far behind, skip ahead (never burst).
                 deadline += PERIOD_S
                 slack = deadline - time.perf_counter()
@@ -376,6 +395,12 @@ class Node:
                 self.stats.missions_rejected += 1
                 continue
             self.set_mission(ref)
+        if self.ros2 is not None:
+            refs, rejected = self.ros2.missions(now, lambda times, pts: _ros2_mission(
+                times, pts, now))
+            self.stats.missions_rejected += len(rejected)
+            for ref in refs:
+                self.set_mission(ref)
         if not self._launched:
             return  # missions wait until the vehicle is ours to fly
         with self._lock:
@@ -383,6 +408,17 @@ class Node:
         if ref is not None:
             assert self.stack is not None
             self.stack.set_mission(ref)
+
+    def _publish_ros2(self, now: float, state: VehicleState) -> None:
+        assert self.ros2 is not None and self.stack is not None
+        self.ros2.publish_state(now, state.position_m, state.velocity_mps, state.attitude_wxyz,
+                                state.body_rates_radps)
+        self._ros2_ticks += 1
+        if self._ros2_ticks % 5 == 0:  # the avoidance's own rate, 10 Hz
+            d = self.stack.decision
+            self.ros2.publish_avoidance(now, bool(d is not None and d.avoiding),
+                                        self.stack.tracker.z_offset_m,
+                                        list(d.yielding_to) if d is not None else [])
 
     def _publish_state(self, now: float, state: VehicleState) -> None:
         stack = self.stack

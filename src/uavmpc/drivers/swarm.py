@@ -64,7 +64,7 @@ def free_ports(n: int) -> list[int]:
 def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
                  mission_file: Path, avoidance: bool, duration_s: float,
                  key_file: str | None = None, mavlink: str | None = None,
-                 setpoints: str = "attitude") -> list[str]:
+                 setpoints: str = "attitude", ros2: str | None = None) -> list[str]:
     """The ``uavmpc node`` command line of one UAV of a scenario."""
     cmd = [sys.executable, "-m", "uavmpc.apps.cli", "node", "--id", spec.uav_id,
            "--priority", str(spec.priority), "--airframe", spec.airframe,
@@ -77,6 +77,8 @@ def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
         cmd.append("--no-avoidance")
     if key_file:
         cmd += ["--key-file", key_file]
+    if ros2:
+        cmd += ["--ros2", ros2]
     if mavlink:
         ground = (*spec.start_m[:2], 0.0)
         cmd += ["--mavlink", mavlink, "--setpoints", setpoints,
@@ -108,14 +110,16 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               duration_s: float | None = None, key_file: str | None = None,
               kill_at_s: dict[str, float] | None = None,
               on_trace: Callable[[list[float], list[float]], None] | None = None,
-              mavlink: bool = False, setpoints: str = "attitude") -> dict[str, Any]:
+              mavlink: bool = False, setpoints: str = "attitude",
+              ros2: str | None = None) -> dict[str, Any]:
     """Fly ``scenario`` as separate node processes; returns the summary (also written).
 
     ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
     (a UAV that drops out of the sky, as far as the link can tell). ``on_trace(t_s, d_m)``
     gets the closest pairwise distance over time at the end (the CLI draws it). ``mavlink``:
     every node flies its own stand-in PX4 over MAVLink/UDP (``setpoints``: the message it
-    sends); goals are judged where the UAVs are when the mission ends, before they land."""
+    sends); goals are judged where the UAVs are when the mission ends, before they land.
+    ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
     duration = scenario.duration_s if duration_s is None else float(duration_s)
@@ -166,7 +170,8 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                                connect=[] if i == 0 else [endpoints[0]],
                                mission_file=mission, avoidance=avoidance,
                                duration_s=duration + (epoch - time.time()) + 1.0,
-                               key_file=key_file, mavlink=address, setpoints=setpoints)
+                               key_file=key_file, mavlink=address, setpoints=setpoints,
+                               ros2=ros2)
             procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
         meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
                 "vehicle": "PX4 stand-in over MAVLink" if mavlink else "simulated plant"}

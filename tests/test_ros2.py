@@ -1,0 +1,258 @@
+"""uavmpc on a ROS 2 graph (rmw_zenoh's wire format), shown without a ROS installation.
+
+An in-test Zenoh router stands for ``rmw_zenohd``. An observer finds uavmpc's publishers only
+through their liveliness tokens (as rmw_zenoh's graph cache does), subscribes by the key
+expressions those tokens name, checks every attachment, and decodes every payload with an
+independent CDR implementation (mcap-ros2-support's, from the message definition text).
+Golden values come from rmw_zenoh's design document.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+pytest.importorskip("xxhash")
+pytest.importorskip("zenoh")
+pytest.importorskip("mcap_ros2")
+
+import zenoh
+from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
+
+from uavmpc import scenarios
+from uavmpc.comms import ros2
+from uavmpc.comms.zenoh_link import ZenohTransport
+from uavmpc.drivers.node import Node
+from uavmpc.drivers.swarm import free_ports, run_swarm
+from uavmpc.plant import Airframe
+
+# From rmw_zenoh's docs/design.md (its talker example, ROS_DOMAIN_ID 2).
+TALKER_TOKEN = ("@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
+                "std_msgs::msg::dds_::String_/RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db128802"
+                "1743503259e948f6b1a18/::,7:,:,:,,")
+STRING_KEY = ("0/chatter/std_msgs::msg::dds_::String_/"
+              "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18")
+# Hashes of the types we publish, as ROS 2 Jazzy reports them (`ros2 topic info -v`).
+GOLDEN_HASHES = {
+    "std_msgs/msg/String":
+        "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+    "geometry_msgs/msg/PoseStamped":
+        "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8",
+    "nav_msgs/msg/Odometry":
+        "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
+    "nav_msgs/msg/Path": "RIHS01_1957a5bb3cee5da65c4e52e52b65a93df227efce4c20f8458b36e73066ca334b",
+}
+
+
+def test_keys_tokens_hashes_and_gids_are_rmw_zenohs() -> None:
+    codec = ros2.Ros2Codec()
+    for ros_type, golden in GOLDEN_HASHES.items():
+        assert codec.type_hash(ros_type) == golden
+    string = "std_msgs/msg/String"
+    assert ros2.topic_key(0, "/chatter", ros2.dds_type_name(string),
+                          codec.type_hash(string)) == STRING_KEY
+    assert ros2.liveliness_token(
+        2, "8b20917502ee955ac4476e0266340d5c", 0, 10, "MP", "/", "talker",
+        ("/chatter", ros2.dds_type_name(string), codec.type_hash(string), "::,7:,:,:,,")
+    ) == TALKER_TOKEN
+    # rmw_zenoh's GID of that entity: XXH3-128 of the token (computed with its own code).
+    assert ros2.gid_of(TALKER_TOKEN).hex() == "ac170f31eadcd9ff0cd86d7a17907d1c"
+    assert ros2.mangle("/uav1/pose") == "%uav1%pose"
+
+
+def test_ros_and_our_quaternions_round_trip() -> None:
+    q = np.array([0.7, 0.1, -0.2, 0.68])
+    assert np.array_equal(ros2.our_quat(*ros2.ros_quat(q)), q)
+
+
+def _router() -> tuple[object, str]:
+    (port,) = free_ports(1)
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"router"')
+    cfg.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(cfg), f"tcp/127.0.0.1:{port}"
+
+
+class Observer:
+    """A ROS 2-like client of the router: discovers by liveliness, subscribes by key, decodes
+    with mcap-ros2-support."""
+
+    def __init__(self, endpoint: str) -> None:
+        cfg = zenoh.Config()
+        cfg.insert_json5("mode", '"client"')
+        cfg.insert_json5("connect/endpoints", f'["{endpoint}"]')
+        self.session = zenoh.open(cfg)
+        self.codec = ros2.Ros2Codec()
+        self.samples: dict[str, list[tuple[float, bytes, bytes | None]]] = defaultdict(list)
+        self.lock = threading.Lock()
+        self.subs = []
+
+    def tokens(self, prefix: str = "@ros2_lv/0/**") -> list[str]:
+        return [str(r.ok.key_expr) for r in self.session.liveliness().get(prefix, timeout=2.0)
+                if r.ok is not None]
+
+    def follow(self, token: str) -> tuple[str, str]:
+        """Subscribe to the data of the entity a token announces; (topic, ROS type)."""
+        parts = token.split("/")
+        assert parts[0] == "@ros2_lv" and len(parts) >= 13 and parts[5] == "MP"
+        topic = parts[9].replace("%", "/")
+        type_name, type_hash = parts[10], parts[11]
+        pkg, kind, rest = type_name.split("::")[0], type_name.split("::")[1], type_name
+        ros_type = f"{pkg}/{kind}/{rest.split('::')[-1].rstrip('_')}"
+        key = f"{parts[1]}/{topic.strip('/')}/{type_name}/{type_hash}"
+
+        def on(sample: object) -> None:
+            att = sample.attachment.to_bytes() if sample.attachment is not None else None
+            with self.lock:
+                self.samples[topic].append((time.time(), bytes(sample.payload.to_bytes()), att))
+
+        self.subs.append(self.session.declare_subscriber(key, on))
+        return topic, ros_type
+
+    def decoder(self, ros_type: str):
+        return generate_dynamic(ros_type, self.codec.definition(ros_type))[ros_type]
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+        self.session.close()
+
+
+def test_a_node_on_the_graph_is_found_followed_decoded_and_commanded() -> None:
+    router, endpoint = _router()
+    ports = free_ports(1)
+    tx = ZenohTransport("uav1", swarm=f"r{ports[0]}", listen=[f"tcp/127.0.0.1:{ports[0]}"])
+    graph = ros2.Ros2Graph(endpoint, node_name="uavmpc_uav1")
+    topics = ros2.UavTopics(graph, "uav1")
+    node = Node("uav1", 1, Airframe.packaged("f550"), tx, start_m=(0.0, 0.0, 5.0), ros2=topics)
+    thread = threading.Thread(target=node.run, args=(16.0,), daemon=True)
+    obs = Observer(endpoint)
+    try:
+        thread.start()
+        time.sleep(2.0)
+        tokens = obs.tokens()
+        nodes = [t for t in tokens if "/NN/" in t]
+        assert any(t.endswith("/NN/%/%/uavmpc_uav1") for t in nodes), tokens
+        pubs = [t for t in tokens if "/MP/" in t and "uavmpc_uav1" in t]
+        subs = [t for t in tokens if "/MS/" in t and "uavmpc_uav1" in t]
+        followed = dict(obs.follow(t) for t in pubs)
+        assert set(followed) == {"/uav1/pose", "/uav1/odom", "/uav1/prediction",
+                                 "/uav1/avoidance"}
+        assert {t.split("/")[9] for t in subs} == {"%uav1%goal", "%uav1%trajectory"}
+        t_watch = time.time()
+        time.sleep(3.0)
+        # A goal, published as a ROS 2 node would: its own token, CDR by an independent
+        # encoder, rmw_zenoh's attachment.
+        goal_type = "geometry_msgs/msg/PoseStamped"
+        goal_key = ros2.topic_key(0, "/uav1/goal", ros2.dds_type_name(goal_type),
+                                  obs.codec.type_hash(goal_type))
+        encode_goal = serialize_dynamic(goal_type, obs.codec.definition(goal_type))[goal_type]
+        token = ros2.liveliness_token(0, str(obs.session.info.zid()), 0, 1, "MP", "/", "mission",
+                                      ("/uav1/goal", ros2.dds_type_name(goal_type),
+                                       obs.codec.type_hash(goal_type), ros2.QOS_KEEP_LAST_10))
+        live = obs.session.liveliness().declare_token(token)
+        gid = ros2.gid_of(token)
+
+        def put(payload: bytes, seq: int) -> None:
+            att = seq.to_bytes(8, "little") + time.time_ns().to_bytes(8, "little") + b"\x10" + gid
+            obs.session.put(goal_key, payload, attachment=att)
+
+        stamp = {"sec": 0, "nanosec": 0}
+        put(b"\x00\x01\x00\x00garbage", 1)  # malformed CDR
+        put(encode_goal({"header": {"stamp": stamp, "frame_id": "map"},  # a frame we refuse
+                         "pose": {"position": {"x": 9.0, "y": 9.0, "z": 9.0},
+                                  "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}), 2)
+        put(encode_goal({"header": {"stamp": stamp, "frame_id": "world"},
+                         "pose": {"position": {"x": 6.0, "y": -3.0, "z": 7.0},
+                                  "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}), 3)
+        thread.join(timeout=30)
+        live.undeclare()
+    finally:
+        obs.close()
+        graph.close()
+        tx.close()
+        router.close()
+    stats = node.stats
+    assert stats.missions_rejected == 2  # the garbage and the wrong frame, counted
+    assert np.linalg.norm(np.array(stats.final_position_m) - [6.0, -3.0, 7.0]) < 0.3
+    with obs.lock:
+        samples = dict(obs.samples)
+    for topic, ros_type in followed.items():
+        decode = obs.decoder(ros_type)
+        got = samples[topic]
+        seqs = []
+        for _, payload, att in got:
+            assert payload[:4] == b"\x00\x01\x00\x00"
+            assert att is not None and len(att) == 33 and att[16] == 16
+            seqs.append(int.from_bytes(att[:8], "little"))
+            assert att[17:] == ros2.gid_of(next(t for t in pubs if ros2.mangle(topic) in t))
+            decode(payload)  # every message decodes against its definition
+        assert seqs == sorted(seqs) and seqs[0] >= 1
+    window = [t for t, _, _ in samples["/uav1/pose"] if t_watch <= t <= t_watch + 3.0]
+    assert len(window) / 3.0 >= 10.0  # pose ≥ 10 Hz
+    preds = [t for t, _, _ in samples["/uav1/prediction"] if t_watch <= t <= t_watch + 3.0]
+    assert 5 <= len(preds) <= 7  # 2 Hz
+    path = obs.decoder("nav_msgs/msg/Path")(samples["/uav1/prediction"][-1][1])
+    assert len(path.poses) == 40 and path.header.frame_id == "world"
+    odom = obs.decoder("nav_msgs/msg/Odometry")(samples["/uav1/odom"][-1][1])
+    assert odom.child_frame_id == "uav1/base_link"
+    status = obs.decoder("uavmpc_msgs/msg/AvoidanceStatus")(samples["/uav1/avoidance"][-1][1])
+    assert status.active is False and list(status.yielding_to) == []
+
+
+def test_without_commands_no_subscription_is_offered() -> None:
+    router, endpoint = _router()
+    try:
+        with ros2.Ros2Graph(endpoint, node_name="uavmpc_k") as graph:
+            ros2.UavTopics(graph, "k", commands=False)
+            obs = Observer(endpoint)
+            time.sleep(0.5)
+            tokens = obs.tokens()
+            obs.close()
+        assert [t for t in tokens if "/MP/" in t] and not [t for t in tokens if "/MS/" in t]
+    finally:
+        router.close()
+
+
+def test_a_swarm_on_the_graph_publishes_every_uavs_topics_at_their_rates(tmp_path: Path) -> None:
+    router, endpoint = _router()
+    obs = Observer(endpoint)
+    followed: dict[str, str] = {}
+    result: dict = {}
+
+    def fly() -> None:
+        result.update(run_swarm(scenarios.load("swap_through_static"), tmp_path,
+                                duration_s=10.0, ros2=endpoint))
+
+    thread = threading.Thread(target=fly, daemon=True)
+    try:
+        thread.start()
+        t_end = time.time() + 30.0
+        while len(followed) < 9 and time.time() < t_end:  # 3 UAVs × pose, odom, prediction
+            for token in obs.tokens():
+                topic = token.split("/")[9].replace("%", "/") if "/MP/" in token else ""
+                if topic.rsplit("/", 1)[-1] in ("pose", "odom", "prediction") \
+                        and topic not in followed:
+                    followed[topic] = obs.follow(token)[1]
+            time.sleep(0.5)
+        t_watch = time.time()
+        time.sleep(4.0)
+        with obs.lock:
+            samples = {k: [t for t, _, _ in v if t_watch <= t <= t_watch + 4.0]
+                       for k, v in obs.samples.items()}
+        thread.join(timeout=60)
+    finally:
+        obs.close()
+        router.close()
+    assert not result["collisions"]
+    for uav in ("uav1", "uav2", "uav3"):
+        assert len(samples[f"/{uav}/pose"]) / 4.0 >= 10.0
+        assert len(samples[f"/{uav}/odom"]) / 4.0 >= 10.0
+        assert 7 <= len(samples[f"/{uav}/prediction"]) <= 9  # 2 Hz
