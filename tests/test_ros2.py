@@ -256,3 +256,50 @@ def test_a_swarm_on_the_graph_publishes_every_uavs_topics_at_their_rates(tmp_pat
         assert len(samples[f"/{uav}/pose"]) / 4.0 >= 10.0
         assert len(samples[f"/{uav}/odom"]) / 4.0 >= 10.0
         assert 7 <= len(samples[f"/{uav}/prediction"]) <= 9  # 2 Hz
+
+
+def test_a_run_exports_as_a_rosbag2_that_independent_readers_read(tmp_path: Path,
+                                                                   capsys) -> None:
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.rosbag2 import Reader
+
+    from uavmpc.apps.cli import main
+
+    run = tmp_path / "run"
+    assert main(["run", "swap_through_static", "--duration", "4", "--out", str(run)]) == 0
+    with (run / "flight.mcap").open("rb") as fh:
+        source = [(c.topic, m.log_time) for _, c, m in make_reader(fh).iter_messages()
+                  if c.topic != "/link"]
+    assert main(["export-bag", str(run)]) == 0
+    bag = run / "rosbag2"
+    with (bag / "rosbag2.mcap").open("rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        decoded = [(c.topic, s.name, m.log_time, d)
+                   for s, c, m, d in reader.iter_decoded_messages()]
+    assert len(decoded) == len(source)
+    renamed = {"state": "pose", "status": "avoidance"}
+    want: dict[str, int] = defaultdict(int)
+    for topic, _ in source:
+        uav, kind = topic.strip("/").split("/")
+        want[f"/{uav}/{renamed.get(kind, kind)}"] += 1
+    got: dict[str, int] = defaultdict(int)
+    for topic, *_ in decoded:
+        got[topic] += 1
+    assert got == want
+    types = {topic.rsplit("/", 1)[-1]: name for topic, name, _, _ in decoded}
+    assert types == {"pose": "geometry_msgs/msg/PoseStamped",
+                     "command": "geometry_msgs/msg/PoseStamped",
+                     "reference": "geometry_msgs/msg/PoseStamped",
+                     "prediction": "nav_msgs/msg/Path",
+                     "avoidance": "uavmpc_msgs/msg/AvoidanceStatus"}
+    times = [t for _, _, t, _ in decoded]
+    assert (min(times), max(times)) == (min(t for _, t in source), max(t for _, t in source))
+    path = next(d for topic, _, _, d in decoded if topic.endswith("prediction"))
+    assert len(path.poses) == 40 and path.poses[1].header.stamp.nanosec != \
+        path.poses[0].header.stamp.nanosec
+    with Reader(bag) as r:  # rosbag2's metadata.yaml, read by rosbags
+        assert r.message_count == len(source)
+    capsys.readouterr()
+    assert main(["export-bag", str(run)]) == 2  # an existing bag is not overwritten silently
+    assert "--overwrite" in capsys.readouterr().err

@@ -224,6 +224,21 @@ def _swarm(args: argparse.Namespace) -> int:
     return 0
 
 
+def _export_bag(args: argparse.Namespace) -> int:
+    from uavmpc.apps.bag import BagExportError, export_bag
+
+    try:
+        s = export_bag(args.run_dir, args.out, overwrite=args.overwrite)
+    except BagExportError as exc:
+        print(f"uavmpc export-bag: {exc}", file=sys.stderr)
+        return 2
+    total = sum(s["messages"].values())
+    span = (s["end_ns"] - s["start_ns"]) * 1e-9 if total else 0.0
+    print(f"wrote {s['bag']}: {total} messages on {len(s['messages'])} topics over {span:.1f} s "
+          "(rosbag2, MCAP storage, CDR; ros2 bag play / Foxglove)")
+    return 0
+
+
 def _tracker_demo(args: argparse.Namespace) -> int:
     from uavmpc.apps.plots import plot_axis_response
     from uavmpc.reference import Reference
@@ -398,6 +413,12 @@ def build_parser() -> argparse.ArgumentParser:
                        help="every node also appears on a ROS 2 graph through this Zenoh router "
                             "(rmw_zenohd, e.g. tcp/localhost:7447)")
     swarm.set_defaults(func=_swarm)
+    bag = sub.add_parser("export-bag", help="a run's flight.mcap as a rosbag2 (ROS 2 types, "
+                                            "CDR, MCAP storage)")
+    bag.add_argument("run_dir", help="a folder written by uavmpc run, demo or swarm")
+    bag.add_argument("--out", default=None, help="bag folder (default RUN_DIR/rosbag2)")
+    bag.add_argument("--overwrite", action="store_true", help="replace an existing bag folder")
+    bag.set_defaults(func=_export_bag)
     tdemo = sub.add_parser("tracker-demo", help="the virtual UAV flies a 50 m step; plot it")
     tdemo.add_argument("--out", default="out/tracker-demo", help="output folder")
     tdemo.add_argument("--duration", type=float, default=20.0, help="simulated seconds")

@@ -434,6 +434,7 @@ class Node:
             "z_offset": stack.tracker.z_offset_m,
             "avoiding": bool(decision is not None and decision.avoiding),
             "conflicts": list(decision.conflicts) if decision is not None else [],
+            "yielding_to": list(decision.yielding_to) if decision is not None else [],
         }, separators=(",", ":")).encode())
 
 

@@ -199,7 +199,8 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                     rec.pose(uav, "command", float(s["t"]), np.array(s["cmd"]), 0.0)
                     rec.status(uav, float(s["t"]), z_offset_m=float(s.get("z_offset", 0.0)),
                                avoiding=bool(s.get("avoiding", False)),
-                               conflicts=list(s.get("conflicts", [])))
+                               conflicts=list(s.get("conflicts", [])),
+                               yielding_to=list(s.get("yielding_to", [])))
                 for _key, payload in predictions.drain():
                     try:
                         msg = decode(verify(payload, auth_key) if auth_key is not None else payload)

@@ -482,5 +482,6 @@ class World:
                        z_offset_m=u.stack.tracker.z_offset_m,
                        avoiding=bool(decision is not None and decision.avoiding),
                        conflicts=list(decision.conflicts) if decision is not None else [],
+                       yielding_to=list(decision.yielding_to) if decision is not None else [],
                        limit_excess=u.stack.tracker.limit_excess(),
                        braking=bool(last.braking))
