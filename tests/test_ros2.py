@@ -146,6 +146,9 @@ def test_a_node_on_the_graph_is_found_followed_decoded_and_commanded() -> None:
         assert set(followed) == {"/uav1/pose", "/uav1/odom", "/uav1/prediction",
                                  "/uav1/avoidance"}
         assert {t.split("/")[9] for t in subs} == {"%uav1%goal", "%uav1%trajectory"}
+        t_end = time.time() + 90.0  # the node's clock starts once its kernels are loaded
+        while not obs.samples["/uav1/pose"] and time.time() < t_end:
+            time.sleep(0.1)
         t_watch = time.time()
         time.sleep(3.0)
         # A goal, published as a ROS 2 node would: its own token, CDR by an independent
@@ -242,6 +245,9 @@ def test_a_swarm_on_the_graph_publishes_every_uavs_topics_at_their_rates(tmp_pat
                         and topic not in followed:
                     followed[topic] = obs.follow(token)[1]
             time.sleep(0.5)
+        while time.time() < t_end and not all(obs.samples[f"/{u}/pose"]
+                                              for u in ("uav1", "uav2", "uav3")):
+            time.sleep(0.1)
         t_watch = time.time()
         time.sleep(4.0)
         with obs.lock:
@@ -303,3 +309,53 @@ def test_a_run_exports_as_a_rosbag2_that_independent_readers_read(tmp_path: Path
     capsys.readouterr()
     assert main(["export-bag", str(run)]) == 2  # an existing bag is not overwritten silently
     assert "--overwrite" in capsys.readouterr().err
+
+
+def test_the_simulated_world_in_real_time_is_on_the_graph_and_takes_goals() -> None:
+    from uavmpc.drivers.ros2 import WorldOnRos2
+    from uavmpc.drivers.world import World
+
+    router, endpoint = _router()
+    sc = scenarios.load("swap_through_static")
+    world = World(sc)
+    result: dict = {}
+    try:
+        with ros2.Ros2Graph(endpoint, node_name="uavmpc_world") as graph:
+            mirror = WorldOnRos2(graph, [u.uav_id for u in sc.uavs])
+            obs = Observer(endpoint)
+            thread = threading.Thread(
+                target=lambda: result.update(r=world.run(7.0, realtime=1.0, on_log=mirror)),
+                daemon=True)
+            thread.start()
+            time.sleep(1.0)
+            tokens = [t for t in obs.tokens() if "/MP/" in t and "%pose/" in t]
+            assert len(tokens) == 3 and all("/uavmpc_world/" in t for t in tokens)
+            obs.follow(next(t for t in tokens if "%uav1%pose" in t))
+            goal_type = "geometry_msgs/msg/PoseStamped"
+            encode = serialize_dynamic(goal_type, obs.codec.definition(goal_type))[goal_type]
+            key = ros2.topic_key(0, "/uav3/goal", ros2.dds_type_name(goal_type),
+                                 obs.codec.type_hash(goal_type))
+            att = (1).to_bytes(8, "little") + time.time_ns().to_bytes(8, "little") + b"\x10" + \
+                bytes(16)
+            obs.session.put(key, encode({"header": {"stamp": {"sec": 0, "nanosec": 0},
+                                                    "frame_id": "world"},
+                                         "pose": {"position": {"x": 0.0, "y": 6.0, "z": 5.0},
+                                                  "orientation": {"x": 0.0, "y": 0.0, "z": 0.0,
+                                                                  "w": 1.0}}}),
+                            attachment=att)
+            thread.join(timeout=30)
+            with obs.lock:
+                poses = list(obs.samples["/uav1/pose"])
+            obs.close()
+    finally:
+        router.close()
+    r = result["r"]
+    assert r.wall_s >= 6.5  # paced at real time
+    assert mirror.missions_taken == 1 and not mirror.missions_rejected
+    # It flew there (its height is the avoidance's: uav1 and uav2 still pass above it).
+    assert np.linalg.norm(np.array(r.per_uav["uav3"].final_position_m[:2]) - [0.0, 6.0]) < 0.5
+    rate = len(poses) / (poses[-1][0] - poses[0][0])
+    assert rate >= 15.0  # the log rate, 20 Hz
+    decode = obs.decoder(goal_type)
+    stamp = decode(poses[-1][1]).header.stamp
+    assert abs(stamp.sec + stamp.nanosec * 1e-9 - time.time()) < 60.0  # wall-clock stamps

@@ -13,7 +13,8 @@ import numpy as np
 
 def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   duration: float | None, loss: float | None, latency: float | None,
-                  wind: float = 0.0) -> dict:
+                  wind: float = 0.0, ros2: str | None = None,
+                  realtime: float | None = None) -> dict:
     import dataclasses
 
     from uavmpc import scenarios
@@ -34,7 +35,16 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     with FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta) as rec:
         world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
                       recorder=rec)
-        result = world.run(duration)
+        if ros2 is None:
+            result = world.run(duration, realtime=realtime)
+        else:
+            from uavmpc.comms.ros2 import Ros2Graph
+            from uavmpc.drivers.ros2 import WorldOnRos2
+
+            with Ros2Graph(ros2, node_name="uavmpc_world") as graph:
+                mirror = WorldOnRos2(graph, [u.uav_id for u in sc.uavs])
+                result = world.run(duration, realtime=1.0 if realtime is None else realtime,
+                                   on_log=mirror)
     summary = result.summary()
     summary["link"] = dataclasses.asdict(link)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -76,9 +86,18 @@ def _demo(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance, seed=args.seed,
-                      duration=args.duration, loss=args.loss, latency=args.latency,
-                      wind=args.wind)
+    if args.realtime is not None and not args.realtime > 0:
+        print("uavmpc run: --realtime must be > 0", file=sys.stderr)
+        return 2
+    try:
+        s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance, seed=args.seed,
+                          duration=args.duration, loss=args.loss, latency=args.latency,
+                          wind=args.wind, ros2=args.ros2, realtime=args.realtime)
+    except (OSError, ValueError) as exc:
+        if args.ros2 is None:
+            raise
+        print(f"uavmpc run: --ros2: {exc}", file=sys.stderr)
+        return 2
     _print_world_summary(s, out)
     return 0
 
@@ -345,6 +364,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--loss", type=float, default=None, help="message loss probability")
     run.add_argument("--latency", type=float, default=None, help="link latency [s]")
     run.add_argument("--wind", type=float, default=0.0, help="mean wind along x [m/s]")
+    run.add_argument("--ros2", metavar="ROUTER",
+                     help="fly in real time and show every UAV on a ROS 2 graph through this "
+                          "Zenoh router (rmw_zenohd, e.g. tcp/localhost:7447); goals and "
+                          "trajectories from ROS 2 are flown")
+    run.add_argument("--realtime", type=float, default=None, metavar="FACTOR",
+                     help="pace the simulation at FACTOR × real time (--ros2: default 1)")
     run.set_defaults(func=_run)
     node = sub.add_parser("node", help="one UAV's onboard stack in real time over Zenoh")
     node.add_argument("--id", required=True, help="UAV id ([A-Za-z0-9_-], ≤ 32)")

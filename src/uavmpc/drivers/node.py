@@ -53,7 +53,7 @@ LANDING_DEPTH_M = 0.3
 LANDING_TIMEOUT_S = 60.0
 
 
-def _ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> Reference:
+def ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> Reference:
     """A mission from ROS 2: one point is a go-to from now; a path has its stamps, or (all
     zero) is sampled every 0.2 s from now. Validated like every mission."""
     if len(points) == 1:
@@ -396,7 +396,7 @@ class Node:
                 continue
             self.set_mission(ref)
         if self.ros2 is not None:
-            refs, rejected = self.ros2.missions(now, lambda times, pts: _ros2_mission(
+            refs, rejected = self.ros2.missions(now, lambda times, pts: ros2_mission(
                 times, pts, now))
             self.stats.missions_rejected += len(rejected)
             for ref in refs:

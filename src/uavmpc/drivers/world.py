@@ -64,7 +64,7 @@ class Collision:
 
 
 @dataclass
-class _Uav:
+class WorldUav:
     """One UAV of the world: its program, its plant, where it should end."""
 
     uav_id: str
@@ -275,7 +275,7 @@ class World:
         #: The records of every UAV's numbers, one row each: their stacks' and their plants'.
         self.onboard = OnboardBatch(tracker_config, n)
         self.plants = PlantRows.empty(n, max(a.n_rotors for a in airframes.values()))
-        self.uavs: list[_Uav] = []
+        self.uavs: list[WorldUav] = []
         period = self.onboard.tracker.config.first_step_s
         for i, spec in enumerate(scenario.uavs):
             af = airframes[spec.airframe]
@@ -296,7 +296,7 @@ class World:
             if off:
                 mission = Reference(mission.times_s + off, mission.points, mission.loop)
             stack.set_mission(mission)
-            self.uavs.append(_Uav(spec.uav_id, np.array(spec.goal_m), stack, plant, off))
+            self.uavs.append(WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, off))
             self._positions[spec.uav_id] = np.array(spec.start_m, dtype=float)
         self.t_s = 0.0
         self.period_s = period
@@ -305,11 +305,18 @@ class World:
             raise ValueError("the plants' substeps differ; a world steps them together")
         self._kernels: tuple[Any, Any] | None = None
 
-    def run(self, duration_s: float | None = None) -> WorldResult:
-        """Fly for ``duration_s`` (default: the scenario's) and return the result."""
+    def run(self, duration_s: float | None = None, *, realtime: float | None = None,
+            on_log: Callable[[World], None] | None = None) -> WorldResult:
+        """Fly for ``duration_s`` (default: the scenario's) and return the result.
+
+        ``realtime``: pace the simulated clock at this many times the wall clock (1.0: real
+        time; default: as fast as it goes). ``on_log(world)`` is called at the log rate
+        (every :data:`POSE_LOG_PERIOD_S`), e.g. to mirror the UAVs on a live view."""
         duration = self.scenario.duration_s if duration_s is None else float(duration_s)
         if not (math.isfinite(duration) and duration > 0):
             raise ValueError(f"duration_s must be > 0, got {duration_s}")
+        if realtime is not None and not (math.isfinite(realtime) and realtime > 0):
+            raise ValueError(f"realtime must be > 0, got {realtime}")
         ticks = round(duration / self.period_s)
         if ticks < 1:
             raise ValueError(f"duration_s must be at least one tick ({self.period_s} s)")
@@ -343,9 +350,17 @@ class World:
                     self._positions[u.uav_id] = pos[k, i]
             if n > 1 and (dmin[k] < COLLISION_DISTANCE_M or contact):
                 self._collisions(pair_d, iu, ids, contact, collisions)
-            if self.recorder is not None and self.t_s >= next_log - 1e-9:
+            if (self.recorder is not None or on_log is not None) \
+                    and self.t_s >= next_log - 1e-9:
                 next_log = self.t_s + POSE_LOG_PERIOD_S
-                self._log()
+                if self.recorder is not None:
+                    self._log()
+                if on_log is not None:
+                    on_log(self)
+            if realtime is not None:
+                ahead = (k + 1) * self.period_s / realtime - (time.perf_counter() - wall0)
+                if ahead > 0.0:
+                    time.sleep(ahead)
         wall = time.perf_counter() - wall0
         for i, u in enumerate(self.uavs):
             self._positions[u.uav_id] = pos[ticks - 1, i].copy()
@@ -435,7 +450,7 @@ class World:
         _trace(self.onboard.tracker.rows, self.plants, k, pos, zoff, dmin, pair_d)
 
     # ------------------------------------------------------------------------------ internals
-    def _publish(self, u: _Uav, data: bytes, now: float) -> None:
+    def _publish(self, u: WorldUav, data: bytes, now: float) -> None:
         self.link.publish(data, u.uav_id, now)
         pred = u.stack.last_broadcast
         if self.recorder is not None and pred is not None:
