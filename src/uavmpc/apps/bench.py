@@ -367,6 +367,60 @@ def bench_px4(duration_s: float = 20.0) -> dict[str, Any]:
     return result
 
 
+def bench_ros2(duration_s: float = 20.0) -> dict[str, Any]:
+    """``swap_through_static`` as three node processes, each also on a ROS 2 graph through a
+    Zenoh router (in this process, as ``rmw_zenohd`` would be), against the same nodes without
+    ROS 2 (the reference, same run): CPU per node, messages and bytes put, and the size of each
+    message (CDR payload; rmw_zenoh adds a 33-byte attachment)."""
+    import tempfile
+
+    import numpy as np
+    import zenoh
+
+    from uavmpc import scenarios
+    from uavmpc.comms.ros2 import Ros2Codec
+    from uavmpc.drivers.swarm import free_ports, run_swarm
+
+    (port,) = free_ports(1)
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"router"')
+    cfg.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    router = zenoh.open(cfg)
+    sc = scenarios.load("swap_through_static")
+    result: dict[str, Any] = {"duration_s": duration_s, "cores": os.cpu_count()}
+    try:
+        with tempfile.TemporaryDirectory(prefix="uavmpc-bench-ros2-") as tmp:
+            for label, endpoint in (("without_ros2", None), ("with_ros2", f"tcp/127.0.0.1:{port}")):
+                s = run_swarm(sc, Path(tmp) / label, duration_s=duration_s, ros2=endpoint)
+                result[label] = {uav: 100.0 * u["node"]["cpu_s"] / u["node"]["wall_s"]
+                                 for uav, u in s["uavs"].items()}
+    finally:
+        router.close()
+    codec = Ros2Codec()
+    p, q = np.array([1.0, 2.0, 3.0]), np.array([1.0, 0.0, 0.0, 0.0])
+    times = 100.0 + 0.2 * np.arange(40)
+    result["message_bytes"] = {
+        "pose (PoseStamped)": len(codec.pose_stamped(0.0, p, q)),
+        "odom (Odometry)": len(codec.odometry(0.0, "uav1/base_link", p, p, q, p)),
+        "prediction (Path, 40 poses)": len(codec.path(0.0, times, np.tile(p, (40, 1)),
+                                                      np.zeros(40))),
+        "avoidance (AvoidanceStatus, yielding to one)": len(
+            codec.avoidance_status(0.0, True, 3.0, ["uav1"])),
+        "attachment": 33}
+    for label in ("without_ros2", "with_ros2"):
+        cpu = result[label]
+        print(f"{label}: node CPU " + ", ".join(f"{u} {v:.1f} %" for u, v in cpu.items()))
+    for name, size in result["message_bytes"].items():
+        print(f"  {name}: {size} B")
+    return result
+
+
+def main_ros2(duration_s: float) -> int:
+    print(json.dumps(bench_ros2(duration_s)))
+    return 0
+
+
 def main_px4(duration_s: float) -> int:
     print(json.dumps(bench_px4(duration_s)))
     return 0

@@ -331,7 +331,7 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavmpc.apps.bench import main_loop, main_px4, main_tracker, main_world
+    from uavmpc.apps.bench import main_loop, main_px4, main_ros2, main_tracker, main_world
 
     if args.what == "tracker":
         return main_tracker(args.ticks, args.seed)
@@ -341,6 +341,8 @@ def _bench(args: argparse.Namespace) -> int:
         return main_world(args.duration if args.duration != 60.0 else 20.0)
     if args.what == "px4":
         return main_px4(args.duration if args.duration != 60.0 else 20.0)
+    if args.what == "ros2":
+        return main_ros2(args.duration if args.duration != 60.0 else 20.0)
     raise AssertionError(args.what)
 
 
@@ -458,10 +460,11 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--out", default="out/track", help="output folder (default out/track)")
     track.set_defaults(func=_track)
     bench = sub.add_parser("bench", help="benchmarks; the last line printed is JSON")
-    bench.add_argument("what", choices=["tracker", "loop", "world", "px4"],
+    bench.add_argument("what", choices=["tracker", "loop", "world", "px4", "ros2"],
                        help="tracker: one MpcTracker vs Clarabel; loop: the full one-UAV loop; "
                             "world: random_walk worlds of 5, 20 and 100 UAVs; px4: three nodes "
-                            "flying stand-in PX4s over MAVLink vs their built-in plants")
+                            "flying stand-in PX4s over MAVLink vs their built-in plants; ros2: "
+                            "three nodes on a ROS 2 graph vs without")
     bench.add_argument("--ticks", type=int, default=3000, help="tracker ticks (≥ 2000 advised)")
     bench.add_argument("--seed", type=int, default=1)
     bench.add_argument("--duration", type=float, default=60.0,
