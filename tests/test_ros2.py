@@ -359,3 +359,37 @@ def test_the_simulated_world_in_real_time_is_on_the_graph_and_takes_goals() -> N
     decode = obs.decoder(goal_type)
     stamp = decode(poses[-1][1]).header.stamp
     assert abs(stamp.sec + stamp.nanosec * 1e-9 - time.time()) < 60.0  # wall-clock stamps
+
+
+def test_trajectories_from_ros2_become_validated_references() -> None:
+    from uavmpc.drivers.node import ros2_mission
+    from uavmpc.reference import InvalidReferenceError
+
+    codec = ros2.Ros2Codec()
+    path_type = "nav_msgs/msg/Path"
+    encode = serialize_dynamic(path_type, codec.definition(path_type))[path_type]
+
+    def path(stamps: list[float], xs: list[float], frame: str = "world") -> bytes:
+        poses = [{"header": {"stamp": {"sec": int(t), "nanosec": round((t % 1) * 1e9)},
+                             "frame_id": frame},
+                  "pose": {"position": {"x": x, "y": 0.0, "z": 5.0},
+                           "orientation": {"x": 0.0, "y": 0.0, "z": 0.7071068, "w": 0.7071068}}}
+                 for t, x in zip(stamps, xs, strict=True)]
+        return encode({"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": frame},
+                       "poses": poses})
+
+    now = 1000.0
+    times, pts = codec.trajectory(path([1001.0, 1002.5, 1004.0], [0.0, 5.0, 10.0]))
+    ref = ros2_mission(times, pts, now)
+    assert np.allclose(ref.knots_s, [1001.0, 1002.5, 1004.0])
+    assert np.allclose(ref.values[:, 3], np.pi / 2, atol=1e-6)  # heading from the orientation
+    times, pts = codec.trajectory(path([0.0, 0.0, 0.0], [0.0, 1.0, 2.0]))  # no stamps:
+    ref = ros2_mission(times, pts, now)  # sampled every 0.2 s from now
+    assert np.allclose(ref.sample(np.array([now + 0.2]))[0, 0], 1.0)
+    with pytest.raises(InvalidReferenceError):  # stamps going back: the mission validation
+        ros2_mission(*codec.trajectory(path([1003.0, 1002.0], [0.0, 1.0])), now)
+    with pytest.raises(ros2.InvalidRosMessageError, match="frame"):
+        codec.trajectory(path([1.0, 2.0], [0.0, 1.0], frame="map"))
+    with pytest.raises(ros2.InvalidRosMessageError, match="no poses"):
+        codec.trajectory(encode({"header": {"stamp": {"sec": 0, "nanosec": 0},
+                                            "frame_id": "world"}, "poses": []}))

@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["AVOIDANCE_STATUS", "Ros2Codec", "Ros2Graph", "Ros2Publisher", "Ros2Subscriber",
-           "UavTopics", "dds_type_name", "gid_of", "liveliness_token", "mangle", "our_quat",
-           "ros_quat", "topic_key"]
+__all__ = ["AVOIDANCE_STATUS", "InvalidRosMessageError", "Ros2Codec", "Ros2Graph",
+           "Ros2Publisher", "Ros2Subscriber", "UavTopics", "dds_type_name", "gid_of",
+           "liveliness_token", "mangle", "our_quat", "ros_quat", "topic_key"]
 
 POSE = "geometry_msgs/msg/PoseStamped"
 ODOMETRY = "nav_msgs/msg/Odometry"
