@@ -362,7 +362,7 @@ def test_the_simulated_world_in_real_time_is_on_the_graph_and_takes_goals() -> N
 
 
 def test_trajectories_from_ros2_become_validated_references() -> None:
-    from uavmpc.drivers.node import ros2_mission
+    from uavmpc.drivers.ros2 import ros2_mission
     from uavmpc.reference import InvalidReferenceError
 
     codec = ros2.Ros2Codec()

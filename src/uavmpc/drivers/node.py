@@ -31,6 +31,7 @@ import numpy as np
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.link import Transport
+from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
@@ -51,16 +52,6 @@ FLARE_SPEED_MPS = 0.5
 LANDING_DEPTH_M = 0.3
 #: Longest landing before the node gives up waiting (the vehicle is left to its autopilot).
 LANDING_TIMEOUT_S = 60.0
-
-
-def ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> Reference:
-    """A mission from ROS 2: one point is a go-to from now; a path has its stamps, or (all
-    zero) is sampled every 0.2 s from now. Validated like every mission."""
-    if len(points) == 1:
-        return Reference.goto(*points[0], start_s=now_s)
-    if times is None:
-        return Reference.sampled(points, 0.2, now_s)
-    return Reference(times, points)
 
 
 def parse_mission(payload: bytes, now_s: float) -> Reference:
@@ -318,9 +309,8 @@ class Node:
                 ticks += 1
                 if out.outgoing is not None:
                     self.transport.publish(out.outgoing, self.uav_id, now)
-                    if self.ros2 is not None and stack.last_broadcast is not None:
-                        b = stack.last_broadcast
-                        self.ros2.publish_prediction(now, b.times_s, b.position_m, b.heading_rad)
+                    if self.ros2 is not None:
+                        publish_plan(self.ros2, now, stack)
                 if now >= next_state:
                     next_state += self.state_period_s
                     self._publish_state(now, state)
@@ -415,10 +405,7 @@ class Node:
                                 state.body_rates_radps)
         self._ros2_ticks += 1
         if self._ros2_ticks % 5 == 0:  # the avoidance's own rate, 10 Hz
-            d = self.stack.decision
-            self.ros2.publish_avoidance(now, bool(d is not None and d.avoiding),
-                                        self.stack.tracker.z_offset_m,
-                                        list(d.yielding_to) if d is not None else [])
+            publish_status(self.ros2, now, self.stack)
 
     def _publish_state(self, now: float, state: VehicleState) -> None:
         stack = self.stack

@@ -12,15 +12,44 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from uavmpc.comms.ros2 import Ros2Graph, UavTopics
-from uavmpc.drivers.node import ros2_mission
-from uavmpc.drivers.world import World
+from uavmpc.onboard import OnboardStack
+from uavmpc.reference import Reference
 
-__all__ = ["WorldOnRos2"]
+if TYPE_CHECKING:
+    from uavmpc.drivers.world import World
+
+__all__ = ["WorldOnRos2", "publish_plan", "publish_status", "ros2_mission"]
+
+
+def ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> Reference:
+    """A mission from ROS 2: one point is a go-to from now; a path has its stamps, or (all
+    zero) is sampled every 0.2 s from now. Validated like every mission."""
+    if len(points) == 1:
+        return Reference.goto(*points[0], start_s=now_s)
+    if times is None:
+        return Reference.sampled(points, 0.2, now_s)
+    return Reference(times, points)
+
+
+def publish_status(topics: UavTopics, stamp_s: float, stack: OnboardStack) -> None:
+    """The avoidance's state of ``stack`` on ``/<id>/avoidance``."""
+    d = stack.decision
+    topics.publish_avoidance(stamp_s, bool(d is not None and d.avoiding),
+                             stack.tracker.z_offset_m,
+                             list(d.yielding_to) if d is not None else [])
+
+
+def publish_plan(topics: UavTopics, stamp_s: float, stack: OnboardStack,
+                 epoch_s: float = 0.0) -> None:
+    """The plan ``stack`` broadcast last on ``/<id>/prediction`` (its times + ``epoch_s``)."""
+    b = stack.last_broadcast
+    if b is not None:
+        topics.publish_prediction(stamp_s, b.times_s + epoch_s, b.position_m, b.heading_rad)
 
 
 class WorldOnRos2:
@@ -45,16 +74,10 @@ class WorldOnRos2:
             topics.publish_state(stamp, s.position_m, s.velocity_mps, s.attitude_wxyz,
                                  s.body_rates_radps)
             if self._calls % 2 == 0:  # 10 Hz, the avoidance's rate
-                d = u.stack.decision
-                topics.publish_avoidance(stamp, bool(d is not None and d.avoiding),
-                                         u.stack.tracker.z_offset_m,
-                                         list(d.yielding_to) if d is not None else [])
-            if u.stack.predictions_sent != self._sent[u.uav_id] \
-                    and u.stack.last_broadcast is not None:
+                publish_status(topics, stamp, u.stack)
+            if u.stack.predictions_sent != self._sent[u.uav_id]:
                 self._sent[u.uav_id] = u.stack.predictions_sent
-                b = u.stack.last_broadcast
-                topics.publish_prediction(stamp, b.times_s + self.epoch_s, b.position_m,
-                                          b.heading_rad)
+                publish_plan(topics, stamp, u.stack, self.epoch_s)
             refs, rejected = topics.missions(now, self._mission(now))
             self.missions_rejected += rejected
             for ref in refs:
