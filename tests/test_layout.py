@@ -17,7 +17,7 @@ ROOT = Path(uavmpc.__file__).parent
 TIERS: dict[str, int] = {
     "config": 0, "jit": 0, "data": 0,
     "reference": 1, "solvers": 1, "plant": 1,
-    "tracker": 2, "control": 2, "comms": 2,
+    "tracker": 2, "control": 2, "comms": 2, "missions": 2,
     "avoidance": 3,
     "onboard": 4,
     "scenarios": 5, "log": 5,
