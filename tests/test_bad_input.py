@@ -157,3 +157,17 @@ def test_batch_rows_out_of_range_are_refused() -> None:
         batch.step(np.array([0, 2]))
     batch.step([1])  # any sequence of indices
     assert batch.rows.t_s[1] > 0.0 and batch.rows.t_s[0] == 0.0
+
+
+def test_an_airframe_is_named_by_its_package_name_or_its_file(tmp_path) -> None:
+    from importlib import resources
+
+    from uavmpc.config import ConfigError
+    from uavmpc.plant import Airframe
+
+    path = tmp_path / "mine.toml"
+    path.write_text(resources.files("uavmpc.data").joinpath("airframes/x500.toml").read_text())
+    assert Airframe.named("x500").mass_kg == Airframe.packaged("x500").mass_kg
+    assert Airframe.named(str(path)).mass_kg == Airframe.packaged("x500").mass_kg
+    with pytest.raises(ConfigError, match="no such packaged airframe"):
+        Airframe.named("x501")

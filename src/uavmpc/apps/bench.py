@@ -228,7 +228,7 @@ def bench_loop(duration_s: float = 60.0, repeats: int = 3, airframe: str = "f550
     from uavmpc.plant import Airframe
     from uavmpc.plant.multirotor import Multirotor
 
-    af = Airframe.packaged(airframe)
+    af = Airframe.named(airframe)
     ref = demanding_reference()
     fly(af, ref, 1.0)  # load the compiled kernels (numba cache) before timing
     warm = OnboardStack(af, position_m=tuple(ref.points[0, :3]))  # and the split's own path

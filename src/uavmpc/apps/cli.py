@@ -112,8 +112,7 @@ def _node(args: argparse.Namespace) -> int:
     from uavmpc.plant import Airframe
     from uavmpc.reference import InvalidReferenceError, Reference
 
-    airframe = Airframe.from_toml(args.airframe) if args.airframe.endswith(".toml") else (
-        Airframe.packaged(args.airframe))
+    airframe = Airframe.named(args.airframe)
     key = None
     if args.key_file:
         from uavmpc.comms.auth import load_key
@@ -179,8 +178,7 @@ def _sitl(args: argparse.Namespace) -> int:
     from uavmpc.drivers.px4.sitl import StandInPx4, run_sitl
     from uavmpc.plant import Airframe
 
-    airframe = Airframe.from_toml(args.airframe) if args.airframe.endswith(".toml") else (
-        Airframe.packaged(args.airframe))
+    airframe = Airframe.named(args.airframe)
     try:
         sitl = StandInPx4(airframe, args.connect, position_m=args.position,
                           heading_rad=args.heading, system_id=args.system_id,
@@ -306,8 +304,7 @@ def _track(args: argparse.Namespace) -> int:
     from uavmpc.drivers.flight import demanding_reference, fly, summarize
     from uavmpc.plant import Airframe, Wind
 
-    airframe = Airframe.from_toml(args.airframe) if args.airframe.endswith(".toml") else (
-        Airframe.packaged(args.airframe))
+    airframe = Airframe.named(args.airframe)
     wind = None
     if args.wind:
         wind = Wind(mean_mps=np.array([args.wind, 0.0, 0.0]), gust_sigma_mps=0.2 * args.wind,

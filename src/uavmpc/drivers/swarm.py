@@ -133,7 +133,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     # Compile the kernels once here, into the cache every node loads them from, before the
     # clock of the mission starts.
     for name in sorted({u.airframe for u in scenario.uavs}):
-        warm_up(Airframe.from_toml(name) if name.endswith(".toml") else Airframe.packaged(name))
+        warm_up(Airframe.named(name))
     epoch = time.time() + STARTUP_S + (TAKEOFF_S if mavlink else 0.0)
     ids = [u.uav_id for u in scenario.uavs]
     goals = {u.uav_id: np.array(u.goal_m) for u in scenario.uavs}

@@ -264,9 +264,7 @@ class World:
         airframes: dict[str, Airframe] = {}
         for spec in scenario.uavs:
             if spec.airframe not in airframes:
-                airframes[spec.airframe] = (Airframe.from_toml(spec.airframe)
-                                            if spec.airframe.endswith(".toml")
-                                            else Airframe.packaged(spec.airframe))
+                airframes[spec.airframe] = Airframe.named(spec.airframe)
         n = len(scenario.uavs)
         offsets = np.zeros(n) if clock_offsets_s is None else np.asarray(clock_offsets_s, float)
         if offsets.shape != (n,) or not np.all(np.isfinite(offsets)):

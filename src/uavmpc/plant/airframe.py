@@ -353,3 +353,11 @@ class Airframe:
         except FileNotFoundError:
             raise ConfigError(f"airframe {name!r}: no such packaged airframe") from None
         return cls.from_dict(d)
+
+    @classmethod
+    def named(cls, name_or_path: str) -> Airframe:
+        """A packaged airframe by name (``"f550"``), or an airframe file (``….toml``): what
+        every command's ``--airframe`` and a scenario's ``airframe`` take."""
+        if str(name_or_path).endswith(".toml"):
+            return cls.from_toml(name_or_path)
+        return cls.packaged(name_or_path)
