@@ -100,3 +100,79 @@ def test_bad_fixes_are_rejected_and_counted() -> None:
     assert np.allclose(f.x[[3, 4]], x[[3, 4]], atol=0.05)  # the estimate did not jump
     with pytest.raises(RuntimeError, match="initialised"):
         CtrvFilter().predict(np.array([1.0]))
+
+
+# ------------------------------------------------------------------ the deck in the plant
+def _over_deck(car: GroundVehicle, t: float, height_m: float, along_m: float = 0.0,
+               thrust_fraction: float = 0.9):
+    """A level F550 ``height_m`` above the deck (``along_m`` ahead of its centre), moving with
+    the car, holding ``thrust_fraction`` of its weight."""
+    from uavmpc.plant import Airframe, AttitudeTarget, Multirotor
+
+    af = Airframe.named("f550")
+    s = car.state(t)
+    fwd = np.array([math.cos(s.heading_rad), math.sin(s.heading_rad), 0.0])
+    plant = Multirotor(af, position_m=s.position_m + along_m * fwd + [0, 0, height_m],
+                       yaw_rad=s.heading_rad, t0_s=t)
+    plant.rows.x[plant.row, 3:6] = s.velocity_mps
+    q = np.array([math.cos(0.5 * s.heading_rad), 0.0, 0.0, math.sin(0.5 * s.heading_rad)])
+    target = AttitudeTarget(attitude_wxyz=q, thrust_n=thrust_fraction * af.mass_kg * 9.80665,
+                            body_rates_ff_radps=np.zeros(3))
+    return plant, target
+
+
+def _fly(plant, target, car: GroundVehicle, t0: float, seconds: float, cut_at_s: float = 1e9):
+    for k in range(round(seconds / 0.01)):
+        t = t0 + 0.01 * k
+        plant.set_deck(car.deck_row(t))
+        if t - t0 >= cut_at_s:
+            plant.cut_motors()
+        plant.step(target, 0.01)
+
+
+def test_a_uav_touches_down_on_the_deck_and_is_carried_along_through_a_turn() -> None:
+    car = GroundVehicle()
+    t0 = 20.0  # in a curve: the deck turns under the UAV
+    assert abs(car.state(t0).yaw_rate_radps) > 0.05
+    plant, target = _over_deck(car, t0, 0.3)
+    _fly(plant, target, car, t0, 8.0, cut_at_s=1.0)
+    touch = plant.deck_touch()
+    assert touch.touchdowns == 1 and touch.strikes == 0 and touch.on_deck
+    assert t0 < touch.t_s < t0 + 1.0
+    # Settling from 0.3 m at 0.9 g: it met the deck at about √(2 · 0.1 g · 0.3) downward.
+    assert touch.relative_velocity_mps[2] == pytest.approx(-math.sqrt(2 * 0.981 * 0.3), rel=0.1)
+    assert np.linalg.norm(touch.offset_m) < 0.3  # uncontrolled: drag and the curve
+    assert plant.landed and not plant.armed
+    t_end = t0 + 8.0
+    state = plant.state()
+    assert car.on_deck(t_end, state.position_m)  # carried 8 s through the turn, still on it
+    assert state.position_m[2] == car.deck_height_m
+    assert np.allclose(state.velocity_mps[:2], car.state(t_end).velocity_mps[:2], atol=0.2)
+
+
+def test_a_uav_descending_beside_the_deck_strikes_its_edge() -> None:
+    car = GroundVehicle()
+    # Its centre 1 m ahead of the deck's centre: off the 1.5 m square, but its rotor disc
+    # (0.275 m arms) overlaps the deck.
+    plant, target = _over_deck(car, 5.0, 0.5, along_m=1.0, thrust_fraction=0.8)
+    _fly(plant, target, car, 5.0, 1.5)
+    touch = plant.deck_touch()
+    assert touch.strikes == 1 and touch.touchdowns == 0
+    # Far from the deck, nothing is met but the ground.
+    plant, target = _over_deck(car, 5.0, 0.5, along_m=3.0, thrust_fraction=0.8)
+    _fly(plant, target, car, 5.0, 1.5)
+    assert plant.deck_touch().strikes == 0 and plant.deck_touch().touchdowns == 0
+
+
+def test_without_a_deck_the_plant_flies_as_before() -> None:
+    car = GroundVehicle()
+    a, target = _over_deck(car, 5.0, 0.3)
+    b, _ = _over_deck(car, 5.0, 0.3)
+    for _ in range(100):
+        a.set_deck(None)
+        a.step(target, 0.01)
+        b.step(target, 0.01)
+    assert np.array_equal(a.rows.x, b.rows.x)
+    assert a.state().position_m[2] < car.deck_height_m  # fell through where a deck would be
+    with pytest.raises(ValueError, match="not finite"):
+        a.set_deck(np.full(9, np.nan))

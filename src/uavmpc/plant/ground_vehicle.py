@@ -15,7 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FigureEightTrack", "GroundVehicle", "GroundVehicleState"]
+from uavmpc.plant import kernels as K
+
+__all__ = ["DeckTouch", "FigureEightTrack", "GroundVehicle", "GroundVehicleState"]
 
 KMH = 1.0 / 3.6
 
@@ -102,6 +104,20 @@ class GroundVehicle:
             heading_rad=self.track.heading(arc), speed_mps=self.speed_mps,
             yaw_rate_radps=self.speed_mps * self.track.curvature(arc))
 
+    def deck_row(self, t_s: float) -> np.ndarray:
+        """The deck at ``t_s`` as a plant's contact takes it (a ``deck`` row of
+        :class:`~uavmpc.plant.rows.PlantRows`, columns ``DECK_*`` of
+        :mod:`uavmpc.plant.kernels`)."""
+        s = self.state(t_s)
+        row = np.zeros(9)
+        row[K.DECK_ACTIVE] = 1.0
+        row[K.DECK_X:K.DECK_Z + 1] = s.position_m
+        row[K.DECK_HEADING] = s.heading_rad
+        row[K.DECK_VX:K.DECK_VY + 1] = s.velocity_mps[:2]
+        row[K.DECK_YAW_RATE] = s.yaw_rate_radps
+        row[K.DECK_HALF] = 0.5 * self.deck_size_m
+        return row
+
     def on_deck(self, t_s: float, position_m: np.ndarray) -> bool:
         """True when ``position_m`` lies over the deck's square (its edges included)."""
         s = self.state(t_s)
@@ -110,3 +126,33 @@ class GroundVehicle:
         along, across = c * d[0] + sn * d[1], -sn * d[0] + c * d[1]
         half = 0.5 * self.deck_size_m
         return abs(along) <= half and abs(across) <= half
+
+
+@dataclass(frozen=True)
+class DeckTouch:
+    """What a plant did on the deck (read from its ``touch`` row).
+
+    Attributes:
+        touchdowns: times it came onto the deck's top from the air.
+        t_s: the first touchdown's time [s] (None before one).
+        relative_velocity_mps: (3,) its velocity minus the deck's at the contact point then.
+        offset_m: (2,) its centre from the deck's centre then, along and across the deck [m].
+        strikes: times its rotor disc hit the deck's edge or the vehicle's side.
+        on_deck: on the deck's top now.
+    """
+
+    touchdowns: int
+    t_s: float | None
+    relative_velocity_mps: np.ndarray
+    offset_m: np.ndarray
+    strikes: int
+    on_deck: bool
+
+    @classmethod
+    def from_row(cls, touch: np.ndarray) -> DeckTouch:
+        n = int(touch[K.TOUCH_COUNT])
+        return cls(touchdowns=n, t_s=float(touch[K.TOUCH_T]) if n else None,
+                   relative_velocity_mps=touch[K.TOUCH_VX:K.TOUCH_VZ + 1].copy(),
+                   offset_m=touch[K.TOUCH_ALONG:K.TOUCH_ACROSS + 1].copy(),
+                   strikes=int(touch[K.TOUCH_STRIKES]),
+                   on_deck=bool(touch[K.TOUCH_STATE] == K.ON_TOP))

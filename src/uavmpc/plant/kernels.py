@@ -27,8 +27,8 @@ from uavmpc.plant.attitude import attitude_kernel
 N_RIGID = 13
 """Rigid-body part of the state vector: p (3), v (3), q (4), Ω (3)."""
 
-__all__ = ["N_RIGID", "attitude_target_ok", "fly_target", "ground", "normalize_quat",
-           "plant_step",
+__all__ = ["N_RIGID", "attitude_target_ok", "contact", "deck_contact", "fly_target", "ground",
+           "normalize_quat", "plant_step",
            "plant_step_motors", "quat_norm", "quat_rotation", "rhs", "settle"]
 
 
@@ -150,6 +150,48 @@ def rhs(
     dx[12] = inertia_inv[2, 0] * mx + inertia_inv[2, 1] * my + inertia_inv[2, 2] * mz
 
 
+#: Deck record columns (:class:`~uavmpc.plant.rows.PlantRows` ``deck``).
+DECK_ACTIVE, DECK_X, DECK_Y, DECK_Z, DECK_HEADING, DECK_VX, DECK_VY, DECK_YAW_RATE, DECK_HALF = \
+    range(9)
+#: Touch record columns (``touch``): touchdowns, then the first one's time, relative velocity
+#: (3) and offset from the deck centre (along, across the deck's heading), edge strikes, and the
+#: contact now (:data:`FREE`, :data:`ON_TOP`, :data:`STRIKING`).
+(TOUCH_COUNT, TOUCH_T, TOUCH_VX, TOUCH_VY, TOUCH_VZ, TOUCH_ALONG, TOUCH_ACROSS, TOUCH_STRIKES,
+ TOUCH_STATE) = range(9)
+FREE, ON_TOP, STRIKING = 0.0, 1.0, 2.0
+#: How far below the deck's top a vehicle over it may be found after a substep and still be on
+#: top (it came from above; deeper, it came through the side: a strike).
+DECK_TOP_TOLERANCE_M = 0.1
+
+
+@kernel
+def _rest(x: np.ndarray, vx: float, vy: float, yaw_rate: float) -> None:
+    """At rest on a surface moving at (vx, vy) and turning at ``yaw_rate``: roll and pitch
+    levelled, the heading kept, carried along."""
+    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+    yaw = math.atan2(2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qy * qy + qz * qz))
+    x[3] = vx
+    x[4] = vy
+    x[5] = 0.0
+    x[6] = math.cos(0.5 * yaw)
+    x[7] = 0.0
+    x[8] = 0.0
+    x[9] = math.sin(0.5 * yaw)
+    x[10] = 0.0
+    x[11] = 0.0
+    x[12] = yaw_rate
+
+
+@kernel
+def _lifting(x: np.ndarray, n: int, alloc: np.ndarray, phys: np.ndarray) -> bool:
+    """The vertical component of the thrust carries the weight."""
+    thrust = 0.0
+    for k in range(n):
+        thrust += alloc[0, k] * x[N_RIGID + k] * x[N_RIGID + k]
+    r22 = 1.0 - 2.0 * (x[7] * x[7] + x[8] * x[8])
+    return thrust * r22 >= phys[0] * phys[1]
+
+
 @kernel
 def ground(x: np.ndarray, n: int, alloc: np.ndarray, phys: np.ndarray) -> bool:
     """Inelastic flat-ground contact at z = 0 for a vehicle with ``n`` rotors, in place; returns
@@ -159,35 +201,90 @@ def ground(x: np.ndarray, n: int, alloc: np.ndarray, phys: np.ndarray) -> bool:
     x[2] = 0.0
     if x[5] < 0.0:
         x[5] = 0.0
-    thrust = 0.0
-    for k in range(n):
-        thrust += alloc[0, k] * x[N_RIGID + k] * x[N_RIGID + k]
-    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
-    r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
-    if thrust * r22 >= phys[0] * phys[1]:
-        return False  # lifting off
-    # At rest: no motion, roll and pitch levelled, the heading kept.
-    yaw = math.atan2(2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qy * qy + qz * qz))
-    x[3] = 0.0
-    x[4] = 0.0
-    x[5] = 0.0
-    x[6] = math.cos(0.5 * yaw)
-    x[7] = 0.0
-    x[8] = 0.0
-    x[9] = math.sin(0.5 * yaw)
-    x[10] = 0.0
-    x[11] = 0.0
-    x[12] = 0.0
+    if _lifting(x, n, alloc, phys):
+        return False
+    _rest(x, 0.0, 0.0, 0.0)  # no motion, roll and pitch levelled, the heading kept
     return True
 
 
 @kernel
-def settle(i: int, rows: Any) -> None:
-    """Apply the ground contact to row ``i`` as it stands (after its state was written, e.g. at
-    start-up on the ground); sets its ``landed`` flag when it rests there."""
+def deck_contact(x: np.ndarray, n: int, alloc: np.ndarray, phys: np.ndarray, deck: np.ndarray,
+                 elapsed_s: float, t_s: float, touch: np.ndarray) -> bool:
+    """Contact with a moving deck, in place: a horizontal square (``deck`` row as it was
+    ``elapsed_s`` ago, its centre moving at constant velocity and yaw rate since) on top of a
+    vehicle whose body fills the square down to the ground. Returns True when the vehicle rests
+    on the deck.
+
+    A vehicle whose centre is over the square and at most :data:`DECK_TOP_TOLERANCE_M` below
+    its top is on top: inelastic contact, carried along once its thrust cannot lift it (the
+    touchdown's time ``t_s``, relative velocity and offset are recorded in ``touch`` the first
+    time). A vehicle whose rotor disc (radius ``phys[7]``) overlaps the deck's footprint below
+    its top otherwise hits the deck's edge or the vehicle's side: counted as a strike in
+    ``touch``, not simulated as an impact (a strike is a failed landing)."""
+    if deck[DECK_ACTIVE] == 0.0:
+        touch[TOUCH_STATE] = FREE
+        return False
+    psi = deck[DECK_HEADING] + deck[DECK_YAW_RATE] * elapsed_s
+    rx = x[0] - (deck[DECK_X] + deck[DECK_VX] * elapsed_s)
+    ry = x[1] - (deck[DECK_Y] + deck[DECK_VY] * elapsed_s)
+    top = deck[DECK_Z]
+    half = deck[DECK_HALF]
+    c = math.cos(psi)
+    s = math.sin(psi)
+    along = c * rx + s * ry
+    across = -s * rx + c * ry
+    reach = half + phys[7]
+    state = FREE
+    if x[2] <= top and abs(along) <= reach and abs(across) <= reach:
+        over = abs(along) <= half and abs(across) <= half
+        state = ON_TOP if over and x[2] >= top - DECK_TOP_TOLERANCE_M else STRIKING
+    before = touch[TOUCH_STATE]
+    touch[TOUCH_STATE] = state
+    if state == STRIKING:
+        if before != STRIKING:
+            touch[TOUCH_STRIKES] += 1.0
+        return False
+    if state == FREE:
+        return False
+    # On top: the deck's point under the vehicle moves at v + ω × r.
+    wz = deck[DECK_YAW_RATE]
+    vx = deck[DECK_VX] - wz * ry
+    vy = deck[DECK_VY] + wz * rx
+    if before != ON_TOP:
+        touch[TOUCH_COUNT] += 1.0
+        if touch[TOUCH_COUNT] == 1.0:
+            touch[TOUCH_T] = t_s
+            touch[TOUCH_VX] = x[3] - vx
+            touch[TOUCH_VY] = x[4] - vy
+            touch[TOUCH_VZ] = x[5]
+            touch[TOUCH_ALONG] = along
+            touch[TOUCH_ACROSS] = across
+    x[2] = top
+    if x[5] < 0.0:
+        x[5] = 0.0
+    if _lifting(x, n, alloc, phys):
+        return False
+    _rest(x, vx, vy, wz)
+    return True
+
+
+@kernel
+def contact(i: int, rows: Any, elapsed_s: float) -> None:
+    """Row ``i``'s contacts after a substep ending ``elapsed_s`` after the row's time: the deck
+    (when there is one), then the flat ground; sets the row's ``landed`` flag."""
     x = rows.x[i]
-    if x[2] <= 0.0:
-        rows.landed[i] = 1.0 if ground(x, rows.n_rotors[i], rows.alloc[i], rows.phys[i]) else 0.0
+    nr = rows.n_rotors[i]
+    on_deck = deck_contact(x, nr, rows.alloc[i], rows.phys[i], rows.deck[i], elapsed_s,
+                           rows.t_s[i] + elapsed_s, rows.touch[i])
+    rests = on_deck or ground(x, nr, rows.alloc[i], rows.phys[i])
+    rows.landed[i] = 1.0 if rests else 0.0
+
+
+@kernel
+def settle(i: int, rows: Any) -> None:
+    """Apply the contacts to row ``i`` as it stands (after its state was written, e.g. at
+    start-up on the ground or on the deck); sets its ``landed`` flag when it rests."""
+    contact(i, rows, 0.0)
 
 
 @kernel
@@ -215,13 +312,16 @@ def _integrate(
     k3 = np.empty(n)
     k4 = np.empty(n)
     xt = np.empty(n)
-    for _ in range(n_sub):
+    for sub in range(n_sub):
         if not direct:
             # Zero-order hold of the rotor commands over the substep.
             attitude_kernel(
                 x[6:10], x[10:13], qd, thrust_n, ff, ctrl, gains, inertia, mix_inv, nr, lo, hi,
                 dt, rows.landed[i] != 0.0, cmd,
             )
+        if rows.armed[i] == 0.0:  # motors cut: the rotors spin down
+            for k in range(nr):
+                cmd[k] = 0.0
         rhs(x, cmd, nr, phys, inertia, inertia_inv, alloc, wind, k1)
         for j in range(n):
             xt[j] = x[j] + 0.5 * dt * k1[j]
@@ -237,7 +337,7 @@ def _integrate(
         qn = math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
         for j in range(6, 10):
             x[j] /= qn
-        rows.landed[i] = 1.0 if ground(x, nr, alloc, phys) else 0.0
+        contact(i, rows, (sub + 1) * dt)
     rows.t_s[i] += n_sub * dt
 
 

@@ -21,7 +21,11 @@ over one :meth:`Multirotor.step` call.
 Ground contact (z = 0, flat): after each substep the height is clamped to 0 and a downward
 velocity removed (inelastic: no bounce, no NaN). If in contact the thrust cannot lift the
 vehicle, it rests: velocity and rates are zeroed and roll/pitch levelled (yaw kept), and the
-attitude loop's integrator is frozen, like an autopilot's landed state.
+attitude loop's integrator is frozen, like an autopilot's landed state. A moving landing deck
+(a square on a ground vehicle, :meth:`Multirotor.set_deck`) is a second surface: the same
+inelastic contact on its top, resting means being carried along with it, and a rotor disc that
+meets its edge from below the top is counted as a strike (:func:`~uavmpc.plant.kernels.
+deck_contact`). Cutting the motors (:meth:`Multirotor.cut_motors`) lets the rotors spin down.
 
 The laws are the compiled kernels of :mod:`uavmpc.plant.kernels` and
 :mod:`uavmpc.plant.attitude`; the state lives in a row of a :class:`~uavmpc.plant.rows.PlantRows`
@@ -39,6 +43,7 @@ import numpy as np
 
 from uavmpc.jit import bind
 from uavmpc.plant.airframe import Airframe
+from uavmpc.plant.ground_vehicle import DeckTouch
 from uavmpc.plant.interface import AttitudeTarget, VehicleState
 from uavmpc.plant.kernels import (
     N_RIGID,
@@ -173,8 +178,33 @@ class Multirotor:
 
     @property
     def landed(self) -> bool:
-        """True while the vehicle rests on the ground."""
+        """True while the vehicle rests on the ground or on a deck."""
         return bool(self._rows.landed[self._row])
+
+    @property
+    def armed(self) -> bool:
+        """False once the motors were cut (:meth:`cut_motors`)."""
+        return bool(self._rows.armed[self._row])
+
+    def cut_motors(self, cut: bool = True) -> None:
+        """Cut the motors (the rotors spin down whatever is commanded), or run them again."""
+        self._rows.armed[self._row] = 0.0 if cut else 1.0
+
+    def set_deck(self, deck_row: np.ndarray | None) -> None:
+        """The moving deck the contact knows, as it is now (``GroundVehicle.deck_row``), or
+        None for none; a driver moving the deck writes it before each step."""
+        row = self._rows.deck[self._row]
+        if deck_row is None:
+            row[:] = 0.0
+            return
+        d = np.asarray(deck_row, dtype=float).reshape(row.shape)
+        if not np.all(np.isfinite(d)):
+            raise ValueError(f"deck row: not finite ({d.tolist()})")
+        row[:] = d
+
+    def deck_touch(self) -> DeckTouch:
+        """What it did on the deck so far."""
+        return DeckTouch.from_row(self._rows.touch[self._row])
 
     def set_state(
         self, state: VehicleState, rotor_speeds_radps: np.ndarray | None = None

@@ -38,10 +38,18 @@ class PlantRows(NamedTuple):
         landed: (N,) 1.0 while resting on the ground, else 0.0.
         t_s: (N,) simulated time [s].
         wind_mps: (N, 3) wind velocity (world frame) held over the next step [m/s].
+        armed: (N,) 1.0 while the motors run, 0.0 once cut (the rotors spin down).
+        deck: (N, 9) the moving landing deck the row's contact knows, as it is at ``t_s``
+            (columns ``DECK_*`` of :mod:`uavmpc.plant.kernels`): active flag, centre (3) [m],
+            heading [rad], velocity (2) [m/s], yaw rate [rad/s], half side [m]; inactive = none.
+        touch: (N, 9) what the row did on the deck (columns ``TOUCH_*``): touchdowns, the first
+            one's time [s], relative velocity (3) [m/s] and offset from the centre along and
+            across the deck [m], edge strikes, and the contact now.
 
     Airframe constants (written once per row, :meth:`configure`):
         n_rotors: (N,) int64 rotor count n of the row.
-        phys: (N, 7) [mass kg, g m/s², motor_tau s, omega_max rad/s, drag x, y, z N/(m/s)].
+        phys: (N, 8) [mass kg, g m/s², motor_tau s, omega_max rad/s, drag x, y, z N/(m/s),
+            rotor-disc radius m (the farthest rotor hub: the footprint that can hit a deck's edge)].
         inertia: (N, 3, 3) [kg m²]; inertia_inv: (N, 3, 3) its inverse.
         alloc: (N, 4, R) allocation matrix, [T, τx, τy, τz] = alloc @ ω² [N, N m].
         att_gains: (N, 7, 3) attitude-loop gains
@@ -56,6 +64,9 @@ class PlantRows(NamedTuple):
     landed: np.ndarray
     t_s: np.ndarray
     wind_mps: np.ndarray
+    armed: np.ndarray
+    deck: np.ndarray
+    touch: np.ndarray
     n_rotors: np.ndarray
     phys: np.ndarray
     inertia: np.ndarray
@@ -76,8 +87,9 @@ class PlantRows(NamedTuple):
         r = int(max_rotors)
         return cls(
             x=np.zeros((n, N_RIGID + r)), ctrl=np.zeros((n, 7)), landed=np.zeros(n),
-            t_s=np.zeros(n), wind_mps=np.zeros((n, 3)), n_rotors=np.zeros(n, dtype=np.int64),
-            phys=np.zeros((n, 7)), inertia=np.zeros((n, 3, 3)), inertia_inv=np.zeros((n, 3, 3)),
+            t_s=np.zeros(n), wind_mps=np.zeros((n, 3)), armed=np.ones(n), deck=np.zeros((n, 9)),
+            touch=np.zeros((n, 9)), n_rotors=np.zeros(n, dtype=np.int64),
+            phys=np.zeros((n, 8)), inertia=np.zeros((n, 3, 3)), inertia_inv=np.zeros((n, 3, 3)),
             alloc=np.zeros((n, 4, r)), att_gains=np.zeros((n, 7, 3)), mix_inv=np.zeros((n, r, 4)),
             lo=np.zeros(n), hi=np.zeros(n), substep_s=np.zeros(n),
         )
@@ -94,13 +106,15 @@ class PlantRows(NamedTuple):
         if n > self.max_rotors:
             raise ValueError(f"airframe {airframe.name!r} has {n} rotors, the record only "
                              f"{self.max_rotors}")
-        for field in ("x", "ctrl", "wind_mps", "alloc", "mix_inv"):
+        for field in ("x", "ctrl", "wind_mps", "alloc", "mix_inv", "deck", "touch"):
             getattr(self, field)[i] = 0.0
         self.landed[i] = 0.0
+        self.armed[i] = 1.0
         self.t_s[i] = 0.0
         self.n_rotors[i] = n
         self.phys[i] = [airframe.mass_kg, G_MPS2, airframe.motor_tau_s, airframe.omega_max_radps,
-                        *airframe.drag_n_per_mps]
+                        *airframe.drag_n_per_mps,
+                        float(np.max(np.linalg.norm(airframe.rotor_xy_m, axis=1)))]
         self.inertia[i] = airframe.inertia_kgm2
         self.inertia_inv[i] = np.linalg.inv(np.ascontiguousarray(airframe.inertia_kgm2,
                                                                  dtype=float))
