@@ -89,7 +89,10 @@ def _pose(p: Iterable[float], heading_rad: float) -> dict[str, Any]:
 class FlightRecorder:
     """Writes one run to an MCAP file. Use as a context manager, or call :meth:`close`."""
 
-    def __init__(self, path: str | Path, uav_ids: Iterable[str], metadata: dict[str, str]) -> None:
+    def __init__(self, path: str | Path, uav_ids: Iterable[str], metadata: dict[str, str],
+                 objects: Iterable[str] = ()) -> None:
+        """``objects``: other things in the scene that only have a pose (``/<name>/state``),
+        e.g. the ground vehicle carrying a landing deck."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = self.path.open("wb")
@@ -107,6 +110,9 @@ class FlightRecorder:
                                   ("status", "uavmpc.UavStatus")):
                 name = f"/{uav}/{topic}"
                 self._ch[name] = self._w.register_channel(name, "json", schemas[schema])
+        for name in objects:
+            self._ch[f"/{name}/state"] = self._w.register_channel(
+                f"/{name}/state", "json", schemas["foxglove.PoseInFrame"])
         self._ch["/link"] = self._w.register_channel("/link", "json", schemas["uavmpc.LinkEvent"])
         self._w.add_metadata("run", {k: str(v) for k, v in metadata.items()})
         self._seq = 0

@@ -133,6 +133,45 @@ class Reference:
         return cls(np.array([_finite_scalar(start_s, "start_s")]),
                    np.array([[x, y, z, heading]], dtype=float))
 
+    @classmethod
+    def along_path(cls, waypoints_m: np.ndarray, speed_mps: float, start_s: float = 0.0,
+                   sample_period_s: float = 0.2) -> Reference:
+        """A smooth path through ``waypoints_m`` (k ≥ 2, 3) flown at a constant ``speed_mps``
+        from ``start_s``, facing along the path: a Catmull–Rom curve through the points,
+        resampled by arc length (the last point is then held)."""
+        w = _as_float_array(waypoints_m, "waypoints")
+        if w.ndim != 2 or w.shape[1] != 3 or w.shape[0] < 2:
+            raise InvalidReferenceError(f"waypoints must have shape (k ≥ 2, 3), got {w.shape}")
+        if not np.all(np.isfinite(w)):
+            raise InvalidReferenceError("waypoints contain NaN or inf")
+        speed = _finite_scalar(speed_mps, "speed_mps")
+        if speed <= 0.0:
+            raise InvalidReferenceError(f"speed_mps must be > 0, got {speed}")
+        period = _finite_scalar(sample_period_s, "sample_period_s")
+        if period < MIN_SAMPLE_PERIOD_S:
+            raise InvalidReferenceError(f"sample_period_s must be ≥ {MIN_SAMPLE_PERIOD_S} s")
+        if np.any(np.linalg.norm(np.diff(w, axis=0), axis=1) < 1e-6):
+            raise InvalidReferenceError("waypoints: two consecutive points are the same")
+        ext = np.vstack([2 * w[0] - w[1], w, 2 * w[-1] - w[-2]])
+        u = np.linspace(0.0, 1.0, 64, endpoint=False)[:, None]
+        pieces = []
+        for i in range(1, ext.shape[0] - 2):  # uniform Catmull–Rom between ext[i], ext[i+1]
+            p0, p1, p2, p3 = ext[i - 1], ext[i], ext[i + 1], ext[i + 2]
+            pieces.append(0.5 * (2 * p1 + (p2 - p0) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2
+                                 + (3 * p1 - p0 - 3 * p2 + p3) * u**3))
+        dense = np.vstack([*pieces, w[-1:]])
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+        n = int(arc[-1] / (speed * period)) + 1
+        if n > MAX_POINTS:
+            raise InvalidReferenceError(f"the path needs {n} points, more than {MAX_POINTS}")
+        at = np.minimum(np.arange(n + 1) * speed * period, arc[-1])
+        xyz = np.column_stack([np.interp(at, arc, dense[:, j]) for j in range(3)])
+        # Facing along the curve (its tangent at each sample, so the held end keeps the last
+        # direction).
+        tangent = np.gradient(dense, axis=0)
+        heading = np.interp(at, arc, np.unwrap(np.arctan2(tangent[:, 1], tangent[:, 0])))
+        return cls.sampled(np.column_stack([xyz, heading]), period, start_s)
+
     @property
     def start_s(self) -> float:
         return float(self.times_s[0])

@@ -642,8 +642,15 @@ def iter_trials(out_dir: str | Path) -> Iterator[dict[str, Any]]:
 def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
     """Adds ``campaign random-walk ...`` to the CLI's subparsers; sets ``func``."""
     p = subparsers.add_parser(
-        "campaign", help="statistical campaign: many seeded random_walk trials (resumable)")
-    p.add_argument("kind", choices=["random-walk"], help="the campaign's scenario")
+        "campaign", help="statistical campaign: many seeded random_walk trials (resumable), "
+                         "or many landings on the moving deck")
+    p.add_argument("kind", choices=["random-walk", "landing"], help="the campaign's scenario")
+    p.add_argument("--scenario", default="moving_target_landing",
+                   help="landing: the landing scenario (built-in name or TOML file)")
+    p.add_argument("--speed-kmh", type=float, default=None,
+                   help="landing: the car's speed (default: the scenario's)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="landing: simulated seconds per trial (default: the scenario's)")
     p.add_argument("--uavs", type=int, default=5, help="UAVs per trial (default 5)")
     p.add_argument("--avoidance", action=argparse.BooleanOptionalAction, default=True,
                    help="fly with collision avoidance (default) or without")
@@ -680,7 +687,29 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
                         ray_address=args.ray, progress=not args.no_progress)
 
 
+def _landing_command(args: argparse.Namespace) -> int:
+    from uavmpc.apps.landing_campaign import run_landing_campaign
+
+    if args.trials is None:
+        raise CampaignError("campaign landing: give --trials N")
+    out = args.out or "out/campaign-landing"
+    r = run_landing_campaign(out, trials=args.trials, seed=args.seed, scenario=args.scenario,
+                             speed_kmh=args.speed_kmh, duration_s=args.duration,
+                             workers=args.workers)
+    t = r["time_to_land_s"]
+    fmt = (lambda v: "–" if v is None else f"{v:.1f} s")  # noqa: E731
+    print(f"landing at {r['speed_kmh']:g} km/h: {r['landed']} of {r['trials']} landed "
+          f"({100 * r['success_rate']:.0f} %); time to land p5 {fmt(t['p5'])}, "
+          f"p50 {fmt(t['p50'])}, p95 {fmt(t['p95'])}, max {fmt(t['p100'])}; "
+          f"{r['touchdowns_off_the_deck']} off the deck, {r['hard_touchdowns']} hard, "
+          f"{r['no_touchdown']} without touchdown")
+    print(f"wrote {out}/report.json, trials.jsonl")
+    return 0
+
+
 def campaign_command(args: argparse.Namespace) -> int:
+    if args.kind == "landing":
+        return _landing_command(args)
     out = args.out or f"out/campaign-{'with' if args.avoidance else 'without'}-avoidance"
     try:
         r = _run_from_args(out, args)

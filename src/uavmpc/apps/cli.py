@@ -19,7 +19,7 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
 
     from uavmpc import scenarios
     from uavmpc.apps.plots import plot_world
-    from uavmpc.drivers.world import COLLISION_DISTANCE_M, World
+    from uavmpc.drivers.world import COLLISION_DISTANCE_M, GROUND_VEHICLE_ID, World
     from uavmpc.log import FlightRecorder
 
     sc = scenarios.load(scenario)
@@ -32,7 +32,9 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     out.mkdir(parents=True, exist_ok=True)
     meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
             "latency_s": link.latency_s}
-    with FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta) as rec:
+    objects = (GROUND_VEHICLE_ID,) if sc.ground_vehicle is not None else ()
+    with FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta,
+                        objects) as rec:
         world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
                       recorder=rec)
         if ros2 is None:
@@ -51,29 +53,68 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     figs = plot_world(result.t_s, result.positions_m, result.min_distance_m, result.uav_ids,
                       f"{sc.name} ({'with' if avoidance else 'without'} avoidance)",
                       COLLISION_DISTANCE_M)
-    for fig, name in zip(figs, ("top_view.png", "altitude.png", "min_distance.png"),
-                         strict=True):
+    names = ["top_view.png", "altitude.png", "min_distance.png"]
+    if "landing_uav" in summary:
+        from uavmpc.apps.plots import plot_landing
+
+        figs = (*figs, plot_landing(result))
+        names.append("landing.png")
+    if "formation_error_m" in summary:
+        from uavmpc.apps.plots import plot_formation
+
+        figs = (*figs, plot_formation(result))
+        names.append("formation.png")
+    for fig, name in zip(figs, names, strict=True):
         fig.savefig(out / name, dpi=110)
+    summary["figures"] = names
     return summary
+
+
+def _goal_words(reached: bool | None) -> str:
+    return "flew its mission" if reached is None else (
+        "reached its goal" if reached else "MISSED its goal")
 
 
 def _print_world_summary(s: dict, out: Path) -> None:
     verdict = (f"{len(s['collisions'])} collision(s)" if s["collisions"]
                else "no collision")
+    closest = ("one UAV" if s["min_distance_m"] is None
+               else f"closest approach {s['min_distance_m']:.2f} m (collision < 1 m)")
     print(f"{s['scenario']}, {'with' if s['avoidance'] else 'without'} avoidance, seed "
-          f"{s['seed']}: {verdict}; closest approach {s['min_distance_m']:.2f} m "
-          f"(collision < 1 m); {s['realtime_factor']:.0f}× real time")
+          f"{s['seed']}: {verdict}; {closest}; {s['realtime_factor']:.0f}× real time")
     for c in s["collisions"][:5]:
         print(f"  collision at t = {c['t']:.2f} s: {c['a']} and {c['b']}, "
               f"{c['distance_m']:.2f} m apart")
     for uav, u in s["uavs"].items():
         print(f"  {uav}: climbed up to {u['max_z_offset_m']:.0f} m to avoid, avoiding for "
-              f"{u['avoidance_active_s']:.1f} s, {'reached' if u['reached_goal'] else 'MISSED'} "
-              f"its goal, tracking RMSE {u['tracking_rmse_m']:.3f} m")
+              f"{u['avoidance_active_s']:.1f} s, "
+              f"{_goal_words(u['reached_goal'])}, tracking RMSE {u['tracking_rmse_m']:.3f} m")
     m = s["messages"]
     print(f"  link: {m['sent']} predictions sent, {m['delivered']} delivered, "
           f"{m['dropped']} dropped")
-    print(f"wrote {out}/summary.json, flight.mcap, top_view.png, altitude.png, min_distance.png")
+    if "landing_uav" in s:
+        td = s["touchdown"]
+        if s["landed"]:
+            print(f"  landed: {s['landing_uav']} on the deck {s['time_to_land_s']:.1f} s after "
+                  f"the approach began; touchdown at {td['vertical_speed_mps']:.2f} m/s down "
+                  f"(limit {s['max_touchdown_speed_mps']:g}), {td['horizontal_speed_mps']:.2f} "
+                  f"m/s across, {td['offset_from_centre_m']:.2f} m from the deck's centre")
+        else:
+            why = ("no touchdown" if td is None else "hard touchdown" if td["hard"]
+                   else f"{s['edge_strikes']} edge strike(s)" if s["edge_strikes"]
+                   else "not on the deck at the end")
+            print(f"  NOT landed: {why}")
+        print(f"  time: {', '.join(f'{k} {v:.1f} s' for k, v in s['phases_s'].items())}; "
+              f"aborts {s['aborts'] or 'none'}")
+    if "formation_error_m" in s:
+        fe = s["formation_error_m"]
+        per = ", ".join(f"{k} {v['rms']:.2f}/{v['max']:.2f}" for k, v in fe["per_follower"].items())
+        print(f"  formation error (from {s['formation']['measured_from_s']:g} s): rms "
+              f"{fe['rms']:.2f} m, max {fe['max']:.2f} m (rms/max: {per})")
+        calm = s["formation_error_m"].get("while_no_member_avoids")
+        if calm:
+            print(f"    while no member avoids: rms {calm['rms']:.2f} m, max {calm['max']:.2f} m")
+    print(f"wrote {out}/summary.json, flight.mcap, {', '.join(s['figures'])}")
 
 
 def _demo(args: argparse.Namespace) -> int:

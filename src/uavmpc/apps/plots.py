@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import matplotlib
 
 matplotlib.use("Agg")
+
+import itertools
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -112,5 +116,102 @@ def plot_min_distance_trace(t_s: object, d_m: object, collision_m: float,
         ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend()
+    fig.tight_layout()
+    return fig
+
+
+def plot_landing(result: Any) -> Figure:
+    """The landing on the moving deck: top view of the car and the UAV, the UAV's height above
+    the deck and its horizontal speed relative to the car over time, the phases shaded."""
+    s = result.summary()
+    i = int(result.traces["lander_index"])
+    t = result.t_s
+    car = result.traces["ground_vehicle_m"]
+    uav = result.positions_m[:, i]
+    dt = np.gradient(t)
+    rel_v = np.hypot(*(np.gradient(uav[:, :2] - car[:, :2], axis=0) / dt[:, None]).T)
+    t_end = s["touchdown"]["t_s"] + 2.0 if s["touchdown"] else t[-1]
+    show = t <= t_end
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), gridspec_kw={"width_ratios": [1.1, 1]})
+    ax = axes[0]
+    ax.plot(car[:, 0], car[:, 1], color="0.75", lw=1, label="car's track")
+    ax.plot(car[show, 0], car[show, 1], color="k", lw=1.5, label="car")
+    ax.plot(uav[show, 0], uav[show, 1], color="C0", lw=1.5, label=result.uav_ids[i])
+    ax.plot(*uav[0, :2], "o", color="C0")
+    if s["touchdown"]:
+        k = int(np.searchsorted(t, s["touchdown"]["t_s"]))
+        ax.plot(*uav[min(k, len(t) - 1), :2], "*", ms=14, color="C3", label="touchdown")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    ax.set_title("top view")
+    ax1 = axes[1]
+    ax1.plot(t[show], uav[show, 2] - car[show, 2], color="C0", label="height above the deck")
+    ax1.set_ylabel("height above the deck [m]")
+    ax1.set_xlabel("time [s]")
+    ax1.grid(alpha=0.3)
+    ax2 = ax1.twinx()
+    ax2.plot(t[show], rel_v[show], color="C1", lw=1, label="horizontal speed relative to the car")
+    ax2.set_ylabel("relative horizontal speed [m/s]", color="C1")
+    ax2.set_ylim(0.0, max(2.0, float(np.percentile(rel_v[show], 99))))
+    colours = {"approach": "0.92", "descend": "#dcefdc", "abort": "#f6d5d5"}
+    marks = [*s["transitions"], [t_end, "end"]]
+    for (t0, phase), (t1, _) in itertools.pairwise(marks):
+        if phase in colours:
+            ax1.axvspan(t0, min(t1, t_end), color=colours[phase], zorder=0, lw=0)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colours.values()]
+    lines = ax1.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
+    ax1.legend(lines + handles, ["height above the deck", "relative speed", *colours],
+               fontsize=8, loc="upper right")
+    verdict = (f"landed {s['time_to_land_s']:.1f} s after the approach began" if s["landed"]
+               else "not landed")
+    ax1.set_title(f"{verdict}; the phases shaded")
+    fig.suptitle(f"{result.scenario}, seed {result.seed}")
+    fig.tight_layout()
+    return fig
+
+
+def plot_formation(result: Any) -> Figure:
+    """The formation: every UAV's path (top view), and each follower's distance from its slot
+    over time, with the times a member was avoiding shaded."""
+    s = result.summary()
+    fe = s["formation_error_m"]
+    fig, axes = plt.subplots(2, 1, figsize=(11, 9), gridspec_kw={"height_ratios": [1.3, 1]})
+    ax = axes[0]
+    for i, uav in enumerate(result.uav_ids):
+        p = result.positions_m[:, i]
+        line = ax.plot(p[:, 0], p[:, 1], lw=1.2, label=uav)[0]
+        ax.plot(*p[0, :2], "o", color=line.get_color(), ms=4)
+    step = max(1, len(result.t_s) // 12)
+    members = [result.uav_ids.index(m) for m in (s["formation"]["leader"],
+                                                  *s["formation"]["followers"])]
+    for k in range(0, len(result.t_s), step):  # the formation's shape every few seconds
+        pts = result.positions_m[k, members, :2]
+        ax.plot(pts[:, 0], pts[:, 1], ".", color="0.4", ms=3)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("paths (grey dots: the members every few seconds)")
+    ax = axes[1]
+    t = result.traces["formation_t_s"]
+    err = result.traces["formation_error_m"]
+    for j, f in enumerate(s["formation"]["followers"]):
+        ax.plot(t, err[:, j], lw=1, label=f)
+    avoiding = result.traces.get("members_avoiding")
+    if avoiding is not None:
+        keep = result.t_s >= t[0]
+        ax.fill_between(t, 0, 1, where=avoiding[keep], color="#f6d5d5",
+                        transform=ax.get_xaxis_transform(), label="a member avoiding")
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("distance from its slot [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"formation error: rms {fe['rms']:.2f} m, max {fe['max']:.2f} m")
+    fig.suptitle(f"{result.scenario}, seed {result.seed}")
     fig.tight_layout()
     return fig

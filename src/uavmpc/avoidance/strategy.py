@@ -220,8 +220,15 @@ class HeightOffsetStrategy:
     starts; :attr:`AvoidanceDecision.avoiding` stays up until the offset is back to 0.
     """
 
-    def __init__(self, params: AvoidanceParams | None = None) -> None:
+    def __init__(self, params: AvoidanceParams | None = None, *,
+                 pair_radius_m: Mapping[str, float] | None = None) -> None:
         self.params = params if params is not None else AvoidanceParams()
+        #: Per-pair cylinder radii by the other UAV's id (e.g. members of this UAV's
+        #: formation, :mod:`uavmpc.missions.formation`); everyone else: ``radius_m``.
+        self.pair_radius_m: dict[str, float] = {}
+        for other, r in (pair_radius_m or {}).items():
+            self.pair_radius_m[str(other)] = positive(r, f"pair_radius_m[{other!r}]",
+                                                      upper=MAX_DISTANCE_M)
         self.reset()
 
     def reset(self) -> None:
@@ -317,8 +324,8 @@ class HeightOffsetStrategy:
         dz = np.empty((k, m))
         # Compiled (align_batch, then the horizontal test, per sender; bit-identical).
         for i, msg in enumerate(msgs):
-            near_and_dz(shifted[i], msg.positions_m, times, prm.timeout_s, own, prm.radius_m,
-                        near_xy[i], dz[i])
+            near_and_dz(shifted[i], msg.positions_m, times, prm.timeout_s, own,
+                        self.pair_radius_m.get(msg.uav_id, prm.radius_m), near_xy[i], dz[i])
         must_yield = np.array(
             [(not msg.avoiding) or msg.priority < own_priority
              or (msg.priority == own_priority and msg.uav_id < own_id) for msg in msgs],

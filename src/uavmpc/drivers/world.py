@@ -29,6 +29,9 @@ from uavmpc.comms.link import SimulatedLink
 from uavmpc.config import ConfigError
 from uavmpc.jit import bind, kernel
 from uavmpc.log import FlightRecorder
+from uavmpc.missions.formation import FormationFollower, formation_error
+from uavmpc.missions.landing import LandingMission, landing_outcome
+from uavmpc.missions.mission import Mission, MissionInput
 from uavmpc.onboard import (
     BROADCAST_PERIOD_S,
     OnboardBatch,
@@ -41,9 +44,10 @@ from uavmpc.plant import Airframe, PlantRows, Wind
 from uavmpc.plant.interface import heading_of
 from uavmpc.plant.kernels import fly_target
 from uavmpc.plant.multirotor import Multirotor
+from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario
-from uavmpc.tracker import TrackerConfig
+from uavmpc.tracker import DynamicLimits, TrackerConfig
 from uavmpc.tracker.kernels import make_scratch
 
 COLLISION_DISTANCE_M = 1.0
@@ -51,6 +55,11 @@ COLLISION_DISTANCE_M = 1.0
 GOAL_TOLERANCE_M = 1.0
 #: Log rate of poses and status (predictions are logged at each broadcast).
 POSE_LOG_PERIOD_S = 0.05
+#: The ground vehicle's name in logs (``/ground_vehicle/state``: its deck's centre).
+GROUND_VEHICLE_ID = "ground_vehicle"
+#: The formation error is measured from this time on (the followers' first plans arrive and
+#: settle).
+FORMATION_SETTLE_S = 10.0
 
 
 @dataclass
@@ -72,6 +81,12 @@ class WorldUav:
     stack: OnboardStack
     plant: Multirotor
     clock_offset_s: float = 0.0  # its clock minus the world's
+    mission: Mission | None = None  # stepped beside the stack (uavmpc.missions)
+    sensor: TargetSensor | None = None  # its fixes of the ground vehicle
+    next_mission_s: float = 0.0
+    motors_cut: bool = False
+    #: Whom it yielded to: other id → [first, last] time of a decision saying so [s].
+    yielded_to: dict[str, list[float]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -81,20 +96,23 @@ class UavOutcome:
     Attributes:
         max_z_offset_m, avoidance_active_s, tracking_rmse_m, limit_violations,
         max_limit_excess, tracker_fallbacks: from its stack (:class:`~uavmpc.onboard.StackReport`).
-        reached_goal: it ended within :data:`GOAL_TOLERANCE_M` of its goal.
+        reached_goal: it ended within :data:`GOAL_TOLERANCE_M` of its goal (None for a UAV
+            whose mission sets its way, e.g. a lander or a formation's follower).
         final_position_m: where it ended (ENU, m).
         messages_rejected: messages its inbox rejected.
+        yielded_to: whom its avoidance yielded to, other id → [first, last] time [s].
     """
 
     max_z_offset_m: float
     avoidance_active_s: float
     tracking_rmse_m: float
-    reached_goal: bool
+    reached_goal: bool | None
     final_position_m: list[float]
     limit_violations: int
     max_limit_excess: float
     tracker_fallbacks: int
     messages_rejected: int
+    yielded_to: dict[str, list[float]] = field(default_factory=dict)
 
 
 @dataclass
@@ -120,6 +138,8 @@ class WorldResult:
     messages: dict[str, int]
     wall_s: float
     extra: dict[str, Any] = field(default_factory=dict)
+    #: Time series for figures (not in the summary): e.g. ``"ground_vehicle_m"`` (K, 3).
+    traces: dict[str, np.ndarray] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -128,7 +148,9 @@ class WorldResult:
             "avoidance": self.avoidance,
             "duration_s": self.duration_s,
             "collisions": [c.__dict__ for c in self.collisions],
-            "min_distance_m": float(self.min_distance_m.min()),
+            # None with a single UAV (no pair): JSON has no infinity.
+            "min_distance_m": (float(self.min_distance_m.min()) if len(self.uav_ids) > 1
+                               else None),
             "uavs": {k: dataclasses.asdict(v) for k, v in self.per_uav.items()},
             "messages": self.messages,
             "wall_s": self.wall_s,
@@ -270,8 +292,16 @@ class World:
         if offsets.shape != (n,) or not np.all(np.isfinite(offsets)):
             raise ValueError(f"clock_offsets_s: need {n} finite offsets [s], got "
                              f"{clock_offsets_s!r}")
+        if scenario.limits:
+            base = tracker_config if tracker_config is not None else TrackerConfig.from_toml()
+            limits = DynamicLimits.from_dict({**dataclasses.asdict(base.limits),
+                                              **scenario.limits})
+            tracker_config = dataclasses.replace(base, limits=limits)
         #: The records of every UAV's numbers, one row each: their stacks' and their plants'.
         self.onboard = OnboardBatch(tracker_config, n)
+        #: The ground vehicle carrying the landing deck, when the scenario has one.
+        self.ground_vehicle = scenario.ground_vehicle
+        formation = scenario.formation
         self.plants = PlantRows.empty(n, max(a.n_rotors for a in airframes.values()))
         self.uavs: list[WorldUav] = []
         period = self.onboard.tracker.config.first_step_s
@@ -285,16 +315,37 @@ class World:
                                rotors_at_hover=spec.start_m[2] > 0.0, rows=self.plants, row=i)
             # Each UAV broadcasts at its own phase, spread over the period.
             off = float(offsets[i])
+            resolver = None
+            if avoidance:
+                resolver = strategy(params)
+                if formation is not None and spec.uav_id in formation.members:
+                    if not hasattr(resolver, "pair_radius_m"):
+                        raise ConfigError(f"formation: the strategy {type(resolver).__name__} "
+                                          "has no per-pair radii for the members")
+                    resolver.pair_radius_m.update(  # type: ignore[attr-defined]
+                        {m: formation.member_radius_m for m in formation.members
+                         if m != spec.uav_id})
             stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
                                  t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
-                                 avoidance=strategy(params) if avoidance else None,
-                                 params=params, broadcast_phase_s=broadcast_phase(i, n),
-                                 batch=self.onboard, row=i)
-            mission = spec.mission
+                                 avoidance=resolver, params=params,
+                                 broadcast_phase_s=broadcast_phase(i, n), batch=self.onboard,
+                                 row=i)
+            reference = spec.mission
             if off:
-                mission = Reference(mission.times_s + off, mission.points, mission.loop)
-            stack.set_mission(mission)
-            self.uavs.append(WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, off))
+                reference = Reference(reference.times_s + off, reference.points, reference.loop)
+            stack.set_mission(reference)
+            u = WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, off)
+            if scenario.landing is not None and scenario.landing[0] == spec.uav_id:
+                u.mission = LandingMission(scenario.landing[1])
+                car = scenario.ground_vehicle
+                assert car is not None  # the scenario's validation saw to it
+                ts = scenario.target_sensor
+                u.sensor = TargetSensor(lambda t, car=car: car.state(t).position_m,
+                                        rate_hz=ts.rate_hz, sigma_m=ts.sigma_m,
+                                        dropout=ts.dropout, seed=seed * 1000 + 500 + i)
+            elif formation is not None and spec.uav_id in formation.followers:
+                u.mission = FormationFollower(formation, spec.uav_id)
+            self.uavs.append(u)
             self._positions[spec.uav_id] = np.array(spec.start_m, dtype=float)
         self.t_s = 0.0
         self.period_s = period
@@ -330,6 +381,10 @@ class World:
         collisions: list[Collision] = []
         ranged = self.link.range_m is not None
         next_log = self.t_s
+        spec = self.scenario.formation
+        members = (np.array([ids.index(m) for m in spec.members]) if spec is not None
+                   else np.zeros(0, dtype=np.int64))
+        members_avoiding = np.zeros(ticks, dtype=bool)
         if self.batched and self.onboard.inline:
             # Compile (or load) the tick before the clock starts: wall_s and the real-time
             # factor measure flying, not a first run's compilation.
@@ -343,6 +398,8 @@ class World:
                 self._tick_objects(now, k, pos, zoff, dmin, pair_d)
             self.t_s = now + self.period_s
             t_log[k] = self.t_s
+            if members.size:
+                members_avoiding[k] = self.onboard.stats.avoiding[members].any()
             if ranged:  # the link's range check sees where the UAVs are
                 for i, u in enumerate(self.uavs):
                     self._positions[u.uav_id] = pos[k, i]
@@ -369,19 +426,65 @@ class World:
             per_uav[u.uav_id] = UavOutcome(
                 max_z_offset_m=rep.max_z_offset_m, avoidance_active_s=rep.avoidance_active_s,
                 tracking_rmse_m=rep.tracking_rmse_m,
-                reached_goal=bool(np.linalg.norm(final - u.goal_m) < GOAL_TOLERANCE_M),
+                reached_goal=(None if u.mission is not None
+                              else bool(np.linalg.norm(final - u.goal_m) < GOAL_TOLERANCE_M)),
                 final_position_m=final.tolist(), limit_violations=rep.limit_violations,
                 max_limit_excess=rep.max_limit_excess, tracker_fallbacks=rep.tracker_fallbacks,
-                messages_rejected=rep.messages_rejected_total)
+                messages_rejected=rep.messages_rejected_total,
+                yielded_to={k: [round(a, 3), round(b, 3)] for k, (a, b) in u.yielded_to.items()})
         st = self.link.stats
         messages = {"sent": st.sent, "delivered": st.delivered,
                     "dropped": st.dropped + st.dropped_range, "published": st.published}
-        return WorldResult(self.scenario.name, self.seed, self.avoidance, ticks * self.period_s,
-                           ids, t_log, pos, zoff, dmin, collisions, per_uav, messages, wall)
+        result = WorldResult(self.scenario.name, self.seed, self.avoidance,
+                             ticks * self.period_s, ids, t_log, pos, zoff, dmin, collisions,
+                             per_uav, messages, wall)
+        if members.size:
+            result.traces["members_avoiding"] = members_avoiding
+        self._applications(result)
+        return result
+
+    def _applications(self, result: WorldResult) -> None:
+        """The field applications' outcomes (landing, formation) into the result."""
+        car = self.ground_vehicle
+        if car is not None:
+            result.traces["ground_vehicle_m"] = np.array(
+                [car.state(t).position_m for t in result.t_s])
+        for i, u in enumerate(self.uavs):
+            if isinstance(u.mission, LandingMission):
+                assert car is not None
+                end = float(result.t_s[-1])
+                final = result.positions_m[-1, i]
+                rests = bool(u.plant.landed and abs(final[2] - car.deck_height_m) < 1e-6
+                             and car.on_deck(end, final))
+                out = landing_outcome(u.mission, u.plant.deck_touch(),
+                                      u.stack.airframe.max_touchdown_speed_mps, rests, end)
+                result.extra.update({"landing_uav": u.uav_id, **out})
+                result.traces["lander_index"] = np.array(i)
+        spec = self.scenario.formation
+        if spec is not None:
+            keep = result.t_s >= FORMATION_SETTLE_S
+            index = {uid: k for k, uid in enumerate(result.uav_ids)}
+            err = formation_error(spec, result.t_s[keep],
+                                  {m: result.positions_m[keep, index[m]] for m in spec.members})
+            series = err.pop("series_m")
+            calm = ~result.traces["members_avoiding"][keep]
+            if calm.any():
+                err["while_no_member_avoids"] = {
+                    "rms": float(np.sqrt(np.mean(series[calm] ** 2))),
+                    "max": float(series[calm].max()), "share_of_time": float(calm.mean())}
+            result.traces["formation_error_m"] = series
+            result.traces["formation_t_s"] = result.t_s[keep]
+            result.extra["formation_error_m"] = err
+            result.extra["formation"] = {
+                "leader": spec.leader, "followers": list(spec.followers),
+                "measured_from_s": FORMATION_SETTLE_S,
+                "outsiders": [uid for uid in result.uav_ids if uid not in spec.members]}
 
     # ------------------------------------------------------------------------------ one tick
     def _receive_and_plan(self, now: float) -> None:
         rec = self.recorder
+        if self.ground_vehicle is not None:  # every plant's contact knows where the deck is
+            self.plants.deck[:] = self.ground_vehicle.deck_row(now)
         for u in self.uavs:
             data = self.link.receive(u.uav_id, now)
             rejected = u.stack.inbox.rejected_total
@@ -392,7 +495,33 @@ class World:
                         rec.link(now, "delivered", msg.uav_id, u.uav_id, msg.stamp_s)
                 for _ in range(u.stack.inbox.rejected_total - rejected):
                     rec.link(now, "rejected", "?", u.uav_id)
+            if u.mission is not None and now >= u.next_mission_s - 1e-9:
+                u.next_mission_s = now + u.mission.period_s
+                self._step_mission(u, now)
             u.stack.plan(now + u.clock_offset_s)
+            d = u.stack.decision
+            if d is not None and d.yielding_to:
+                for other in d.yielding_to:
+                    span = u.yielded_to.setdefault(other, [now, now])
+                    span[1] = now
+
+    def _step_mission(self, u: WorldUav, now: float) -> None:
+        assert u.mission is not None
+        own = now + u.clock_offset_s
+        estimate = u.plant.state()
+        fixes = u.sensor.fixes_until(now) if u.sensor is not None else ()
+        if u.clock_offset_s and fixes:
+            fixes = [f._replace(t_s=f.t_s + u.clock_offset_s) for f in fixes]
+        out = u.mission.step(MissionInput(own, estimate, u.plant.landed, u.stack.inbox.latest,
+                                          fixes))
+        if out.cut_motors:
+            if not u.motors_cut:
+                u.motors_cut = True
+                u.plant.cut_motors()
+            # Where it rests is what it will do: broadcast that, flag down (others avoid it).
+            u.stack.follow(own, estimate)
+        elif out.reference is not None:
+            u.stack.set_mission(out.reference)
 
     def _emit(self, now: float) -> None:
         for u in self.uavs:
@@ -476,6 +605,9 @@ class World:
     def _log(self) -> None:
         rec = self.recorder
         assert rec is not None
+        if self.ground_vehicle is not None:
+            car = self.ground_vehicle.state(self.t_s)
+            rec.pose(GROUND_VEHICLE_ID, "state", self.t_s, car.position_m, car.heading_rad)
         for u in self.uavs:
             last = u.stack.last_output
             if last is None:

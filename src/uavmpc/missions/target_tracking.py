@@ -132,14 +132,26 @@ class CtrvFilter:
         self.p = f @ self.p @ f.T + g @ self.q @ g.T
         self.t_s = t_s
 
-    def predict(self, times_s: np.ndarray) -> np.ndarray:
-        """Predicted states (n, 5) at absolute ``times_s`` (≥ the last fix), by the model."""
+    def predict(self, times_s: np.ndarray, turn_decay_s: float | None = None) -> np.ndarray:
+        """Predicted states (n, 5) at absolute ``times_s`` (increasing, ≥ the last fix), by
+        the model; with ``turn_decay_s``, the turn rate decays with that time constant from
+        the first time on (a car does not turn forever: over an 8 s horizon a constant turn
+        rate would bring it all the way round)."""
         if self.x is None or self.t_s is None:
             raise RuntimeError("predict: the filter has not been initialised (needs two fixes)")
-        out = np.empty((len(times_s), 5))
+        times = np.asarray(times_s, dtype=float)
+        out = np.empty((len(times), 5))
         x, t = self.x, self.t_s
-        for i, t_i in enumerate(np.asarray(times_s, dtype=float)):
-            x = ctrv_step(x, max(t_i - t, 0.0))
+        for i, t_i in enumerate(times):
+            dt = max(t_i - t, 0.0)
+            if turn_decay_s is None or i == 0:
+                x = ctrv_step(x, dt)
+            else:  # the turn rate decays over the step: turn at its mean, then decay it
+                decay = math.exp(-dt / turn_decay_s)
+                w = x[4]
+                mean = w * (1.0 - decay) * turn_decay_s / dt if dt > 0 else w
+                x = ctrv_step(np.array([x[0], x[1], x[2], x[3], mean]), dt)
+                x[4] = w * decay
             t = max(t_i, t)
             out[i] = x
         return out

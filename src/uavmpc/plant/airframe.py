@@ -30,7 +30,8 @@ from uavmpc.config import (
 G_MPS2 = 9.80665
 """Standard gravity [m/s²]; the plant and the controllers use the same value."""
 
-_TOP = {"name", "mass_kg", "inertia", "rotors", "drag", "se3", "attitude"}
+_TOP = {"name", "mass_kg", "inertia", "rotors", "drag", "se3", "attitude",
+        "max_touchdown_speed_mps"}
 _INERTIA = {"ixx_kgm2", "iyy_kgm2", "izz_kgm2", "ixy_kgm2", "ixz_kgm2", "iyz_kgm2"}
 _ROTORS = {
     "arm_length_m",
@@ -206,6 +207,8 @@ class Airframe:
         drag_n_per_mps: (3,) linear drag in the body frame, F = −R diag(d) Rᵀ (v − wind) [N/(m/s)].
         se3: gains of the SE(3) controller.
         attitude: gains of the attitude controller.
+        max_touchdown_speed_mps: the landing gear's limit: a touchdown whose vertical speed
+            relative to the surface exceeds it is a hard one.
     """
 
     name: str
@@ -221,6 +224,7 @@ class Airframe:
     drag_n_per_mps: np.ndarray
     se3: Se3Gains
     attitude: AttitudeGains
+    max_touchdown_speed_mps: float = 1.0
 
     @property
     def n_rotors(self) -> int:
@@ -329,6 +333,8 @@ class Airframe:
             drag_n_per_mps=drag,
             se3=se3,
             attitude=att,
+            max_touchdown_speed_mps=positive(d.get("max_touchdown_speed_mps", 1.0),
+                                             f"{prefix}.max_touchdown_speed_mps", upper=20.0),
         )
         usable = out.max_thrust_n * se3.thrust_max_fraction
         if usable <= mass * G_MPS2:

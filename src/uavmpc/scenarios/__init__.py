@@ -7,13 +7,27 @@ with errors that name the field, e.g. ``uavs[2].priority: duplicate of uavs[0]``
     duration_s = 60.0
     [link]       latency_s, jitter_s, loss, range_m (0 = unlimited)
     [avoidance]  any AvoidanceParams field (defaults: the reference design)
+    [limits]     any DynamicLimits field: every UAV's nominal limits (default: data/tracker.toml)
     [[uavs]]     id, priority, airframe, start = [x, y, z], heading_rad,
-                 goto = [x, y, z, heading]                       (one of)
-                 trajectory = { points = [[x, y, z, heading], ...], sample_period_s, start_s, loop }
+                 goto = [x, y, z, heading]                       (at most one of; none: hold
+                 trajectory = { points = [[x, y, z, heading], ...],    at the start)
+                                sample_period_s, start_s, loop }
+                 path = { waypoints = [[x, y, z], ...], speed_mps, start_s, sample_period_s }
+
+Field applications (SPEC §6) add their tables:
+
+    [ground_vehicle]  a car on a figure-eight track carrying a landing deck: speed_kmh,
+                      track_length_m, track_width_m, track_centre = [x, y], start_arc_m,
+                      deck_size_m, deck_height_m
+    [target_sensor]   the lander's fixes of the car: rate_hz, sigma_m, dropout
+    [landing]         uav = id, and any LandingParams field (uavmpc.missions.landing)
+    [formation]       leader, followers, spacing_m, shape, changes = [{ t_s, shape }, ...],
+                      transition_s, member_radius_m, heading_rad (uavmpc.missions.formation)
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
@@ -24,9 +38,14 @@ from typing import Any
 import numpy as np
 
 from uavmpc.config import ConfigError, positive, read_toml, reject_unknown, take
+from uavmpc.missions.formation import FormationSpec
+from uavmpc.missions.landing import LandingParams
+from uavmpc.plant.ground_vehicle import KMH, FigureEightTrack, GroundVehicle
 from uavmpc.reference import InvalidReferenceError, Reference
+from uavmpc.tracker.params import DynamicLimits
 
-BUILTIN = ("swap_through_static", "converge_center")
+BUILTIN = ("swap_through_static", "converge_center", "moving_target_landing",
+           "moving_target_landing_30kmh", "formation")
 _ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
 
 
@@ -57,6 +76,52 @@ class LinkSettings:
         )
 
 
+@dataclass(frozen=True)
+class TargetSensorSettings:
+    """Fixes of an observed target: rate, white noise per horizontal axis, dropout probability."""
+
+    rate_hz: float = 20.0
+    sigma_m: float = 0.3
+    dropout: float = 0.1
+
+    @classmethod
+    def from_dict(cls, t: dict[str, Any], prefix: str = "target_sensor") -> TargetSensorSettings:
+        if not isinstance(t, dict):
+            raise ConfigError(f"{prefix}: must be a table")
+        reject_unknown(t, {"rate_hz", "sigma_m", "dropout"}, prefix)
+        d = cls()
+        dropout = positive(t.get("dropout", d.dropout), f"{prefix}.dropout", upper=1.0,
+                           allow_zero=True)
+        if dropout >= 1.0:
+            raise ConfigError(f"{prefix}.dropout: must be < 1, got {dropout}")
+        return cls(rate_hz=positive(t.get("rate_hz", d.rate_hz), f"{prefix}.rate_hz",
+                                    upper=1000.0),
+                   sigma_m=positive(t.get("sigma_m", d.sigma_m), f"{prefix}.sigma_m",
+                                    upper=100.0, allow_zero=True),
+                   dropout=dropout)
+
+
+def _ground_vehicle(t: dict[str, Any], prefix: str = "ground_vehicle") -> GroundVehicle:
+    if not isinstance(t, dict):
+        raise ConfigError(f"{prefix}: must be a table")
+    reject_unknown(t, {"speed_kmh", "track_length_m", "track_width_m", "track_centre",
+                       "start_arc_m", "deck_size_m", "deck_height_m"}, prefix)
+    centre = _vec(t.get("track_centre", [0.0, 0.0]), 2, f"{prefix}.track_centre")
+    track = FigureEightTrack(
+        positive(t.get("track_length_m", 90.0), f"{prefix}.track_length_m", upper=1e4),
+        positive(t.get("track_width_m", 60.0), f"{prefix}.track_width_m", upper=1e4),
+        (centre[0], centre[1]))
+    start_arc = t.get("start_arc_m", 0.0)
+    _vec([start_arc], 1, f"{prefix}.start_arc_m")
+    return GroundVehicle(
+        track, speed_mps=positive(t.get("speed_kmh", 15.0), f"{prefix}.speed_kmh", upper=200.0,
+                                  allow_zero=True) * KMH,
+        start_arc_m=float(start_arc),
+        deck_size_m=positive(t.get("deck_size_m", 1.5), f"{prefix}.deck_size_m", upper=100.0),
+        deck_height_m=positive(t.get("deck_height_m", 1.5), f"{prefix}.deck_height_m",
+                               upper=100.0, allow_zero=True))
+
+
 @dataclass(frozen=True, eq=False)
 class UavSpec:
     """One UAV of a scenario. ``mission`` is the desired trajectory (absolute times)."""
@@ -79,6 +144,13 @@ class Scenario:
     uavs: tuple[UavSpec, ...]
     link: LinkSettings = field(default_factory=LinkSettings)
     avoidance: dict[str, Any] = field(default_factory=dict)
+    #: DynamicLimits fields the scenario sets for every UAV (the others: the tracker set-up's).
+    limits: dict[str, float] = field(default_factory=dict)
+    ground_vehicle: GroundVehicle | None = None
+    target_sensor: TargetSensorSettings = field(default_factory=TargetSensorSettings)
+    #: (the lander's id, its manoeuvre), when a UAV lands on the ground vehicle.
+    landing: tuple[str, LandingParams] | None = None
+    formation: FormationSpec | None = None
 
 
 def _vec(value: Any, n: int, name: str) -> tuple[float, ...]:
@@ -97,7 +169,7 @@ def _vec(value: Any, n: int, name: str) -> tuple[float, ...]:
 def _uav(t: dict[str, Any], i: int) -> UavSpec:
     p = f"uavs[{i}]"
     reject_unknown(t, {"id", "priority", "airframe", "start", "heading_rad", "goto",
-                       "trajectory"}, p)
+                       "trajectory", "path"}, p)
     uav_id = take(t, "id", p)
     if not isinstance(uav_id, str) or not _ID.match(uav_id):
         raise ConfigError(f"{p}.id: must be 1–32 characters of [A-Za-z0-9_-], got {uav_id!r}")
@@ -112,10 +184,30 @@ def _uav(t: dict[str, Any], i: int) -> UavSpec:
         raise ConfigError(f"{p}.start[2]: must be ≥ 0 (ground), got {start[2]}")
     heading = t.get("heading_rad", 0.0)
     _vec([heading], 1, f"{p}.heading_rad")
-    if ("goto" in t) == ("trajectory" in t):
-        raise ConfigError(f"{p}: needs exactly one of 'goto' or 'trajectory'")
+    given = [k for k in ("goto", "trajectory", "path") if k in t]
+    if len(given) > 1:
+        raise ConfigError(f"{p}: at most one of 'goto', 'trajectory' or 'path', got "
+                          f"{' and '.join(given)}")
     try:
-        if "goto" in t:
+        if not given:  # hold at the start (e.g. until a mission says where to go)
+            goal = (*start, float(heading))
+            mission = Reference.goto(*goal)
+        elif "path" in t:
+            pt = t["path"]
+            if not isinstance(pt, dict):
+                raise ConfigError(f"{p}.path: must be a table")
+            reject_unknown(pt, {"waypoints", "speed_mps", "start_s", "sample_period_s"},
+                           f"{p}.path")
+            wps = take(pt, "waypoints", f"{p}.path")
+            if not isinstance(wps, list) or len(wps) < 2:
+                raise ConfigError(f"{p}.path.waypoints: must be a list of ≥ 2 [x, y, z]")
+            rows3 = [_vec(r, 3, f"{p}.path.waypoints[{k}]") for k, r in enumerate(wps)]
+            mission = Reference.along_path(
+                np.array(rows3), positive(take(pt, "speed_mps", f"{p}.path"),
+                                          f"{p}.path.speed_mps", upper=100.0),
+                pt.get("start_s", 0.0), pt.get("sample_period_s", 0.2))
+            goal = tuple(mission.points[-1])
+        elif "goto" in t:
             goal = _vec(t["goto"], 4, f"{p}.goto")
             mission = Reference.goto(*goal)
         else:
@@ -137,7 +229,8 @@ def _uav(t: dict[str, Any], i: int) -> UavSpec:
 
 def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:
     """Validate a parsed scenario table."""
-    reject_unknown(data, {"name", "duration_s", "link", "avoidance", "uavs"}, source)
+    reject_unknown(data, {"name", "duration_s", "link", "avoidance", "uavs", "limits",
+                          "ground_vehicle", "target_sensor", "landing", "formation"}, source)
     name = data.get("name", source)
     duration = positive(take(data, "duration_s", source), "duration_s", upper=7 * 24 * 3600.0)
     uavs_raw = take(data, "uavs", source)
@@ -158,7 +251,35 @@ def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:
     avoidance = data.get("avoidance", {})
     if not isinstance(avoidance, dict):
         raise ConfigError("avoidance: must be a table")
-    return Scenario(str(name), duration, uavs, link, dict(avoidance))
+    limits: dict[str, float] = {}
+    if "limits" in data:
+        if not isinstance(data["limits"], dict):
+            raise ConfigError("limits: must be a table")
+        limits = dict(data["limits"])
+        DynamicLimits.from_dict({**dataclasses.asdict(DynamicLimits()), **limits})  # validate
+    car = _ground_vehicle(data["ground_vehicle"]) if "ground_vehicle" in data else None
+    sensor = TargetSensorSettings.from_dict(data.get("target_sensor", {}))
+    landing = None
+    if "landing" in data:
+        table = data["landing"]
+        if not isinstance(table, dict):
+            raise ConfigError("landing: must be a table")
+        table = dict(table)
+        lander = take(table, "uav", "landing")
+        if lander not in seen_id:
+            raise ConfigError(f"landing.uav: {lander!r} is not a UAV of the scenario")
+        if car is None:
+            raise ConfigError("landing: needs a [ground_vehicle] to land on")
+        del table["uav"]
+        table.setdefault("deck_height_m", car.deck_height_m)
+        landing = (str(lander), LandingParams.from_dict(table))
+    formation = None
+    if "formation" in data:
+        formation = FormationSpec.from_dict(data["formation"], set(seen_id))
+        if landing is not None and landing[0] in formation.members:
+            raise ConfigError(f"formation: {landing[0]!r} cannot land and keep a slot")
+    return Scenario(str(name), duration, uavs, link, dict(avoidance), limits, car, sensor,
+                    landing, formation)
 
 
 def load(name_or_path: str | Path) -> Scenario:
