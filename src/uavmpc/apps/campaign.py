@@ -702,7 +702,7 @@ def _landing_command(args: argparse.Namespace) -> int:
           f"({100 * r['success_rate']:.0f} %); time to land p5 {fmt(t['p5'])}, "
           f"p50 {fmt(t['p50'])}, p95 {fmt(t['p95'])}, max {fmt(t['p100'])}; "
           f"{r['touchdowns_off_the_deck']} off the deck, {r['hard_touchdowns']} hard, "
-          f"{r['no_touchdown']} without touchdown")
+          f"{r['not_landed_in_time']} not landed in time")
     print(f"wrote {out}/report.json, trials.jsonl")
     return 0
 

@@ -41,7 +41,8 @@ def landing_trial(scenario: str, index: int, seed: int, speed_kmh: float | None,
     sc = dataclasses.replace(sc, ground_vehicle=moved)
     trial_seed = int(rng.integers(0, 2**31))
     s = World(sc, seed=trial_seed).run(duration_s).summary()
-    keep = ("landed", "time_to_land_s", "touchdown", "edge_strikes", "touchdowns",
+    keep = ("landed", "time_to_land_s", "touchdown", "landed_elsewhere", "edge_strikes",
+            "touchdowns",
             "on_deck_at_end", "phases_s", "aborts", "max_touchdown_speed_mps")
     return {"index": index, "seed": trial_seed, "start_arc_m": moved.start_arc_m,
             "speed_kmh": moved.speed_mps / KMH, "wall_s": s["wall_s"],
@@ -58,8 +59,10 @@ def landing_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
     landed = [t for t in trials if t["landed"]]
     times = [t["time_to_land_s"] for t in landed]
     touched = [t for t in trials if t["touchdown"] is not None]
-    off_deck = [t for t in touched if not t["on_deck_at_end"] or t["edge_strikes"]]
+    # Off the deck: a rotor struck its edge, or the motors were cut resting elsewhere.
+    off_deck = [t for t in trials if t["edge_strikes"] or t["landed_elsewhere"]]
     hard = [t for t in touched if t["touchdown"]["hard"]]
+    late = [t for t in trials if not t["landed"] and t not in off_deck and t not in hard]
     phases: dict[str, float] = {}
     for t in landed:
         for k, v in t["phases_s"].items():
@@ -77,6 +80,7 @@ def landing_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
         "touchdowns_off_the_deck": len(off_deck), "hard_touchdowns": len(hard),
         "edge_strikes": sum(t["edge_strikes"] for t in trials),
         "no_touchdown": n - len(touched),
+        "not_landed_in_time": len(late),
         "touchdown_vertical_speed_mps": {"p50": _pct(vz, 50), "max": max(vz, default=None)},
         "touchdown_offset_m": {"p50": _pct(off, 50), "max": max(off, default=None)},
         "mean_phase_s_of_landed": {k: round(v, 2) for k, v in phases.items()},

@@ -34,6 +34,7 @@ import numpy as np
 
 from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
+from uavmpc.config import ConfigError
 from uavmpc.drivers.node import warm_up
 from uavmpc.drivers.world import COLLISION_DISTANCE_M, GOAL_TOLERANCE_M
 from uavmpc.log import FlightRecorder
@@ -122,6 +123,14 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
+    if scenario.landing is not None or scenario.formation is not None \
+            or scenario.ground_vehicle is not None or scenario.limits:
+        what = ", ".join(k for k, v in (("[landing]", scenario.landing),
+                                         ("[formation]", scenario.formation),
+                                         ("[ground_vehicle]", scenario.ground_vehicle),
+                                         ("[limits]", scenario.limits)) if v)
+        raise ConfigError(f"{scenario.name}: {what} need the simulated world; node processes "
+                          f"do not run them yet (fly it with: uavmpc run {scenario.name})")
     duration = scenario.duration_s if duration_s is None else float(duration_s)
     auth_key = load_key(key_file) if key_file else None
     out.mkdir(parents=True, exist_ok=True)

@@ -512,8 +512,10 @@ class World:
         fixes = u.sensor.fixes_until(now) if u.sensor is not None else ()
         if u.clock_offset_s and fixes:
             fixes = [f._replace(t_s=f.t_s + u.clock_offset_s) for f in fixes]
-        out = u.mission.step(MissionInput(own, estimate, u.plant.landed, u.stack.inbox.latest,
-                                          fixes))
+        # The land detector: resting, or the landing gear's contact switch on the deck's top
+        # (cutting the motors at first contact keeps a UAV from sliding across the deck).
+        touching = u.plant.landed or u.plant.deck_touch().on_deck
+        out = u.mission.step(MissionInput(own, estimate, touching, u.stack.inbox.latest, fixes))
         if out.cut_motors:
             if not u.motors_cut:
                 u.motors_cut = True

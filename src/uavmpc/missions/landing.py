@@ -46,6 +46,8 @@ from uavmpc.reference import Reference
 __all__ = ["LandingMission", "LandingParams", "Phase", "landing_outcome"]
 
 
+#: While coming down the mission is stepped at the control rate, to react to the contact.
+CONTACT_PERIOD_S = 0.01
 #: The approach's closing profile is tabulated at this step, for at most this many steps.
 _CLOSE_DT_S = 0.05
 _CLOSE_MAX = 4000
@@ -74,8 +76,9 @@ class LandingParams:
             for this long.
         descend_speed_mps: how fast the wanted height drops, down to ``flare_height_m``;
             touchdown_speed_mps: below it (the flare: a soft touchdown).
-        commit_height_m: below this height a descent is not aborted any more (climbing out
-            from a few centimetres would risk the deck's edge more than finishing).
+        commit_height_m: below this height a descent is not aborted any more for the relative
+            speed or a turn (finishing is safer than climbing out from a few centimetres); it
+            still is when off the deck.
         sink_m: the wanted height's floor below the deck's top.
         abort_radius_m, abort_speed_mps: bounds that abort a descent.
         max_turn_rate_radps: no descent while the vehicle turns faster (estimated).
@@ -145,7 +148,6 @@ class LandingMission:
 
     def __init__(self, params: LandingParams | None = None) -> None:
         self.params = params if params is not None else LandingParams()
-        self.period_s = self.params.period_s
         self.filter = CtrvFilter(fix_sigma_m=self.params.fix_sigma_m)
         self.phase = Phase.WAIT
         self.transitions: list[tuple[float, str]] = []
@@ -153,6 +155,8 @@ class LandingMission:
         self._height_m = self.params.approach_height_m  # wanted height above the deck now
         self._synced_since: float | None = None
         self._last_s: float | None = None
+        #: When the UAV first came over the deck (within the synchronisation bounds).
+        self.first_over_deck_s: float | None = None
         #: The approach's closing offset: start time, direction (2,), remaining distance
         #: table (every _CLOSE_DT_S from the start).
         self._close: tuple[float, np.ndarray, np.ndarray] | None = None
@@ -160,18 +164,28 @@ class LandingMission:
         self._ahead_s = self.params.sample_period_s * np.arange(n)
 
     # ------------------------------------------------------------------ the mission
+    @property
+    def period_s(self) -> float:
+        """How often to step it: every control period while coming down (the contact must cut
+        the motors at once, or the UAV slides across the deck), else ``params.period_s``."""
+        if self.phase in (Phase.DESCEND, Phase.ABORT):
+            return CONTACT_PERIOD_S
+        return self.params.period_s
+
     def step(self, inp: MissionInput) -> MissionOutput:
         for fix in inp.fixes:
             self.filter.update(fix.t_s, fix.position_m)
         now = inp.t_s
-        dt = 0.0 if self._last_s is None else max(now - self._last_s, 0.0)
-        self._last_s = now
         if self.phase is Phase.LANDED:
             return MissionOutput(cut_motors=True)
         if inp.landed and self.phase in (Phase.DESCEND, Phase.ABORT):
-            # Resting on something while coming down (the deck, or the ground beside it): done.
+            # Touching something while coming down (the deck, or the ground beside it): done.
             self._enter(now, Phase.LANDED)
             return MissionOutput(cut_motors=True)
+        if self._last_s is not None and now < self._last_s + self.params.period_s - 1e-9:
+            return MissionOutput()  # between plans: only the contact was watched
+        dt = 0.0 if self._last_s is None else max(now - self._last_s, 0.0)
+        self._last_s = now
         if not self.filter.ready:
             return MissionOutput()
         car = self.filter.predict(np.array([now]))[0]
@@ -211,6 +225,9 @@ class LandingMission:
         turning = abs(car[4]) > prm.max_turn_rate_radps
         if self.phase is Phase.APPROACH:
             self._height_m = prm.approach_height_m
+            if self.first_over_deck_s is None and distance <= prm.sync_radius_m \
+                    and rel_speed <= prm.sync_speed_mps:
+                self.first_over_deck_s = now
             if self._closing_offset(np.array([now]))[0].any():
                 pass  # still closing in
             elif distance > prm.replan_distance_m:
@@ -227,7 +244,10 @@ class LandingMission:
             reason = ("off the deck" if distance > prm.abort_radius_m
                       else "relative speed" if rel_speed > prm.abort_speed_mps
                       else "sharp turn" if turning else None)
-            if reason is not None and self._height_m > prm.commit_height_m:
+            # Committed below commit_height_m to finish despite speed or a turn; never when
+            # off the deck (found in the campaign: a committed UAV went down beside it).
+            if reason is not None and (reason == "off the deck"
+                                       or self._height_m > prm.commit_height_m):
                 self.aborts[reason] = self.aborts.get(reason, 0) + 1
                 self._enter(now, Phase.ABORT)
             else:
@@ -311,7 +331,10 @@ def landing_outcome(mission: LandingMission, touch: DeckTouch, max_touchdown_spe
     within ``max_touchdown_speed_mps``, the airframe's limit), no rotor struck the deck's edge,
     and the UAV still rests on the deck at the end. ``time_to_land_s`` runs from the start of
     the approach to that touchdown; ``phases_s`` says where the time went (until the
-    touchdown, else until ``end_s``, the end of the run)."""
+    touchdown, else until ``end_s``, the end of the run): ``closing`` from the start of the
+    approach until the UAV first came over the deck (within the synchronisation bounds),
+    ``approach`` the rest of the time spent approaching (holding synchronised, waiting out
+    turns, coming back after an abort), ``descend``, ``abort``."""
     start = mission.approach_started_s
     vz = None if touch.t_s is None else float(-touch.relative_velocity_mps[2])
     hard = vz is not None and vz > max_touchdown_speed_mps
@@ -326,6 +349,11 @@ def landing_outcome(mission: LandingMission, touch: DeckTouch, max_touchdown_spe
         t1 = min(nxt[0], end)
         if t1 > t0:
             phases[phase] = round(phases.get(phase, 0.0) + t1 - t0, 3)
+    over = mission.first_over_deck_s
+    if start is not None and "approach" in phases:
+        closing = (min(over, end) if over is not None else end) - start
+        phases["approach"] = round(phases["approach"] - closing, 3)
+        phases = {"closing": round(closing, 3), **phases}
     touchdown = None
     if touch.t_s is not None:
         rv = touch.relative_velocity_mps
@@ -338,7 +366,9 @@ def landing_outcome(mission: LandingMission, touch: DeckTouch, max_touchdown_spe
             "offset_from_centre_m": float(np.linalg.norm(touch.offset_m)),
             "hard": bool(hard),
         }
+    elsewhere = mission.phase is Phase.LANDED and not on_deck_at_end
     return {"landed": bool(landed), "time_to_land_s": t_land, "touchdown": touchdown,
+            "landed_elsewhere": bool(elsewhere),
             "touchdowns": touch.touchdowns, "edge_strikes": touch.strikes,
             "on_deck_at_end": bool(on_deck_at_end),
             "max_touchdown_speed_mps": float(max_touchdown_speed_mps),

@@ -29,7 +29,8 @@ class MissionInput:
     Attributes:
         t_s: the UAV's clock [s].
         estimate: its state estimate (ENU, SI).
-        landed: its land detector: resting on a surface (the ground, a deck).
+        landed: its land detector: resting on a surface (the ground, a deck), or touching
+            one (a contact switch on the landing gear).
         neighbours: the newest prediction per other UAV its inbox accepted (may be stale).
         fixes: target fixes received since the last step, oldest first.
     """

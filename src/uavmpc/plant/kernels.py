@@ -154,10 +154,11 @@ def rhs(
 DECK_ACTIVE, DECK_X, DECK_Y, DECK_Z, DECK_HEADING, DECK_VX, DECK_VY, DECK_YAW_RATE, DECK_HALF = \
     range(9)
 #: Touch record columns (``touch``): touchdowns, then the first one's time, relative velocity
-#: (3) and offset from the deck centre (along, across the deck's heading), edge strikes, and the
-#: contact now (:data:`FREE`, :data:`ON_TOP`, :data:`STRIKING`).
+#: (3) and offset from the deck centre (along, across the deck's heading), edge strikes, the
+#: contact now (:data:`FREE`, :data:`ON_TOP`, :data:`STRIKING`), and while resting on the deck
+#: 1.0 and where on it (along, across).
 (TOUCH_COUNT, TOUCH_T, TOUCH_VX, TOUCH_VY, TOUCH_VZ, TOUCH_ALONG, TOUCH_ACROSS, TOUCH_STRIKES,
- TOUCH_STATE) = range(9)
+ TOUCH_STATE, TOUCH_RESTING, TOUCH_REST_ALONG, TOUCH_REST_ACROSS) = range(12)
 FREE, ON_TOP, STRIKING = 0.0, 1.0, 2.0
 #: How far below the deck's top a vehicle over it may be found after a substep and still be on
 #: top (it came from above; deeper, it came through the side: a strike).
@@ -240,6 +241,8 @@ def deck_contact(x: np.ndarray, n: int, alloc: np.ndarray, phys: np.ndarray, dec
         state = ON_TOP if over and x[2] >= top - DECK_TOP_TOLERANCE_M else STRIKING
     before = touch[TOUCH_STATE]
     touch[TOUCH_STATE] = state
+    if state != ON_TOP:
+        touch[TOUCH_RESTING] = 0.0
     if state == STRIKING:
         if before != STRIKING:
             touch[TOUCH_STRIKES] += 1.0
@@ -263,7 +266,18 @@ def deck_contact(x: np.ndarray, n: int, alloc: np.ndarray, phys: np.ndarray, dec
     if x[5] < 0.0:
         x[5] = 0.0
     if _lifting(x, n, alloc, phys):
+        touch[TOUCH_RESTING] = 0.0
         return False
+    # Resting: it stays where it came to rest on the deck (integrating the carried motion
+    # would let it drift outwards in a turn, by the deck's acceleration within a step).
+    if touch[TOUCH_RESTING] == 0.0:
+        touch[TOUCH_RESTING] = 1.0
+        touch[TOUCH_REST_ALONG] = along
+        touch[TOUCH_REST_ACROSS] = across
+    a0 = touch[TOUCH_REST_ALONG]
+    a1 = touch[TOUCH_REST_ACROSS]
+    x[0] += (c * a0 - s * a1) - rx
+    x[1] += (s * a0 + c * a1) - ry
     _rest(x, vx, vy, wz)
     return True
 

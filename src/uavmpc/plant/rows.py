@@ -42,9 +42,9 @@ class PlantRows(NamedTuple):
         deck: (N, 9) the moving landing deck the row's contact knows, as it is at ``t_s``
             (columns ``DECK_*`` of :mod:`uavmpc.plant.kernels`): active flag, centre (3) [m],
             heading [rad], velocity (2) [m/s], yaw rate [rad/s], half side [m]; inactive = none.
-        touch: (N, 9) what the row did on the deck (columns ``TOUCH_*``): touchdowns, the first
+        touch: (N, 12) what the row did on the deck (columns ``TOUCH_*``): touchdowns, the first
             one's time [s], relative velocity (3) [m/s] and offset from the centre along and
-            across the deck [m], edge strikes, and the contact now.
+            across the deck [m], edge strikes, the contact now, and where it rests on the deck.
 
     Airframe constants (written once per row, :meth:`configure`):
         n_rotors: (N,) int64 rotor count n of the row.
@@ -88,7 +88,7 @@ class PlantRows(NamedTuple):
         return cls(
             x=np.zeros((n, N_RIGID + r)), ctrl=np.zeros((n, 7)), landed=np.zeros(n),
             t_s=np.zeros(n), wind_mps=np.zeros((n, 3)), armed=np.ones(n), deck=np.zeros((n, 9)),
-            touch=np.zeros((n, 9)), n_rotors=np.zeros(n, dtype=np.int64),
+            touch=np.zeros((n, 12)), n_rotors=np.zeros(n, dtype=np.int64),
             phys=np.zeros((n, 8)), inertia=np.zeros((n, 3, 3)), inertia_inv=np.zeros((n, 3, 3)),
             alloc=np.zeros((n, 4, r)), att_gains=np.zeros((n, 7, 3)), mix_inv=np.zeros((n, r, 4)),
             lo=np.zeros(n), hi=np.zeros(n), substep_s=np.zeros(n),
