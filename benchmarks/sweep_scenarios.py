@@ -21,7 +21,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10)
     args = parser.parse_args()
     rows = []
-    for name in scenarios.BUILTIN:
+    for name in scenarios.CONFLICTS:
         for link_name, link in LINKS.items():
             for avoidance in (False, True):
                 runs = [World(scenarios.load(name), avoidance=avoidance, seed=seed,

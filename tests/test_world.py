@@ -20,7 +20,7 @@ def _run(name: str, avoidance: bool, seed: int = 0, link: LinkSettings | None = 
     return World(scenarios.load(name), avoidance=avoidance, seed=seed, link=link).run()
 
 
-@pytest.mark.parametrize("name", scenarios.BUILTIN)
+@pytest.mark.parametrize("name", scenarios.CONFLICTS)
 def test_scenario_collides_without_avoidance(name: str) -> None:
     s = _run(name, avoidance=False).summary()
     assert s["collisions"], "the scenario must be a real conflict"
@@ -28,7 +28,7 @@ def test_scenario_collides_without_avoidance(name: str) -> None:
     assert all(u["max_z_offset_m"] == 0.0 for u in s["uavs"].values())
 
 
-@pytest.mark.parametrize("name", scenarios.BUILTIN)
+@pytest.mark.parametrize("name", scenarios.CONFLICTS)
 @pytest.mark.parametrize("link", [None, LinkSettings(latency_s=0.2, jitter_s=0.02, loss=0.3)],
                          ids=["ideal-link", "30%-loss-200ms"])
 def test_scenario_is_collision_free_with_avoidance(name: str, link: LinkSettings | None) -> None:

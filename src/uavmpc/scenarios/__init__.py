@@ -44,8 +44,11 @@ from uavmpc.plant.ground_vehicle import KMH, FigureEightTrack, GroundVehicle
 from uavmpc.reference import InvalidReferenceError, Reference
 from uavmpc.tracker.params import DynamicLimits
 
-BUILTIN = ("swap_through_static", "converge_center", "moving_target_landing",
-           "moving_target_landing_30kmh", "formation")
+#: The built-in conflicts: UAVs whose paths collide without avoidance (SPEC §6).
+CONFLICTS = ("swap_through_static", "converge_center")
+#: The built-in field applications (uavmpc.missions).
+APPLICATIONS = ("moving_target_landing", "moving_target_landing_30kmh", "formation")
+BUILTIN = CONFLICTS + APPLICATIONS
 _ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
 
 
