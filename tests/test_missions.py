@@ -374,6 +374,35 @@ def test_target_fixes_come_at_their_rate_with_their_noise_and_dropouts() -> None
 def test_node_processes_refuse_scenarios_whose_missions_only_the_world_runs(tmp_path) -> None:
     from uavmpc.drivers.swarm import run_swarm
 
-    for name in ("formation", "moving_target_landing"):
+    for name in ("moving_target_landing", "moving_target_landing_30kmh"):
         with pytest.raises(ConfigError, match=f"need the simulated world.*uavmpc run {name}"):
             run_swarm(scenarios.load(name), tmp_path)
+
+
+def test_a_formation_of_node_processes_over_zenoh(tmp_path) -> None:
+    """The same follower mission in real node processes: slots from the leader's plans as they
+    arrive over Zenoh, a shape change on the swarm's wall clock."""
+    from uavmpc.drivers.swarm import run_swarm
+
+    sc = scenarios.from_dict({
+        "name": "formation_nodes", "duration_s": 22.0,
+        "formation": {"leader": "lead", "followers": ["w1", "w2"], "spacing_m": 6.0,
+                      "changes": [{"t_s": 10.0, "shape": "square"}], "transition_s": 5.0},
+        "uavs": [
+            {"id": "lead", "priority": 1, "start": [0.0, 0.0, 5.0],
+             "path": {"waypoints": [[0.0, 0.0, 5.0], [60.0, 0.0, 5.0]], "speed_mps": 3.0,
+                      "start_s": 2.0}},
+            {"id": "w1", "priority": 2, "start": [0.0, -6.0, 5.0]},
+            {"id": "w2", "priority": 3, "start": [0.0, -12.0, 5.0]},
+        ]})
+    s = run_swarm(sc, tmp_path)
+    assert s["collisions"] == []
+    fe = s["formation_error_m"]
+    assert fe is not None and set(fe["per_follower"]) == {"w1", "w2"}
+    assert fe["rms"] < 0.5, fe
+    ends = {u: np.array(s["uavs"][u]["final_position_m"]) for u in ("lead", "w1", "w2")}
+    # After the change (square, three members): w1 behind the leader, w2 to its right.
+    assert ends["lead"][0] > 45.0
+    assert np.allclose(ends["w1"][:2], ends["lead"][:2] + np.array([-6.0, 0.0]), atol=1.0)
+    assert np.allclose(ends["w2"][:2], ends["lead"][:2] + np.array([0.0, -6.0]), atol=1.0)
+    assert s["uavs"]["w1"]["reached_goal"] is None

@@ -6,11 +6,14 @@ Every loader names the offending field in its error, e.g. ``limits.horizontal_sp
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 class ConfigError(ValueError):
@@ -64,3 +67,12 @@ def reject_unknown(table: dict[str, Any], known: set[str], prefix: str) -> None:
     if unknown:
         names = ", ".join(sorted(known))
         raise ConfigError(f"{prefix}.{unknown[0]}: unknown field (known: {names})")
+
+
+def from_table(cls: type[T], table: Any, prefix: str) -> T:
+    """The dataclass ``cls`` from a TOML table: missing fields take their defaults, unknown
+    ones are errors naming ``prefix.field``; the dataclass validates the values."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{prefix}: must be a table")
+    reject_unknown(table, {f.name for f in dataclasses.fields(cls)}, prefix)  # type: ignore[arg-type]
+    return cls(**table)

@@ -171,6 +171,23 @@ def _node(args: argparse.Namespace) -> int:
     except (OSError, KeyError, ValueError, InvalidReferenceError) as exc:
         print(f"uavmpc node: bad mission: {exc}", file=sys.stderr)
         return 2
+    formation_mission = None
+    pair_radius: dict[str, float] = {}
+    if args.formation:
+        from uavmpc.missions.formation import FormationFollower, load_formation
+
+        spec = load_formation(args.formation)
+        if args.id not in spec.members:
+            print(f"uavmpc node: --formation: {args.id!r} is not a member of the formation "
+                  f"({', '.join(spec.members)})", file=sys.stderr)
+            return 2
+        pair_radius = {m: spec.member_radius_m for m in spec.members if m != args.id}
+        if args.id in spec.followers:
+            if mission is not None:
+                print("uavmpc node: a follower flies its slot: no --goto or --mission-file",
+                      file=sys.stderr)
+                return 2
+            formation_mission = FormationFollower(spec, args.id)
     vehicle = None
     lost: tuple[type[Exception], ...] = ()
     if args.mavlink:
@@ -200,7 +217,8 @@ def _node(args: argparse.Namespace) -> int:
                         connect=args.connect or []) as transport:
         node = Node(args.id, args.priority, airframe, transport, start_m=args.start,
                     heading_rad=args.heading, avoidance=not args.no_avoidance, key=key,
-                    vehicle=vehicle, ros2=topics)
+                    vehicle=vehicle, ros2=topics, mission=formation_mission,
+                    pair_radius_m=pair_radius)
         if mission is not None:
             node.set_mission(mission)
         try:
@@ -268,7 +286,7 @@ def _swarm(args: argparse.Namespace) -> int:
     for uav, u in s["uavs"].items():
         node = u["node"]
         line = (f"  {uav}: climbed {u['max_z_offset_m']:.0f} m, "
-                f"{'reached' if u['reached_goal'] else 'MISSED'} its goal, tracking RMSE "
+                f"{_goal_words(u['reached_goal'])}, tracking RMSE "
                 f"{u['tracking_rmse_m'] or float('nan'):.3f} m; tick period p50 "
                 f"{node.get('period_p50_ms', float('nan')):.2f} ms, "
                 f"p99 {node.get('period_p99_ms', float('nan')):.2f} ms")
@@ -278,6 +296,11 @@ def _swarm(args: argparse.Namespace) -> int:
                      + (f" ({px4['stop_reason']})" if px4.get("stop_reason") else "")
                      + f", setpoints p99 {px4.get('setpoint_period_p99_ms', 0.0):.2f} ms")
         print(line)
+    fe = s.get("formation_error_m")
+    if fe:
+        per = ", ".join(f"{k} {v['rms']:.2f}/{v['max']:.2f}" for k, v in fe["per_follower"].items())
+        print(f"  formation error (from {s['formation']['measured_from_s']:g} s): rms "
+              f"{fe['rms']:.2f} m, max {fe['max']:.2f} m (rms/max: {per})")
     print(f"wrote {out}/summary.json, flight.mcap, min_distance.png")
     return 0
 
@@ -424,6 +447,9 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument("--goto", type=float, nargs=4, metavar=("X", "Y", "Z", "HEADING"),
                       help="initial mission: fly to this point")
     node.add_argument("--mission-file", help="initial mission: JSON {times_s, points, loop}")
+    node.add_argument("--formation", metavar="FILE",
+                      help="fly as a member of this formation (a [formation] table, TOML or "
+                           "JSON): a follower flies its slot along the leader's plans")
     node.add_argument("--no-avoidance", action="store_true")
     node.add_argument("--key-file", help="shared key: sign predictions, drop unsigned ones")
     node.add_argument("--duration", type=float, default=None,

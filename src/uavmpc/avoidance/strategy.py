@@ -23,7 +23,7 @@ import numpy as np
 
 from uavmpc.avoidance.proximity import near_and_dz
 from uavmpc.comms.message import PredictionMessage
-from uavmpc.config import ConfigError, positive, reject_unknown
+from uavmpc.config import ConfigError, from_table, positive
 
 #: Sanity bounds: beyond any multirotor scenario, small enough to catch unit mistakes.
 MAX_DISTANCE_M = 1000.0
@@ -110,10 +110,7 @@ class AvoidanceParams:
     @classmethod
     def from_dict(cls, table: dict[str, Any], prefix: str = "avoidance") -> AvoidanceParams:
         """From a TOML table; missing fields take their defaults, unknown ones are errors."""
-        if not isinstance(table, dict):
-            raise ConfigError(f"{prefix}: must be a table")
-        reject_unknown(table, {f.name for f in fields(cls)}, prefix)
-        return cls(**table)
+        return from_table(cls, table, prefix)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,10 @@ which takes off from the ground, flies the mission, lands and disarms):
   when a key is configured);
 - at ``state_rate_hz``: publish its state (JSON) on ``uavmpc/<swarm>/<id>/state``;
 - any time: accept a new mission (JSON, validated) on ``uavmpc/<swarm>/<id>/mission`` or from
-  Python (:meth:`Node.set_mission`).
+  Python (:meth:`Node.set_mission`);
+- or fly a :class:`~uavmpc.missions.mission.Mission` beside the stack (e.g. a formation
+  follower's slot along its leader's received plans), stepped at its period once the vehicle
+  is ours to fly; such a node takes its trajectory from the mission only.
 
 Clocks: stamps are Unix time (``time.time()``), as GNSS-synchronised UAVs would have; on one host
 they are synchronised by construction.
@@ -23,7 +26,7 @@ import json
 import signal
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -32,6 +35,7 @@ import numpy as np
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.link import Transport
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
+from uavmpc.missions.mission import Mission, MissionInput
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
@@ -209,6 +213,8 @@ class Node:
         phase_s: float = 0.0,
         vehicle: VehicleDriver | None = None,
         ros2: Any = None,
+        mission: Mission | None = None,
+        pair_radius_m: Mapping[str, float] | None = None,
     ) -> None:
         self.uav_id = uav_id
         self.priority = priority
@@ -222,6 +228,11 @@ class Node:
         self.vehicle: VehicleDriver | None = vehicle
         #: The UAV's ROS 2 topics (:class:`uavmpc.comms.ros2.UavTopics`), or None.
         self.ros2 = ros2
+        #: A mission stepped beside the stack (then the only source of its trajectory), and
+        #: per-pair avoidance radii (e.g. the formation's members).
+        self.mission = mission
+        self.pair_radius_m = dict(pair_radius_m or {})
+        self._next_mission_s = 0.0
         self._ros2_ticks = 0
         self._missions = transport.subscribe(f"{uav_id}/mission", maxlen=16)
         self._pending_mission: Reference | None = None
@@ -246,7 +257,8 @@ class Node:
         self.stack = OnboardStack(
             self.airframe, position_m=first.position_m, heading_rad=heading, t0_s=now,
             uav_id=self.uav_id, priority=self.priority,
-            avoidance=HeightOffsetStrategy(self.params) if self.avoidance else None,
+            avoidance=(HeightOffsetStrategy(self.params, pair_radius_m=self.pair_radius_m)
+                       if self.avoidance else None),
             params=self.params, key=self.key, broadcast_phase_s=self.phase_s)
         # Hold where it is until it may fly (a mission starting later keeps this before).
         self.stack.set_mission(Reference.goto(*first.position_m, heading, start_s=now))
@@ -299,6 +311,9 @@ class Node:
                 if vehicle.flying and not self._launched:
                     self._launch(now, state)
                 self._take_missions(now)
+                if self.mission is not None and self._launched and vehicle.flying \
+                        and landing_until is None and now >= self._next_mission_s:
+                    self._step_mission(now, state)
                 if commanded and not vehicle.commanding and fresh is not None \
                         and ticks % 10 == 0:
                     stack.follow(now, fresh)  # no longer ours: say what it really does
@@ -377,9 +392,20 @@ class Node:
             np.array([[x, y, z, heading], [x, y, min(z, flare), heading],
                       [x, y, ground - LANDING_DEPTH_M, heading]])))
 
+    def _step_mission(self, now: float, state: VehicleState) -> None:
+        assert self.mission is not None and self.stack is not None
+        self._next_mission_s = now + self.mission.period_s
+        out = self.mission.step(MissionInput(now, state, False, self.stack.inbox.latest))
+        if out.reference is not None:
+            self.stack.set_mission(out.reference)
+        if out.cut_motors:  # a node lands instead: its vehicle's landing is the safe cut
+            self.stop()
+
     def _take_missions(self, now: float) -> None:
         for _key, payload in self._missions.drain(4):
             try:
+                if self.mission is not None:
+                    raise ValueError("this UAV flies its mission (e.g. a formation slot)")
                 ref = parse_mission(payload, now)
             except (InvalidReferenceError, ValueError, TypeError):
                 self.stats.missions_rejected += 1

@@ -17,6 +17,7 @@ monitor keeps watching until every node has landed.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -36,8 +37,9 @@ from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
 from uavmpc.config import ConfigError
 from uavmpc.drivers.node import warm_up
-from uavmpc.drivers.world import COLLISION_DISTANCE_M, GOAL_TOLERANCE_M
+from uavmpc.drivers.world import COLLISION_DISTANCE_M, FORMATION_SETTLE_S, GOAL_TOLERANCE_M
 from uavmpc.log import FlightRecorder
+from uavmpc.missions.formation import formation_error, formation_table
 from uavmpc.plant import Airframe
 from uavmpc.scenarios import Scenario
 
@@ -63,15 +65,18 @@ def free_ports(n: int) -> list[int]:
 
 
 def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
-                 mission_file: Path, avoidance: bool, duration_s: float,
+                 mission_file: Path | None, avoidance: bool, duration_s: float,
                  key_file: str | None = None, mavlink: str | None = None,
-                 setpoints: str = "attitude", ros2: str | None = None) -> list[str]:
+                 setpoints: str = "attitude", ros2: str | None = None,
+                 formation_file: Path | None = None) -> list[str]:
     """The ``uavmpc node`` command line of one UAV of a scenario."""
     cmd = [sys.executable, "-m", "uavmpc.apps.cli", "node", "--id", spec.uav_id,
            "--priority", str(spec.priority), "--airframe", spec.airframe,
            "--swarm", swarm, "--listen", listen,
            "--start", *(repr(v) for v in spec.start_m), "--heading", repr(spec.heading_rad),
-           "--mission-file", str(mission_file), "--duration", repr(duration_s)]
+           "--duration", repr(duration_s)]
+    if mission_file is not None:
+        cmd += ["--mission-file", str(mission_file)]
     for ep in connect:
         cmd += ["--connect", ep]
     if not avoidance:
@@ -80,6 +85,8 @@ def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
         cmd += ["--key-file", key_file]
     if ros2:
         cmd += ["--ros2", ros2]
+    if formation_file is not None:
+        cmd += ["--formation", str(formation_file)]
     if mavlink:
         ground = (*spec.start_m[:2], 0.0)
         cmd += ["--mavlink", mavlink, "--setpoints", setpoints,
@@ -93,6 +100,28 @@ def sitl_command(spec: Any, address: str) -> list[str]:
     return [sys.executable, "-m", "uavmpc.apps.cli", "sitl", "--connect", address,
             "--airframe", spec.airframe, "--position", repr(spec.start_m[0]),
             repr(spec.start_m[1]), "0.0", "--heading", repr(spec.heading_rad)]
+
+
+def _formation_summary(spec: Any, tracks: dict[str, list[tuple[float, np.ndarray]]],
+                       epoch: float, duration_s: float) -> dict[str, Any]:
+    """The formation error from the states the monitor received: every member's track
+    resampled at 20 Hz from FORMATION_SETTLE_S after the epoch to the end of the mission."""
+    grid = epoch + np.arange(FORMATION_SETTLE_S, duration_s, 0.05)
+    positions = {}
+    for m in spec.members:
+        if len(tracks[m]) < 2:
+            return {"formation_error_m": None}
+        t = np.array([x[0] for x in tracks[m]])
+        p = np.array([x[1] for x in tracks[m]])
+        order = np.argsort(t)
+        positions[m] = np.column_stack([np.interp(grid, t[order], p[order, k])
+                                        for k in range(3)])
+    err = formation_error(dataclasses.replace(spec, changes=tuple(
+        (t + epoch, shape) for t, shape in spec.changes)), grid, positions)
+    err.pop("series_m")
+    return {"formation_error_m": err,
+            "formation": {"leader": spec.leader, "followers": list(spec.followers),
+                          "measured_from_s": FORMATION_SETTLE_S}}
 
 
 def _last_json_line(p: subprocess.Popen[str]) -> dict[str, Any]:
@@ -123,10 +152,8 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
-    if scenario.landing is not None or scenario.formation is not None \
-            or scenario.ground_vehicle is not None or scenario.limits:
+    if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
         what = ", ".join(k for k, v in (("[landing]", scenario.landing),
-                                         ("[formation]", scenario.formation),
                                          ("[ground_vehicle]", scenario.ground_vehicle),
                                          ("[limits]", scenario.limits)) if v)
         raise ConfigError(f"{scenario.name}: {what} need the simulated world; node processes "
@@ -163,24 +190,34 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     min_d = math.inf
     trace_t: list[float] = []
     trace_d: list[float] = []
+    formation = scenario.formation
+    formation_file = None
+    if formation is not None:  # its shape changes on the wall clock of the epoch
+        formation_file = Path(tmp.name) / "formation.json"
+        formation_file.write_text(json.dumps(formation_table(formation, epoch)))
+    tracks: dict[str, list[tuple[float, np.ndarray]]] = {u: [] for u in ids}
     try:
         for i, spec in enumerate(scenario.uavs):
             mission = Path(tmp.name) / f"{spec.uav_id}.json"
-            mission.write_text(json.dumps({
-                "times_s": (spec.mission.times_s + epoch).tolist(),
-                "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
+            follower = formation is not None and spec.uav_id in formation.followers
+            if not follower:  # a follower's trajectory comes from its slot only
+                mission.write_text(json.dumps({
+                    "times_s": (spec.mission.times_s + epoch).tolist(),
+                    "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
             address = None
             if mavlink:
                 address = f"udp://127.0.0.1:{mav_ports[i]}"
                 sitls[spec.uav_id] = subprocess.Popen(
                     sitl_command(spec, f"udpout://127.0.0.1:{mav_ports[i]}"),
                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            member = formation is not None and spec.uav_id in formation.members
             cmd = node_command(spec, swarm=swarm, listen=endpoints[i],
                                connect=[] if i == 0 else [endpoints[0]],
-                               mission_file=mission, avoidance=avoidance,
+                               mission_file=None if follower else mission,
+                               avoidance=avoidance,
                                duration_s=duration + (epoch - time.time()) + 1.0,
                                key_file=key_file, mavlink=address, setpoints=setpoints,
-                               ros2=ros2)
+                               ros2=ros2, formation_file=formation_file if member else None)
             procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
         meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
                 "vehicle": "PX4 stand-in over MAVLink" if mavlink else "simulated plant"}
@@ -203,6 +240,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                         continue
                     latest[uav] = p
                     last_state[uav] = s
+                    tracks[uav].append((float(s["t"]), p))
                     offsets[uav] = max(offsets[uav], float(s.get("z_offset", 0.0)))
                     rec.pose(uav, "state", float(s["t"]), p, float(s.get("heading", 0.0)))
                     rec.pose(uav, "command", float(s["t"]), np.array(s["cmd"]), 0.0)
@@ -265,7 +303,8 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
             "max_z_offset_m": offsets[uav],
             "avoidance_active_s": st.get("avoidance_active_s"),
             "tracking_rmse_m": st.get("tracking_rmse_m"),
-            "reached_goal": bool(np.linalg.norm(judged - goals[uav]) < GOAL_TOLERANCE_M),
+            "reached_goal": (None if formation is not None and uav in formation.followers
+                             else bool(np.linalg.norm(judged - goals[uav]) < GOAL_TOLERANCE_M)),
             "mission_end_position_m": np.asarray(judged).tolist(),
             "final_position_m": final.tolist(),
             "last_state": last_state.get(uav, {}),
@@ -283,6 +322,8 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
         "uavs": uavs,
         "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
     }
+    if formation is not None:
+        summary.update(_formation_summary(formation, tracks, epoch, duration))
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if trace_t and on_trace is not None:
         on_trace(trace_t, trace_d)

@@ -25,18 +25,21 @@ any other.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from uavmpc.config import ConfigError, positive, reject_unknown, take
+from uavmpc.config import ConfigError, positive, read_toml, reject_unknown, take
 from uavmpc.missions.mission import MissionInput, MissionOutput
 from uavmpc.reference import InvalidReferenceError, Reference
 
-__all__ = ["SHAPES", "FormationFollower", "FormationSpec", "extend_plan", "formation_frame",
-           "slot_offsets", "slot_positions"]
+__all__ = ["SHAPES", "FormationFollower", "FormationSpec", "extend_plan", "formation_error",
+           "formation_frame", "formation_table", "load_formation", "slot_offsets",
+           "slot_positions"]
 
 SHAPES = ("line", "square")
 #: Below this speed the direction of travel is not used (the last one is kept).
@@ -165,7 +168,8 @@ class FormationSpec:
             if not isinstance(c, dict):
                 raise ConfigError(f"{p}: must be a table {{ t_s, shape }}")
             reject_unknown(c, {"t_s", "shape"}, p)
-            at = positive(take(c, "t_s", p), f"{p}.t_s", upper=7 * 24 * 3600.0, allow_zero=True)
+            # Scenario times, or absolute ones on a swarm's wall clock (Unix time).
+            at = positive(take(c, "t_s", p), f"{p}.t_s", upper=1e10, allow_zero=True)
             if changes and at <= changes[-1][0]:
                 raise ConfigError(f"{p}.t_s: changes must be in time order")
             s = take(c, "shape", p)
@@ -191,6 +195,36 @@ class FormationSpec:
                    member_radius_m=radius, heading_rad=float(heading),
                    period_s=positive(t.get("period_s", d.period_s), f"{prefix}.period_s",
                                      upper=10.0))
+
+
+def load_formation(path: str | Path) -> FormationSpec:
+    """A formation from a file: JSON (as ``uavmpc swarm`` writes for its nodes) or TOML, the
+    ``[formation]`` table's fields at the top level or under ``[formation]``."""
+    p = Path(path)
+    if p.suffix == ".json":
+        try:
+            data = json.loads(p.read_text())
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{p}: {exc}") from None
+    else:
+        data = read_toml(p)
+    if isinstance(data, dict) and "formation" in data:
+        data = data["formation"]
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: must hold a formation table")
+    members = {data.get("leader"), *(data.get("followers") or [])}
+    return FormationSpec.from_dict(data, {m for m in members if isinstance(m, str)},
+                                   prefix=f"{p.name}: formation")
+
+
+def formation_table(spec: FormationSpec, shift_s: float = 0.0) -> dict[str, Any]:
+    """``spec`` as a ``[formation]`` table (JSON-serialisable), its shape changes' times moved
+    by ``shift_s`` (e.g. onto the wall clock of a swarm's epoch)."""
+    return {"leader": spec.leader, "followers": list(spec.followers),
+            "spacing_m": spec.spacing_m, "shape": spec.shape,
+            "changes": [{"t_s": t + shift_s, "shape": shape} for t, shape in spec.changes],
+            "transition_s": spec.transition_s, "member_radius_m": spec.member_radius_m,
+            "heading_rad": spec.heading_rad, "period_s": spec.period_s}
 
 
 class FormationFollower:

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from uavmpc.config import ConfigError, positive, reject_unknown
+from uavmpc.config import ConfigError, from_table, positive
 from uavmpc.missions.mission import MissionInput, MissionOutput
 from uavmpc.missions.target_tracking import CtrvFilter
 from uavmpc.plant.ground_vehicle import DeckTouch
@@ -130,10 +130,8 @@ class LandingParams:
 
     @classmethod
     def from_dict(cls, table: dict[str, Any], prefix: str = "landing") -> LandingParams:
-        if not isinstance(table, dict):
-            raise ConfigError(f"{prefix}: must be a table")
-        reject_unknown(table, {f.name for f in fields(cls)}, prefix)
-        return cls(**table)
+        """From a TOML table; missing fields take their defaults, unknown ones are errors."""
+        return from_table(cls, table, prefix)
 
 
 class LandingMission:

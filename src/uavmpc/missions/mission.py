@@ -5,7 +5,8 @@ state estimate, its land detector, the newest prediction of every other UAV its 
 (the same messages the avoidance uses), and the fixes of any target it observes. It answers
 with a new desired trajectory for the tracker, or none (keep flying the current one), and may
 cut the motors once landed. It never touches the stack itself, so the same mission runs in the
-simulated world and on a node.
+simulated world (:class:`~uavmpc.drivers.world.World`) and on a node
+(:class:`~uavmpc.drivers.node.Node`).
 """
 
 from __future__ import annotations

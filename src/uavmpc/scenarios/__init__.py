@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from uavmpc.config import ConfigError, positive, read_toml, reject_unknown, take
+from uavmpc.config import ConfigError, from_table, positive, read_toml, reject_unknown, take
 from uavmpc.missions.formation import FormationSpec
 from uavmpc.missions.landing import LandingParams
 from uavmpc.plant.ground_vehicle import KMH, FigureEightTrack, GroundVehicle
@@ -81,27 +81,26 @@ class LinkSettings:
 
 @dataclass(frozen=True)
 class TargetSensorSettings:
-    """Fixes of an observed target: rate, white noise per horizontal axis, dropout probability."""
+    """Fixes of an observed target: rate [Hz], white noise per horizontal axis [m], dropout
+    probability."""
 
     rate_hz: float = 20.0
     sigma_m: float = 0.3
     dropout: float = 0.1
 
+    def __post_init__(self) -> None:
+        p = "target_sensor"
+        object.__setattr__(self, "rate_hz", positive(self.rate_hz, f"{p}.rate_hz", upper=1000.0))
+        object.__setattr__(self, "sigma_m", positive(self.sigma_m, f"{p}.sigma_m", upper=100.0,
+                                                     allow_zero=True))
+        dropout = positive(self.dropout, f"{p}.dropout", upper=1.0, allow_zero=True)
+        if dropout >= 1.0:
+            raise ConfigError(f"{p}.dropout: must be < 1, got {dropout}")
+        object.__setattr__(self, "dropout", dropout)
+
     @classmethod
     def from_dict(cls, t: dict[str, Any], prefix: str = "target_sensor") -> TargetSensorSettings:
-        if not isinstance(t, dict):
-            raise ConfigError(f"{prefix}: must be a table")
-        reject_unknown(t, {"rate_hz", "sigma_m", "dropout"}, prefix)
-        d = cls()
-        dropout = positive(t.get("dropout", d.dropout), f"{prefix}.dropout", upper=1.0,
-                           allow_zero=True)
-        if dropout >= 1.0:
-            raise ConfigError(f"{prefix}.dropout: must be < 1, got {dropout}")
-        return cls(rate_hz=positive(t.get("rate_hz", d.rate_hz), f"{prefix}.rate_hz",
-                                    upper=1000.0),
-                   sigma_m=positive(t.get("sigma_m", d.sigma_m), f"{prefix}.sigma_m",
-                                    upper=100.0, allow_zero=True),
-                   dropout=dropout)
+        return from_table(cls, t, prefix)
 
 
 def _ground_vehicle(t: dict[str, Any], prefix: str = "ground_vehicle") -> GroundVehicle:
