@@ -181,7 +181,7 @@ def _node(args: argparse.Namespace) -> int:
             print(f"uavmpc node: --formation: {args.id!r} is not a member of the formation "
                   f"({', '.join(spec.members)})", file=sys.stderr)
             return 2
-        pair_radius = {m: spec.member_radius_m for m in spec.members if m != args.id}
+        pair_radius = spec.pair_radii(args.id)
         if args.id in spec.followers:
             if mission is not None:
                 print("uavmpc node: a follower flies its slot: no --goto or --mission-file",

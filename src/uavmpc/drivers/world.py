@@ -323,8 +323,7 @@ class World:
                         raise ConfigError(f"formation: the strategy {type(resolver).__name__} "
                                           "has no per-pair radii for the members")
                     resolver.pair_radius_m.update(  # type: ignore[attr-defined]
-                        {m: formation.member_radius_m for m in formation.members
-                         if m != spec.uav_id})
+                        formation.pair_radii(spec.uav_id))
             stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
                                  t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
                                  avoidance=resolver, params=params,

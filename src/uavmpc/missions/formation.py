@@ -123,6 +123,10 @@ class FormationSpec:
     def members(self) -> tuple[str, ...]:
         return (self.leader, *self.followers)
 
+    def pair_radii(self, uav_id: str) -> dict[str, float]:
+        """The avoidance cylinder radius member ``uav_id`` applies to each other member."""
+        return {m: self.member_radius_m for m in self.members if m != uav_id}
+
     def offsets_at(self, t_s: np.ndarray) -> np.ndarray:
         """(m, n, 3) every member's slot offset at each of the (m,) times, shape changes
         blended."""

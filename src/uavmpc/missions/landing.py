@@ -223,15 +223,14 @@ class LandingMission:
         turning = abs(car[4]) > prm.max_turn_rate_radps
         if self.phase is Phase.APPROACH:
             self._height_m = prm.approach_height_m
-            if self.first_over_deck_s is None and distance <= prm.sync_radius_m \
-                    and rel_speed <= prm.sync_speed_mps:
+            over = distance <= prm.sync_radius_m and rel_speed <= prm.sync_speed_mps
+            if over and self.first_over_deck_s is None:
                 self.first_over_deck_s = now
             if self._closing_offset(np.array([now]))[0].any():
                 pass  # still closing in
             elif distance > prm.replan_distance_m:
                 self._plan_closing(now, inp, car)
-            elif distance <= prm.sync_radius_m and rel_speed <= prm.sync_speed_mps \
-                    and not turning:
+            elif over and not turning:
                 if self._synced_since is None:
                     self._synced_since = now
                 if now - self._synced_since >= prm.sync_hold_s:
