@@ -198,3 +198,68 @@ def test_node_process_shuts_down_cleanly_on_signal(sig: str) -> None:
     assert proc.returncode == 0, err
     stats = json.loads(out.strip().splitlines()[-1])
     assert stats["uav_id"] == "solo" and stats["ticks"] > 100
+
+
+def test_a_follower_node_flies_its_slot_and_changes_shape_on_command() -> None:
+    """A formation follower in a node: its slot along the leader's plans received over Zenoh,
+    then a shape change sent while it flies (bad commands refused and counted)."""
+    import json
+
+    from uavmpc.missions.formation import FormationFollower, FormationSpec
+
+    spec = FormationSpec(leader="lead", followers=("f1",), spacing_m=6.0, transition_s=2.0)
+    ports = free_ports(2)
+    swarm = f"t{ports[0]}"
+    eps = [f"tcp/127.0.0.1:{p}" for p in ports]
+    node_tx = ZenohTransport("f1", swarm=swarm, listen=[eps[0]])
+    lead = ZenohTransport("lead", swarm=swarm, listen=[eps[1]], connect=[eps[0]])
+    node = Node("f1", 2, Airframe.packaged("f550"), node_tx, start_m=(0.0, -6.0, 5.0),
+                mission=FormationFollower(spec, "f1"), pair_radius_m=spec.pair_radii("f1"))
+    thread = threading.Thread(target=node.run, args=(14.0,), daemon=True)
+    thread.start()
+
+    def leader_at(t: float) -> np.ndarray:  # east at 1 m/s from x = 0 at t0
+        return np.array([max(t - t0, 0.0) * 1.0, 0.0, 5.0])
+
+    def slot_now() -> np.ndarray:  # on the node's own clock (it may lag the wall clock)
+        t = node.stack.tracker.time_s
+        return node.stack.tracker.reference.sample(np.array([t]))[0, :3] - leader_at(t)
+
+    try:
+        t0 = time.time() + 1.0
+        next_send = time.time()
+        sent_bad = sent_square = False
+        seen: dict[str, np.ndarray] = {}
+        while time.time() < t0 + 11.0:
+            now = time.time()
+            if now >= next_send:  # the leader's plan, at 2 Hz
+                times = now + np.concatenate([[0.01], 0.01 + 0.2 * np.arange(1, 40)])
+                pos = np.array([leader_at(t) for t in times])
+                msg = PredictionMessage(1, "lead", 1, now, times, pos, True)
+                lead.publish(encode(msg), "lead", now)
+                next_send += 0.5
+            if now > t0 + 4.0 and "line" not in seen:
+                seen["line"] = slot_now()
+            if now > t0 + 4.5 and not sent_bad:
+                for bad in (b"{", b'{"shape": "vee"}', b'{"shape": "square", "at_s": "x"}'):
+                    lead.put("formation", bad)
+                sent_bad = True
+            if now > t0 + 5.0 and not sent_square:
+                cmd = json.dumps({"shape": "square", "at_s": now}).encode()
+                lead.put("formation", cmd)
+                lead.put("formation", cmd)  # a repeat is ignored
+                sent_square = True
+            if now > t0 + 10.0 and "square" not in seen:
+                seen["square"] = slot_now()
+            time.sleep(0.01)
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        lead.close()
+        node_tx.close()
+    # In the line: 6 m to the leader's right (heading east: −y); in the square (two deep):
+    # 6 m behind it.
+    assert np.allclose(seen["line"][:2], [0.0, -6.0], atol=0.3), seen
+    assert np.allclose(seen["square"][:2], [-6.0, 0.0], atol=0.3), seen
+    assert node.stats.missions_rejected == 3
+    assert node.mission.spec.changes[-1][1] == "square" and len(node.mission.spec.changes) == 1

@@ -305,6 +305,27 @@ def _swarm(args: argparse.Namespace) -> int:
     return 0
 
 
+def _formation_shape(args: argparse.Namespace) -> int:
+    from uavmpc.comms.zenoh_link import ZenohTransport
+    from uavmpc.missions.formation import SHAPES
+
+    if args.shape not in SHAPES:
+        print(f"uavmpc formation-shape: shape must be one of {', '.join(SHAPES)}",
+              file=sys.stderr)
+        return 2
+    if not (args.in_s >= 0.0 and args.in_s < 3600.0):
+        print("uavmpc formation-shape: --in must be in [0, 3600) s", file=sys.stderr)
+        return 2
+    payload = json.dumps({"shape": args.shape, "at_s": time.time() + args.in_s}).encode()
+    with ZenohTransport(args.id, swarm=args.swarm, connect=args.connect or []) as transport:
+        # Peers need a moment to find each other; the same command again is ignored.
+        for _ in range(3):
+            time.sleep(0.5)
+            transport.put("formation", payload)
+    print(f"sent: {args.shape} in {args.in_s:g} s to swarm {args.swarm!r}")
+    return 0
+
+
 def _export_bag(args: argparse.Namespace) -> int:
     from uavmpc.apps.bag import BagExportError, export_bag
 
@@ -504,6 +525,16 @@ def build_parser() -> argparse.ArgumentParser:
                        help="every node also appears on a ROS 2 graph through this Zenoh router "
                             "(rmw_zenohd, e.g. tcp/localhost:7447)")
     swarm.set_defaults(func=_swarm)
+    shape = sub.add_parser("formation-shape",
+                           help="tell a formation's followers (node processes) to change shape")
+    shape.add_argument("shape", help="line or square")
+    shape.add_argument("--swarm", default="default", help="swarm name (key prefix)")
+    shape.add_argument("--connect", action="append", help="a node's endpoint, e.g. "
+                                                          "tcp/10.0.0.2:7447")
+    shape.add_argument("--in", dest="in_s", type=float, default=0.0,
+                       help="start the change this many seconds from now (default 0)")
+    shape.add_argument("--id", default="ground", help="this sender's id (default ground)")
+    shape.set_defaults(func=_formation_shape)
     bag = sub.add_parser("export-bag", help="a run's flight.mcap as a rosbag2 (ROS 2 types, "
                                             "CDR, MCAP storage)")
     bag.add_argument("run_dir", help="a folder written by uavmpc run, demo or swarm")

@@ -233,6 +233,10 @@ class Node:
         self.mission = mission
         self.pair_radius_m = dict(pair_radius_m or {})
         self._next_mission_s = 0.0
+        # A mission that takes commands (a formation follower's shape changes) hears them on
+        # uavmpc/<swarm>/<sender>/formation.
+        self._mission_commands = (transport.subscribe("*/formation", maxlen=16)
+                                  if callable(getattr(mission, "command", None)) else None)
         self._ros2_ticks = 0
         self._missions = transport.subscribe(f"{uav_id}/mission", maxlen=16)
         self._pending_mission: Reference | None = None
@@ -395,6 +399,12 @@ class Node:
     def _step_mission(self, now: float, state: VehicleState) -> None:
         assert self.mission is not None and self.stack is not None
         self._next_mission_s = now + self.mission.period_s
+        if self._mission_commands is not None:
+            for _key, payload in self._mission_commands.drain(4):
+                try:
+                    self.mission.command(payload, now)  # type: ignore[attr-defined]
+                except ValueError:
+                    self.stats.missions_rejected += 1
         out = self.mission.step(MissionInput(now, state, False, self.stack.inbox.latest))
         if out.reference is not None:
             self.stack.set_mission(out.reference)

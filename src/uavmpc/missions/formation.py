@@ -25,6 +25,7 @@ any other.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -249,6 +250,34 @@ class FormationFollower:
         self.plans_used = 0
         self._used_stamp: float | None = None
         self._heading = spec.heading_rad
+
+    def command(self, payload: bytes, now_s: float) -> bool:
+        """A shape change sent while flying: JSON ``{"shape": "square", "at_s": T}`` (``at_s``
+        absolute, default ``now_s``), blended from then on like a scheduled one. A repeat of a
+        change already taken is ignored (False); a bad or out-of-order one raises ValueError
+        naming the problem."""
+        try:
+            cmd = json.loads(payload)
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise ValueError(f"formation command is not JSON: {exc}") from None
+        if not isinstance(cmd, dict) or set(cmd) - {"shape", "at_s"} or "shape" not in cmd:
+            raise ValueError('formation command must be {"shape": ..., "at_s": optional}')
+        shape = cmd["shape"]
+        if shape not in SHAPES:
+            raise ValueError(f"formation command: shape must be one of {', '.join(SHAPES)}, "
+                             f"got {shape!r}")
+        at = cmd.get("at_s", now_s)
+        if isinstance(at, bool) or not isinstance(at, int | float) or not math.isfinite(at):
+            raise ValueError(f"formation command: at_s must be a finite time, got {at!r}")
+        change = (float(at), str(shape))
+        if change in self.spec.changes:
+            return False
+        if self.spec.changes and change[0] <= self.spec.changes[-1][0]:
+            raise ValueError(f"formation command: at_s {change[0]} is not after the last change "
+                             f"({self.spec.changes[-1][0]})")
+        self.spec = dataclasses.replace(self.spec, changes=(*self.spec.changes, change))
+        self._used_stamp = None  # fly the new slots with the plan in hand
+        return True
 
     def step(self, inp: MissionInput) -> MissionOutput:
         msg = inp.neighbours.get(self.spec.leader)
