@@ -14,8 +14,9 @@ Offsets are given in the formation frame (forward, left, up) relative to the lea
 the slots move continuously and never jump.
 
 How the avoidance treats members: members keep each other at the formation's spacing by
-construction, closer than the avoidance cylinder's radius ``R_p`` (a 6 m square with a 5 m
-cylinder), so between members the avoidance applies a member cylinder of radius
+construction, and a shape change brings them to 0.7 spacing — inside the avoidance cylinder's
+radius ``R_p`` (4.2 m with the default 6 m spacing and 5 m cylinder) — so between members the
+avoidance applies a member cylinder of radius
 ``member_radius_m`` (default 2.5 m, and the full height) instead: it still acts if two members
 come that close (a follower's slot tracking fails, a shape change goes wrong), but it does not
 make members climb away from slots that are exactly where they should be. Everyone outside the
