@@ -28,13 +28,14 @@ import numpy as np
 
 from uavmpc.avoidance import AvoidanceDecision, AvoidanceParams, ResolutionStrategy
 from uavmpc.comms.auth import sign
+from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.link import Inbox
 from uavmpc.comms.message import PredictionMessage, encode, from_prediction
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
 from uavmpc.jit import bind, kernel
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
-from uavmpc.reference import Reference
+from uavmpc.reference import Reference, sample_reference
 from uavmpc.tracker import (
     DynamicLimits,
     MpcTracker,
@@ -48,6 +49,7 @@ from uavmpc.tracker.kernels import (
     TrackerConsts,
     TrackerRows,
     limit_excess,
+    plan,
     scratch_views,
     tick_row,
 )
@@ -149,6 +151,62 @@ def onboard_one(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerC
     return onboard_row(i, trk, refs, consts, ctl, stats, p, v, q, dt, sc, q_out, ff_out)
 
 
+@kernel
+def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
+                    consts: TrackerConsts, times_out: np.ndarray, pos_out: np.ndarray) -> None:
+    """What rows ``idx`` (R,) hand their avoidance: each one's plan of its last tick (times
+    ``times_out`` (R, m), positions ``pos_out`` (R, m, 3)) without the part of its z offset
+    the virtual UAV has already climbed at each point (plan minus mission reference, clipped
+    to [0, offset]). Subtracting the whole offset would put the early, still-climbing points
+    below the mission and make the strategy climb again and again for a conflict the climb in
+    progress already resolves."""
+    h = consts.horizon_s
+    m = h.shape[0]
+    out = np.empty((4, m, 3))
+    nominal = np.empty((m, 4))
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        plan(trk.rel[i], trk.u_plan[i], trk.p0[i], consts.free_t, consts.forced_t, out)
+        t0 = trk.t_s[i] - h[0]
+        for k in range(m):
+            times_out[j, k] = t0 + h[k]
+            for ax in range(3):
+                pos_out[j, k, ax] = out[ax, k, 0]
+        offset = trk.z_offset_m[i]
+        if offset == 0.0:
+            continue
+        n_ref = refs.length[i, 0]
+        if n_ref == 0:
+            for k in range(m):
+                pos_out[j, k, 2] -= offset
+            continue
+        a0 = refs.start[i, 0]
+        sample_reference(refs.knots_s[a0:a0 + n_ref], refs.values[a0:a0 + n_ref],
+                         refs.period_s[i, 0], refs.loop[i, 0], times_out[j], nominal)
+        for k in range(m):
+            pos_out[j, k, 2] -= min(max(pos_out[j, k, 2] - nominal[k, 2], 0.0), offset)
+
+
+class Schedule(NamedTuple):
+    """When N stacks next plan and broadcast, one row each (written by the stacks; a driver
+    ticking many reads them to find who is due).
+
+    Attributes:
+        next_avoidance_s: (N,) the next avoidance update, on the stack's tracker clock [s].
+        next_broadcast_s: (N,) the next broadcast, on the stack's clock [s].
+        planning: (N,) bool the stack runs an avoidance it steers by (a strategy, the vehicle
+            is its to steer, its tracker has ticked).
+    """
+
+    next_avoidance_s: np.ndarray
+    next_broadcast_s: np.ndarray
+    planning: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> Schedule:
+        return cls(np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_))
+
+
 class OnboardBatch:
     """The numerical state of N onboard stacks of one tracker set-up, one row each.
 
@@ -162,6 +220,7 @@ class OnboardBatch:
         self.tracker = TrackerBatch(tracker_config, n)
         self.control = ControlRows.empty(n)
         self.stats = StackStats.empty(n)
+        self.schedule = Schedule.empty(n)
         self.n = n
         self._one: tuple[ReferenceTable, object] | None = None
 
@@ -274,6 +333,7 @@ class OnboardStack:
         broadcast_phase_s: float = 0.0,
         batch: OnboardBatch | None = None,
         row: int = 0,
+        inbox_table: InboxTable | None = None,
     ) -> None:
         if batch is None:
             batch = OnboardBatch(tracker_config, 1)
@@ -296,20 +356,25 @@ class OnboardStack:
         self.params = params
         self.key = key
         self.inbox = Inbox(uav_id, time_reference=params.time_reference,  # type: ignore[arg-type]
-                           max_age_s=params.timeout_s, key=key)
+                           max_age_s=params.timeout_s, key=key, table=inbox_table,
+                           row=self.row)
+        self._finder = (avoidance.finder(self.inbox.table)  # type: ignore[attr-defined]
+                        if hasattr(avoidance, "decide") else None)
         self.nominal_limits = self.tracker.limits
         self.decision: AvoidanceDecision | None = None
         self.broadcast_period_s = float(broadcast_period_s)
-        self.next_broadcast_s = float(t0_s) + float(broadcast_phase_s)
+        sched = batch.schedule
+        sched.next_broadcast_s[self.row] = float(t0_s) + float(broadcast_phase_s)
+        sched.next_avoidance_s[self.row] = float(t0_s)
         #: The prediction of the last broadcast (for logs), and how many were sent.
         self.last_broadcast: Prediction | None = None
         self.predictions_sent = 0
-        self._next_avoidance_s = float(t0_s)
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
         #: the broadcast flag down.
         self.cooperative = True
         self._limits_key: tuple[float, float | None, float | None] = (1.0, None, None)
         self._ticked = False
+        sched.planning[self.row] = False
         self._idx = np.array([self.row], dtype=np.int64)
         for name in StackStats._fields:
             getattr(batch.stats, name)[self.row] = 0
@@ -344,6 +409,7 @@ class OnboardStack:
         v = _estimate_part(estimate, "velocity_mps", 3)
         heading = float(heading_of(_estimate_part(estimate, "attitude_wxyz", 4)))
         self.cooperative = False
+        self.batch.schedule.planning[self.row] = False
         self.decision = None
         self.batch.stats.avoiding[self.row] = False
         if self._limits_key != (1.0, None, None):
@@ -371,19 +437,38 @@ class OnboardStack:
         if self.avoidance is None or not self.cooperative or not self._ticked:
             return
         plan_s = self.tracker.time_s
-        if plan_s < self._next_avoidance_s - _SCHEDULE_TOL_S:
+        if not self.avoidance_due():
             return
-        self._next_avoidance_s = plan_s + AVOIDANCE_PERIOD_S
-        self._avoid(plan_s, self.tracker.prediction())
-        self.batch.stats.avoiding[self.row] = bool(self.decision is not None
-                                                    and self.decision.avoiding)
+        sched = self.batch.schedule
+        sched.next_avoidance_s[self.row] = plan_s + AVOIDANCE_PERIOD_S
+        if self._finder is None:  # a strategy of its own: hand it the messages
+            pred = self.tracker.prediction()
+            times, own = self._own_plan(pred)
+            self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times, own,
+                                             self.inbox.latest))
+            return
+        trk = self.batch.tracker
+        times = np.empty((1, trk.config.steps))
+        own = np.empty((1, trk.config.steps, 3))
+        avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own)
+        overrides = self.avoidance.overrides(self.inbox.table)  # type: ignore[attr-defined]
+        enc = self._finder.find(self._idx, times, own, np.array([plan_s]),
+                                np.array([self.params.radius_m]), [overrides])[0]
+        self.apply(self.avoidance.decide(  # type: ignore[attr-defined]
+            plan_s, self.uav_id, self.priority, times[0], enc))
+
+    def avoidance_due(self) -> bool:
+        """The avoidance runs at this tick (its period has passed on the tracker's clock)."""
+        return bool(self.tracker.time_s
+                    >= self.batch.schedule.next_avoidance_s[self.row] - _SCHEDULE_TOL_S)
 
     def emit(self, now_s: float) -> bytes | None:
         """After the tick: the prediction message when a broadcast is due (stamped ``now_s``)."""
-        self._ticked = True
-        if now_s < self.next_broadcast_s - _SCHEDULE_TOL_S:
+        self.mark_ticked()
+        sched = self.batch.schedule
+        if now_s < sched.next_broadcast_s[self.row] - _SCHEDULE_TOL_S:
             return None
-        self.next_broadcast_s += self.broadcast_period_s
+        sched.next_broadcast_s[self.row] += self.broadcast_period_s
         pred = self.tracker.prediction()
         msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
                               avoiding=self.avoidance is not None and self.cooperative)
@@ -393,6 +478,18 @@ class OnboardStack:
         self.last_broadcast = pred
         self.predictions_sent += 1
         return data
+
+    def mark_ticked(self) -> None:
+        """The stack's row has ticked (a driver ticking many rows at once says so)."""
+        if not self._ticked:
+            self._ticked = True
+            self.batch.schedule.planning[self.row] = (self.avoidance is not None
+                                                      and self.cooperative)
+
+    @property
+    def next_broadcast_s(self) -> float:
+        """When the next broadcast is due, on this stack's clock [s]."""
+        return float(self.batch.schedule.next_broadcast_s[self.row])
 
     # ------------------------------------------------------------------ views
     @property
@@ -426,23 +523,16 @@ class OnboardStack:
             messages_rejected=dict(self.inbox.rejected))
 
     # ------------------------------------------------------------------ internals
-    def _avoid(self, now: float, pred: Prediction) -> None:
-        # The strategy shifts our plan by candidate offsets; hand it the plan without the part
-        # of the current offset the virtual UAV has already climbed at each predicted point
-        # (plan minus mission reference, clipped to [0, offset]). Subtracting the whole offset
-        # would put the early, still-climbing points below the mission and make the strategy
-        # climb again and again for a conflict the climb in progress already resolves.
-        assert self.avoidance is not None
-        own = pred.position_m.copy()
-        offset = self.tracker.z_offset_m
-        mission = self.tracker.reference
-        if offset and mission is not None:
-            nominal_z = mission.sample(pred.times_s)[:, 2]
-            own[:, 2] -= np.clip(own[:, 2] - nominal_z, 0.0, offset)
-        elif offset:
-            own[:, 2] -= offset
-        decision = self.avoidance.update(now, self.uav_id, self.priority, pred.times_s, own,
-                                         self.inbox.latest)
+    def _own_plan(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`avoidance_plans` of this row (times (m,), positions (m, 3))."""
+        trk = self.batch.tracker
+        times = np.empty((1, pred.times_s.shape[0]))
+        own = np.empty((1, pred.times_s.shape[0], 3))
+        avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own)
+        return times[0], own[0]
+
+    def apply(self, decision: AvoidanceDecision) -> None:
+        """Steer by an avoidance decision: its z offset and limits from the next tick on."""
         self.decision = decision
         if decision.z_offset_m != self.tracker.z_offset_m:
             self.tracker.set_z_offset(decision.z_offset_m)
@@ -450,6 +540,7 @@ class OnboardStack:
         if key != self._limits_key:
             self._limits_key = key
             self.tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
+        self.batch.stats.avoiding[self.row] = bool(decision.avoiding)
 
 
 def _estimate_part(estimate: VehicleState, name: str, n: int) -> np.ndarray:

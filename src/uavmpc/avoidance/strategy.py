@@ -21,7 +21,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from uavmpc.avoidance.proximity import near_and_dz
+from uavmpc.avoidance.encounters import EncounterFinder, Encounters
+from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.message import PredictionMessage
 from uavmpc.config import ConfigError, from_table, positive
 
@@ -171,28 +172,26 @@ class ResolutionStrategy(Protocol):
         ...
 
 
-@dataclass(frozen=True, eq=False)
-class _Encounters:
-    """The others, aligned with our prediction (k senders, m points)."""
+def _conflicts(enc: Encounters, offset_m: float | np.ndarray, half_height_m: float
+               ) -> np.ndarray:
+    """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets."""
+    off = np.asarray(offset_m, dtype=float)[..., None, None]
+    return enc.near_xy & (np.abs(enc.dz_m + off) <= half_height_m)
 
-    ids: tuple[str, ...]
-    must_yield: np.ndarray  # (k,) bool
-    near_xy: np.ndarray  # (k, m) bool: known and horizontally within R_p
-    dz_m: np.ndarray  # (k, m) our z (without offset) minus theirs
-    silent: tuple[str, ...] = ()  # heard from recently, stale now
 
-    def conflicts(self, offset_m: float | np.ndarray, half_height_m: float) -> np.ndarray:
-        """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets."""
-        off = np.asarray(offset_m, dtype=float)[..., None, None]
-        return self.near_xy & (np.abs(self.dz_m + off) <= half_height_m)
+def _below(enc: Encounters, offset_m: float, half_height_m: float) -> np.ndarray:
+    """(k, m) points in conflict at SOME offset in [0, offset_m]: the way down.
 
-    def below(self, offset_m: float, half_height_m: float) -> np.ndarray:
-        """(k, m) points in conflict at SOME offset in [0, offset_m]: the way down.
+    |dz + o| ≤ h for some o ∈ [0, z]  ⇔  −h − z ≤ dz ≤ h (an exact interval test).
+    """
+    return enc.near_xy & (enc.dz_m >= -half_height_m - offset_m) & (
+        enc.dz_m <= half_height_m)
 
-        |dz + o| ≤ h for some o ∈ [0, z]  ⇔  −h − z ≤ dz ≤ h (an exact interval test).
-        """
-        return self.near_xy & (self.dz_m >= -half_height_m - offset_m) & (
-            self.dz_m <= half_height_m)
+
+def _subset(enc: Encounters, keep: np.ndarray) -> Encounters:
+    return Encounters(tuple(i for i, k in zip(enc.ids, keep, strict=True) if k),
+                      enc.priority[keep], enc.avoiding[keep], enc.silent_row[keep],
+                      enc.near_xy[keep], enc.dz_m[keep], enc.silent)
 
 
 class HeightOffsetStrategy:
@@ -237,33 +236,85 @@ class HeightOffsetStrategy:
     def update(self, now_s: float, own_id: str, own_priority: int,
                own_prediction_times: np.ndarray, own_prediction_positions: np.ndarray,
                others: Mapping[str, PredictionMessage]) -> AvoidanceDecision:
-        prm = self.params
-        half_h = 0.5 * prm.height_m
         times = np.asarray(own_prediction_times, dtype=float)
         own = np.asarray(own_prediction_positions, dtype=float)
         if times.ndim != 1 or own.shape != (times.shape[0], 3):
             raise ValueError(
                 f"own prediction: times (m,) and positions (m, 3) expected, got {times.shape} "
                 f"and {own.shape}")
-        enc, known = self._encounters(now_s, own_id, own_priority, times, own, others)
+        # The messages as a one-receiver inbox table: the same comparison as a world's.
+        table = InboxTable([own_id], time_reference=self.params.time_reference)
+        for sender, msg in others.items():
+            if sender == own_id or msg.uav_id == own_id:
+                continue
+            slot = table.put(msg)
+            col = table.col_of(msg.uav_id)
+            rows = table.rows
+            rows.held_slot[0, col] = slot
+            rows.held_stamp_s[0, col] = msg.stamp_s
+            rows.held_received_s[0, col] = (np.nan if msg.received_s is None
+                                            else msg.received_s)
+            table.store.holders[slot] += 1
+        table.unpin()
+        enc = self.finder(table).find(np.zeros(1, dtype=np.int64), times[None], own[None],
+                                      np.array([float(now_s)]),
+                                      np.array([self.params.radius_m]),
+                                      [self.overrides(table)])[0]
+        return self.decide(now_s, own_id, own_priority, times, enc)
 
-        c_start = enc.conflicts(self.z_offset_m, half_h)  # (k, m)
+    def finder(self, table: InboxTable, *, use_index: bool = True) -> EncounterFinder:
+        """How this strategy finds its encounters in ``table`` (with its parameters)."""
+        prm = self.params
+        return EncounterFinder(table, timeout_s=prm.timeout_s, silent_hold_s=prm.silent_hold_s,
+                               use_received=prm.time_reference == "receive",
+                               use_index=use_index)
+
+    def overrides(self, table: InboxTable) -> dict[int, float]:
+        """The per-pair radii by the table's columns."""
+        return {table.col_of(other): r for other, r in self.pair_radius_m.items()}
+
+    def decide(self, now_s: float, own_id: str, own_priority: int,
+               own_prediction_times: np.ndarray, known: Encounters) -> AvoidanceDecision:
+        """The decision from the encounters (:mod:`uavmpc.avoidance.encounters`): everyone
+        near, fresh or silent at its last known plan (``update`` finds them itself)."""
+        prm = self.params
+        half_h = 0.5 * prm.height_m
+        times = own_prediction_times
+        if not known.ids:
+            # Nobody near: no conflict now, none on the way down; only the release runs.
+            if not known.silent:
+                self._release(now_s)
+            self._last_update_s = now_s
+            recent = (self._last_conflict_s is not None
+                      and now_s - self._last_conflict_s < prm.release_hysteresis_s)
+            return AvoidanceDecision(
+                z_offset_m=self.z_offset_m, avoiding=recent or self.z_offset_m > 0.0,
+                horizontal_scale=prm.horizontal_scale if recent else 1.0,
+                climb_speed_mps=prm.climb_speed_mps if recent else None,
+                climb_accel_mps2=prm.climb_accel_mps2 if recent else None,
+                silent=known.silent)
+        must_yield_known = known.must_yield(own_id, own_priority)
+        fresh_rows = ~known.silent_row
+        enc = known if fresh_rows.all() else _subset(known, fresh_rows)
+        must_yield = must_yield_known[fresh_rows]
+
+        c_start = _conflicts(enc, self.z_offset_m, half_h)  # (k, m)
         hit_start = c_start.any(axis=1)
-        yield_hit = hit_start & enc.must_yield
+        yield_hit = hit_start & must_yield
         ceiling_hit = False
         waiting_for: tuple[str, ...] = ()
         if yield_hit.any():
             # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
             # another climbed into its layer. A new offset must be clear of the silent ones too.
-            self.z_offset_m, ceiling_hit, waiting_for = self._climb(known, half_h,
-                                                                    times - now_s)
-        c_end = enc.conflicts(self.z_offset_m, half_h)
-        unresolved = c_end.any(axis=1) & enc.must_yield
+            self.z_offset_m, ceiling_hit, waiting_for = self._climb(
+                known, must_yield_known, half_h, times - now_s)
+        c_end = _conflicts(enc, self.z_offset_m, half_h)
+        unresolved = c_end.any(axis=1) & must_yield
         # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
         # in force, and none anywhere on the way down to 0 either. Climbing over a UAV removes
         # the conflict but not the reason for the offset; without this, the offset would be
         # released on top of it and re-raised as soon as the conflict reappeared.
-        if hit_start.any() or c_end.any() or enc.below(self.z_offset_m, half_h).any():
+        if hit_start.any() or c_end.any() or _below(enc, self.z_offset_m, half_h).any():
             self._last_conflict_s = now_s
         elif not enc.silent:
             # Found in the 24 h campaign with 30 % loss: a UAV that had not heard from another
@@ -290,53 +341,8 @@ class HeightOffsetStrategy:
             silent=enc.silent,
         )
 
-    def _encounters(self, now_s: float, own_id: str, own_priority: int, times: np.ndarray,
-                    own: np.ndarray, others: Mapping[str, PredictionMessage]
-                    ) -> tuple[_Encounters, _Encounters]:
-        """(fresh, known): the others with a fresh prediction, and the same plus the silent
-        ones at their last known prediction (a new offset must be clear of those too)."""
-        prm = self.params
-        msgs: list[PredictionMessage] = []
-        shifted: list[np.ndarray] = []
-        silent: list[str] = []
-        for sender, msg in others.items():
-            if sender == own_id or msg.uav_id == own_id:
-                continue
-            ref = msg.stamp_s
-            if prm.time_reference == "receive" and msg.received_s is not None:
-                ref = msg.received_s
-            if abs(now_s - ref) > prm.timeout_s:
-                # Stale: the other may have gone silent, its plan is no evidence. Stamped
-                # further ahead than that: a clock fault, equally unusable (the inbox normally
-                # rejects those already).
-                if not 0.0 < now_s - ref <= prm.silent_hold_s:
-                    continue
-                silent.append(msg.uav_id)
-            msgs.append(msg)
-            # With the receive-time fallback the prediction is moved onto our clock: its stamp
-            # is taken to be the moment we received it (error: the link latency).
-            shifted.append(msg.times_s + (ref - msg.stamp_s))
-        k, m = len(msgs), times.shape[0]
-        near_xy = np.empty((k, m), dtype=bool)
-        dz = np.empty((k, m))
-        # Compiled (align_batch, then the horizontal test, per sender; bit-identical).
-        for i, msg in enumerate(msgs):
-            near_and_dz(shifted[i], msg.positions_m, times, prm.timeout_s, own,
-                        self.pair_radius_m.get(msg.uav_id, prm.radius_m), near_xy[i], dz[i])
-        must_yield = np.array(
-            [(not msg.avoiding) or msg.priority < own_priority
-             or (msg.priority == own_priority and msg.uav_id < own_id) for msg in msgs],
-            dtype=bool)
-        known = _Encounters(tuple(msg.uav_id for msg in msgs), must_yield, near_xy, dz,
-                            tuple(silent))
-        fresh = np.array([msg.uav_id not in silent for msg in msgs], dtype=bool)
-        if fresh.all():
-            return known, known
-        return _Encounters(tuple(i for i, f in zip(known.ids, fresh, strict=True) if f),
-                           must_yield[fresh], near_xy[fresh], dz[fresh], tuple(silent)), known
-
-    def _climb(self, enc: _Encounters, half_h: float, ahead_s: np.ndarray
-               ) -> tuple[float, bool, tuple[str, ...]]:
+    def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
+               ahead_s: np.ndarray) -> tuple[float, bool, tuple[str, ...]]:
         """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without
         crossing anyone; returns (offset, ceiling hit, the UAVs in the way).
 
@@ -355,9 +361,8 @@ class HeightOffsetStrategy:
         if steps < 1:
             return z, True, ()
         candidates = z + prm.dz_m * np.arange(1, steps + 1)
-        sub = _Encounters(enc.ids, enc.must_yield[enc.must_yield],
-                          enc.near_xy[enc.must_yield], enc.dz_m[enc.must_yield])
-        blocked_end = sub.conflicts(candidates, half_h).any(axis=(1, 2))  # (c,)
+        sub = _subset(enc, must_yield)
+        blocked_end = _conflicts(sub, candidates, half_h).any(axis=(1, 2))  # (c,)
         fast = z + _climbed(np.maximum(ahead_s, 0.0), prm)  # (m,)
         slow = z + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
         hi = np.minimum(fast[None, :], candidates[:, None])[:, None, :]  # (c, 1, m)
@@ -367,7 +372,7 @@ class HeightOffsetStrategy:
         # A point already in conflict at the offset in force is not made worse by climbing
         # (it is what the climb escapes from); only new conflicts on the way up block it.
         climbing = lo < candidates[:, None, None]
-        in_way = (enc.near_xy & climbing & ~enc.conflicts(z, half_h)
+        in_way = (enc.near_xy & climbing & ~_conflicts(enc, z, half_h)
                   & (enc.dz_m + hi >= -half_h) & (enc.dz_m + lo <= half_h))
         blocked_way = in_way.any(axis=2)  # (c, k)
         clear_way = ~blocked_way.any(axis=1)

@@ -11,21 +11,23 @@ decode and validate whatever arrives (:class:`Inbox`).
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
 from uavmpc.comms.auth import check_key, verify
-from uavmpc.comms.message import (
-    InvalidMessageError,
-    PredictionMessage,
-    decode,
-    validate_on_receipt,
+from uavmpc.comms.inbox import (
+    FUTURE_REASON,
+    KEPT,
+    STALE_REASON,
+    InboxTable,
+    LatestView,
+    accept_copy,
 )
+from uavmpc.comms.message import InvalidMessageError, PredictionMessage
 
 
 @runtime_checkable
@@ -118,70 +120,148 @@ class SimulatedLink:
         self.position_of = position_of
         self.stats = LinkStats()
         self._rng = np.random.default_rng(seed)
-        self._queues: dict[str, list[tuple[float, int, bytes]]] = {}
+        self._members: dict[str, int] = {}
+        # Copies in flight, as arrays (delivery time, FIFO sequence number for equal times,
+        # receiver index, payload id); new ones are appended as chunks and merged when read.
+        self._t = np.zeros(0)
+        self._seq_of = np.zeros(0, dtype=np.int64)
+        self._rcv = np.zeros(0, dtype=np.int64)
+        self._pay = np.zeros(0, dtype=np.int64)
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._payloads: dict[int, bytes] = {}
+        self._copies_left: dict[int, int] = {}
+        self._next_payload = 0
         self._seq = 0  # FIFO tie-break for equal delivery times
+        #: No copy is due before this time (a lower bound).
+        self.next_due_s = math.inf
         for uav_id in members:
             self.join(uav_id)
 
     @property
     def members(self) -> tuple[str, ...]:
-        return tuple(self._queues)
+        return tuple(self._members)
 
     def join(self, uav_id: str) -> None:
         """Add a member (idempotent)."""
-        self._queues.setdefault(uav_id, [])
+        if uav_id not in self._members:
+            self._members[uav_id] = len(self._members)
 
     def publish(self, msg_bytes: bytes, sender_id: str, t_s: float) -> None:
         if not isinstance(msg_bytes, bytes | bytearray):
             raise TypeError(f"msg_bytes: expected bytes, got {type(msg_bytes).__name__}")
         self.join(sender_id)
-        payload = bytes(msg_bytes)
-        receivers = [r for r in self._queues if r != sender_id]
+        sender = self._members[sender_id]
+        n = len(self._members)
         self.stats.published += 1
-        self.stats.sent += len(receivers)
-        if not receivers:
+        self.stats.sent += n - 1
+        if n == 1:
             return
+        receivers = np.delete(np.arange(n), sender)
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order.
-        lost = self._rng.random(len(receivers)) < self.loss
-        delay = self.latency_s + self.jitter_s * self._rng.random(len(receivers))
+        lost = self._rng.random(n - 1) < self.loss
+        delay = self.latency_s + self.jitter_s * self._rng.random(n - 1)
         in_range = self._in_range(sender_id, receivers)
-        for r, is_lost, d, ok in zip(receivers, lost, delay, in_range, strict=True):
-            if not ok:
-                self.stats.dropped_range += 1
-            elif is_lost:
-                self.stats.dropped += 1
-            else:
-                heapq.heappush(self._queues[r], (t_s + float(d), self._seq, payload))
-                self._seq += 1
+        kept = in_range & ~lost
+        self.stats.dropped_range += int(n - 1 - np.count_nonzero(in_range))
+        self.stats.dropped += int(np.count_nonzero(in_range & lost))
+        count = int(np.count_nonzero(kept))
+        if count:
+            self._queue(t_s + delay[kept], receivers[kept], bytes(msg_bytes), count)
+
+    def _queue(self, at_s: np.ndarray, receivers: np.ndarray, payload: bytes, count: int
+               ) -> None:
+        pid = self._next_payload
+        self._next_payload += 1
+        self._payloads[pid] = payload
+        self._copies_left[pid] = count
+        seq = np.arange(self._seq, self._seq + count, dtype=np.int64)
+        self._seq += count
+        self._chunks.append((at_s, seq, receivers.astype(np.int64),
+                             np.full(count, pid, dtype=np.int64)))
+        self.next_due_s = min(self.next_due_s, float(at_s.min()))
 
     def inject(self, receiver_id: str, msg_bytes: bytes, at_s: float) -> None:
         """Deliver raw bytes to ``receiver_id`` at ``at_s``, as if from the air (a foreign or
         broken transmitter): no sender, no loss, no random draw; counted as ``injected``."""
         self.join(receiver_id)
-        heapq.heappush(self._queues[receiver_id], (float(at_s), self._seq, bytes(msg_bytes)))
-        self._seq += 1
+        self._queue(np.array([float(at_s)]), np.array([self._members[receiver_id]]),
+                    bytes(msg_bytes), 1)
         self.stats.injected += 1
 
     def receive(self, receiver_id: str, t_s: float) -> list[bytes]:
         self.join(receiver_id)
-        queue = self._queues[receiver_id]
-        out: list[bytes] = []
-        while queue and queue[0][0] <= t_s:
-            out.append(heapq.heappop(queue)[2])
-        self.stats.delivered += len(out)
-        return out
+        if t_s < self.next_due_s:
+            return []
+        due = self._take((self._rcv == self._members[receiver_id]) & (self._t <= t_s)
+                         if self._merge() else None)
+        return [self._payload(pid) for pid in due[1]]
 
-    def _in_range(self, sender_id: str, receivers: list[str]) -> list[bool]:
+    def take_due(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Every copy due by ``t_s``, for all receivers at once, in delivery order (by time,
+        then sending order): (receiver indices in :attr:`members` order, payload ids), or
+        None if nothing is due. :meth:`payload` gives the bytes of an id while copies of it
+        are in flight or just taken; :meth:`release` drops the bytes once read."""
+        if t_s < self.next_due_s:
+            return None
+        if not self._merge():
+            return None
+        due = self._take(self._t <= t_s)
+        return due if due[0].size else None
+
+    def payload(self, pid: int) -> bytes:
+        """The bytes of payload ``pid`` (see :meth:`take_due`)."""
+        return self._payloads[int(pid)]
+
+    def release(self, payload_ids: np.ndarray) -> None:
+        """The copies of ``payload_ids`` (one entry per copy) were read: forget their bytes
+        after the last one."""
+        ids, counts = np.unique(payload_ids, return_counts=True)
+        for pid, c in zip(ids.tolist(), counts.tolist(), strict=True):
+            left = self._copies_left[pid] - c
+            if left:
+                self._copies_left[pid] = left
+            else:
+                del self._copies_left[pid]
+                del self._payloads[pid]
+
+    def _payload(self, pid: int) -> bytes:
+        data = self._payloads[pid]
+        self.release(np.array([pid]))
+        return data
+
+    def _merge(self) -> bool:
+        """Merge the new chunks; False when nothing is in flight."""
+        if self._chunks:
+            parts = [(self._t, self._seq_of, self._rcv, self._pay), *self._chunks]
+            self._t, self._seq_of, self._rcv, self._pay = (
+                np.concatenate([p[j] for p in parts]) for j in range(4))
+            self._chunks.clear()
+        return self._t.size > 0
+
+    def _take(self, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        if mask is None or not mask.any():
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        order = np.lexsort((self._seq_of[mask], self._t[mask]))
+        rcv, pay = self._rcv[mask][order], self._pay[mask][order]
+        keep = ~mask
+        self._t, self._seq_of = self._t[keep], self._seq_of[keep]
+        self._rcv, self._pay = self._rcv[keep], self._pay[keep]
+        self.next_due_s = float(self._t.min()) if self._t.size else math.inf
+        self.stats.delivered += int(rcv.size)
+        return rcv, pay
+
+    def _in_range(self, sender_id: str, receivers: np.ndarray) -> np.ndarray:
         if self.range_m is None or self.position_of is None:
-            return [True] * len(receivers)
+            return np.ones(receivers.shape[0], dtype=bool)
         src = self._position(sender_id)
         if src is None:
-            return [False] * len(receivers)
-        out = []
-        for r in receivers:
-            dst = self._position(r)
-            out.append(dst is not None and float(np.linalg.norm(dst - src)) <= self.range_m)
+            return np.zeros(receivers.shape[0], dtype=bool)
+        ids = list(self._members)
+        out = np.zeros(receivers.shape[0], dtype=bool)
+        for k, r in enumerate(receivers.tolist()):
+            dst = self._position(ids[r])
+            out[k] = dst is not None and float(np.linalg.norm(dst - src)) <= self.range_m
         return out
 
     def _position(self, uav_id: str) -> np.ndarray | None:
@@ -200,6 +280,10 @@ class Inbox:
     error text up to the first ':') in :attr:`rejected`, never raised: one bad packet must not
     stop a UAV. Messages from ``own_id`` are ignored (a broadcast medium may echo).
 
+    The inbox is a view on one row of an :class:`~uavmpc.comms.inbox.InboxTable` (by default a
+    table of its own; a simulated world passes every UAV its row of one shared table), and
+    :meth:`accept` applies the table's compiled rule (:func:`~uavmpc.comms.inbox.accept_copy`).
+
     Args:
         own_id: the receiving UAV.
         time_reference: ``"stamp"`` (synchronised clocks: future-stamped and stale messages are
@@ -210,26 +294,52 @@ class Inbox:
         key: the swarm's shared key (:mod:`uavmpc.comms.auth`): when set, only messages signed
             with it are accepted (others are counted as ``"unsigned message"`` or ``"forged
             message (bad signature)"``); senders then publish ``sign(encode(msg), key)``.
+        table, row: the shared table and this receiver's row in it (its settings are the
+            table's).
     """
 
     def __init__(self, own_id: str, *, time_reference: Literal["stamp", "receive"] = "stamp",
                  max_future_s: float = 0.5, max_age_s: float = 1.0,
-                 key: bytes | None = None) -> None:
-        if time_reference not in ("stamp", "receive"):
-            raise ValueError(
-                f"time_reference: must be 'stamp' or 'receive', got {time_reference!r}")
+                 key: bytes | None = None, table: InboxTable | None = None,
+                 row: int = 0) -> None:
         if key is not None:
             check_key(key)
             key = bytes(key)
         self.key = key
         self.own_id = own_id
-        self.time_reference = time_reference
-        self.max_future_s = max_future_s
-        self.max_age_s = max_age_s
-        self.accepted = 0
-        self.superseded = 0  # valid but older than what we hold (reordered by jitter)
-        self.rejected: dict[str, int] = {}
-        self._latest: dict[str, PredictionMessage] = {}
+        if table is None:
+            table = InboxTable([own_id], time_reference=time_reference,
+                               max_future_s=max_future_s, max_age_s=max_age_s)
+            row = 0
+        elif table.receivers[row] != own_id:
+            raise ValueError(f"row {row} of the inbox table is {table.receivers[row]!r}, "
+                             f"not {own_id!r}")
+        self.table = table
+        self.row = int(row)
+        self.time_reference = table.time_reference
+        self.max_future_s = table.max_future_s
+        self.max_age_s = table.max_age_s
+        self._latest = LatestView(table, self.row)
+
+    @property
+    def accepted(self) -> int:
+        return int(self.table.rows.accepted[self.row])
+
+    @property
+    def superseded(self) -> int:
+        """Valid but not newer than what it holds (reordered by jitter)."""
+        return int(self.table.rows.superseded[self.row])
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Rejected messages by reason."""
+        rows = self.table.rows
+        out = dict(self.table.reasons[self.row])
+        for reason, count in ((FUTURE_REASON, rows.future[self.row]),
+                              (STALE_REASON, rows.stale[self.row])):
+            if count:
+                out[reason] = out.get(reason, 0) + int(count)
+        return out
 
     @property
     def rejected_total(self) -> int:
@@ -249,24 +359,30 @@ class Inbox:
     def accept(self, data: bytes, now_s: float) -> PredictionMessage | None:
         """Verify (with a key), decode, validate and keep one message; ``None`` if rejected or
         not newer."""
+        table = self.table
         try:
             if self.key is not None:
                 data = verify(data, self.key)
-            msg = decode(data)
-            if self.time_reference == "stamp":
-                validate_on_receipt(msg, now_s, self.max_future_s, self.max_age_s)
+            if not isinstance(data, bytes | bytearray | memoryview):
+                raise InvalidMessageError(f"data: expected bytes, got {type(data).__name__}")
+            slot = table.slot_for(bytes(data))
         except InvalidMessageError as exc:
-            reason = str(exc).split(":", 1)[0]
-            self.rejected[reason] = self.rejected.get(reason, 0) + 1
+            self.count_rejected(str(exc))
             return None
-        if msg.uav_id == self.own_id:
+        try:
+            if not math.isfinite(now_s):
+                raise ValueError(f"now_s: must be finite, got {now_s}")
+            outcome = accept_copy(table.rows, table.store, self.row, slot, float(now_s))
+        finally:
+            table.unpin()
+        if outcome != KEPT:
             return None
-        held = self._latest.get(msg.uav_id)
-        if held is not None and msg.stamp_s <= held.stamp_s:
-            self.superseded += 1
-            return None
-        if self.time_reference == "receive":
-            msg = replace(msg, received_s=float(now_s))
-        self._latest[msg.uav_id] = msg
-        self.accepted += 1
+        col = int(table.store.col[slot])
+        msg = self._latest[table.ids[col]]
         return msg
+
+    def count_rejected(self, error: str) -> None:
+        """Count one rejection by its reason (the error text up to the first ':')."""
+        reasons = self.table.reasons[self.row]
+        reason = error.split(":", 1)[0]
+        reasons[reason] = reasons.get(reason, 0) + 1

@@ -18,14 +18,17 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy, ResolutionStrategy
+from uavmpc.avoidance.encounters import EncounterFinder
+from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.link import SimulatedLink
+from uavmpc.comms.message import InvalidMessageError
 from uavmpc.config import ConfigError
 from uavmpc.jit import bind, kernel
 from uavmpc.log import FlightRecorder
@@ -33,9 +36,11 @@ from uavmpc.missions.formation import FormationFollower, formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 from uavmpc.missions.mission import Mission, MissionInput
 from uavmpc.onboard import (
+    AVOIDANCE_PERIOD_S,
     BROADCAST_PERIOD_S,
     OnboardBatch,
     OnboardStack,
+    avoidance_plans,
     onboard_post,
     onboard_pre,
     onboard_row,
@@ -249,6 +254,8 @@ class World:
         batched: tick every UAV in one compiled call (default); False ticks each stack and
             plant on its own (:meth:`OnboardStack.tick`, :meth:`Multirotor.step`): the same
             kernels, bit for bit the same flight, slower.
+        index: find each UAV's encounters through the spatial index (default) or compare it
+            with every other UAV (:mod:`uavmpc.avoidance.encounters`): the same flight.
     """
 
     def __init__(
@@ -264,6 +271,7 @@ class World:
         tracker_config: TrackerConfig | None = None,
         clock_offsets_s: Sequence[float] | None = None,
         batched: bool = True,
+        index: bool = True,
     ) -> None:
         self.scenario = scenario
         self.avoidance = avoidance
@@ -303,6 +311,11 @@ class World:
         self.ground_vehicle = scenario.ground_vehicle
         formation = scenario.formation
         self.plants = PlantRows.empty(n, max(a.n_rotors for a in airframes.values()))
+        #: Every UAV's inbox, one row each (a broadcast is decoded once for all receivers).
+        self.inboxes = InboxTable([u.uav_id for u in scenario.uavs],
+                                  time_reference=params.time_reference,
+                                  max_age_s=params.timeout_s,
+                                  points=self.onboard.tracker.config.steps)
         self.uavs: list[WorldUav] = []
         period = self.onboard.tracker.config.first_step_s
         for i, spec in enumerate(scenario.uavs):
@@ -328,7 +341,7 @@ class World:
                                  t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
                                  avoidance=resolver, params=params,
                                  broadcast_phase_s=broadcast_phase(i, n), batch=self.onboard,
-                                 row=i)
+                                 row=i, inbox_table=self.inboxes)
             reference = spec.mission
             if off:
                 reference = Reference(reference.times_s + off, reference.points, reference.loop)
@@ -352,6 +365,35 @@ class World:
         if any(u.plant.substeps(period) != self.n_sub for u in self.uavs):
             raise ValueError("the plants' substeps differ; a world steps them together")
         self._kernels: tuple[Any, Any] | None = None
+        self._offsets = offsets.copy()
+        self._windy = [u.plant for u in self.uavs if u.plant.wind is not None]
+        self._missions = [u for u in self.uavs if u.mission is not None]
+        # One finder for the whole world when every UAV decides from encounters (the strategy
+        # has :meth:`~uavmpc.avoidance.HeightOffsetStrategy.decide`); else each UAV plans alone.
+        deciders = [u.stack.avoidance for u in self.uavs if u.stack.avoidance is not None]
+        self._finder = None
+        if deciders and all(hasattr(d, "decide") for d in deciders):
+            self._finder = EncounterFinder(
+                self.inboxes, timeout_s=params.timeout_s, silent_hold_s=params.silent_hold_s,
+                use_received=params.time_reference == "receive", use_index=index)
+        self._overrides = [u.stack.avoidance.overrides(self.inboxes)  # type: ignore[union-attr]
+                           if self._finder is not None and u.stack.avoidance is not None
+                           else {} for u in self.uavs]
+        self._radius = np.full(n, params.radius_m)
+        self._next_round_s = -math.inf
+        self._next_emit_s = -math.inf
+        self._yielding: set[int] = set()
+        self._started = False
+
+    @property
+    def index(self) -> bool:
+        """Encounters are found through the spatial index (else: every pair is compared)."""
+        return self._finder is None or self._finder.use_index
+
+    @index.setter
+    def index(self, value: bool) -> None:
+        if self._finder is not None:
+            self._finder.use_index = bool(value)
 
     def run(self, duration_s: float | None = None, *, realtime: float | None = None,
             on_log: Callable[[World], None] | None = None) -> WorldResult:
@@ -481,6 +523,8 @@ class World:
 
     # ------------------------------------------------------------------------------ one tick
     def _receive_and_plan(self, now: float) -> None:
+        """Every UAV, UAV by UAV (the per-object path): its datagrams into its inbox, its
+        mission, its avoidance."""
         rec = self.recorder
         if self.ground_vehicle is not None:  # every plant's contact knows where the deck is
             self.plants.deck[:] = self.ground_vehicle.deck_row(now)
@@ -498,11 +542,130 @@ class World:
                 u.next_mission_s = now + u.mission.period_s
                 self._step_mission(u, now)
             u.stack.plan(now + u.clock_offset_s)
-            d = u.stack.decision
+        self._note_yields(now, range(len(self.uavs)))
+
+    def _receive_and_plan_batched(self, now: float) -> None:
+        """The same for every UAV at once: the tick's deliveries into the inbox rows in one
+        compiled call, then the missions, then the avoidance of the UAVs due, their
+        encounters found in one compiled call (:mod:`uavmpc.avoidance.encounters`)."""
+        if self.ground_vehicle is not None:
+            self.plants.deck[:] = self.ground_vehicle.deck_row(now)
+        if now >= self.link.next_due_s:
+            self._deliver(now)
+        for u in self._missions:
+            if now >= u.next_mission_s - 1e-9:
+                u.next_mission_s = now + u.mission.period_s  # type: ignore[union-attr]
+                self._step_mission(u, now)
+                self._next_round_s = -math.inf  # the mission may have changed who plans
+        if self._finder is None:
+            for u in self.uavs:
+                u.stack.plan(now + u.clock_offset_s)
+            self._note_yields(now, range(len(self.uavs)))
+        else:
+            if now >= self._next_round_s:
+                self._plan_round(now)
+            self._note_yields(now, ())
+
+    def _deliver(self, now: float) -> None:
+        due = self.link.take_due(now)
+        if due is None:
+            return
+        receivers, payloads = due
+        table = self.inboxes
+        n = len(self.uavs)
+        pids, inverse = np.unique(payloads, return_inverse=True)
+        slots = np.empty(pids.shape[0], dtype=np.int64)
+        errors: dict[int, str] = {}
+        for j, pid in enumerate(pids.tolist()):
+            try:
+                slots[j] = table.slot_for(self.link.payload(pid))
+            except InvalidMessageError as exc:
+                slots[j] = -1
+                errors[j] = str(exc)
+        self.link.release(payloads)
+        copy_slots = slots[inverse]
+        ours = receivers < n  # copies injected for ids that are not UAVs of this world
+        good = ours & (copy_slots >= 0)
+        for k in np.flatnonzero(ours & (copy_slots < 0)).tolist():
+            self.uavs[receivers[k]].stack.inbox.count_rejected(errors[int(inverse[k])])
+        rec = self.recorder
+        if rec is not None:
+            before = table.rows.accepted.copy()
+        try:
+            accept_copies(table.rows, table.store, receivers[good], copy_slots[good],
+                          now + self._offsets)
+        finally:
+            table.unpin()
+        if rec is not None:
+            self._log_deliveries(now, receivers, copy_slots, good, before)
+
+    def _log_deliveries(self, now: float, receivers: np.ndarray, slots: np.ndarray,
+                        good: np.ndarray, before: np.ndarray) -> None:
+        """Delivered (kept) and rejected copies into the flight log: a receiver's kept copies
+        are the newest of each sender it now holds that it did not hold before."""
+        rec = self.recorder
+        assert rec is not None
+        table = self.inboxes
+        st = table.store
+        for k in range(receivers.shape[0]):
+            r = int(receivers[k])
+            if r >= len(self.uavs):
+                continue
+            if not good[k]:
+                rec.link(now, "rejected", "?", self.uavs[r].uav_id)
+                continue
+            slot = int(slots[k])
+            col = int(st.col[slot])
+            if table.rows.held_slot[r, col] == slot and table.rows.accepted[r] > before[r]:
+                rec.link(now, "delivered", table.ids[col], self.uavs[r].uav_id,
+                         float(st.stamp_s[slot]))
+
+    def _plan_round(self, now: float) -> None:
+        """The avoidance of every UAV due at this tick, on its tracker's clock."""
+        sched = self.onboard.schedule
+        trk = self.onboard.tracker
+        t = trk.rows.t_s
+        due = np.flatnonzero(sched.planning & (t >= sched.next_avoidance_s - 1e-9))
+        if due.size:
+            plan_s = t[due]
+            sched.next_avoidance_s[due] = plan_s + AVOIDANCE_PERIOD_S
+            m = trk.config.steps
+            times = np.empty((due.size, m))
+            own = np.empty((due.size, m, 3))
+            avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own)
+            assert self._finder is not None
+            found = self._finder.find(due, times, own, plan_s, self._radius[due],
+                                      [self._overrides[i] for i in due.tolist()])
+            for j, i in enumerate(due.tolist()):
+                stack = self.uavs[i].stack
+                stack.apply(stack.avoidance.decide(  # type: ignore[union-attr]
+                    float(plan_s[j]), stack.uav_id, stack.priority, times[j], found[j]))
+                if stack.decision is not None and stack.decision.yielding_to:
+                    self._yielding.add(i)
+        planning = sched.planning
+        if planning.any():
+            # The next tick any UAV can be due at (a tick early is harmless: nobody is due).
+            lead = np.min(sched.next_avoidance_s[planning] - t[planning])
+            self._next_round_s = now + lead - self.period_s
+        else:
+            self._next_round_s = math.inf
+
+    def _note_yields(self, now: float, decided: Iterable[int]) -> None:
+        """Whom each UAV yields to, at every tick its decision says so (``decided``: the UAVs
+        that may have decided since; those yielding already are followed)."""
+        for i in decided:
+            d = self.uavs[i].stack.decision
             if d is not None and d.yielding_to:
-                for other in d.yielding_to:
-                    span = u.yielded_to.setdefault(other, [now, now])
-                    span[1] = now
+                self._yielding.add(i)
+        for i in sorted(self._yielding):
+            u = self.uavs[i]
+            d = u.stack.decision
+            if d is None or not d.yielding_to:
+                self._yielding.discard(i)
+                continue
+            for other in d.yielding_to:
+                span = u.yielded_to.setdefault(other, [now, now])
+                span[1] = now
 
     def _step_mission(self, u: WorldUav, now: float) -> None:
         assert u.mission is not None
@@ -525,17 +688,30 @@ class World:
             u.stack.set_mission(out.reference)
 
     def _emit(self, now: float) -> None:
-        for u in self.uavs:
+        """The broadcasts due at this tick (each UAV on its own clock)."""
+        if not self._started:
+            self._started = True
+            for u in self.uavs:
+                u.stack.mark_ticked()
+            self._next_round_s = -math.inf
+        if now < self._next_emit_s:
+            return
+        sched = self.onboard.schedule
+        for i in np.flatnonzero(now + self._offsets
+                                >= sched.next_broadcast_s - 1e-9).tolist():
+            u = self.uavs[i]
             data = u.stack.emit(now + u.clock_offset_s)
             if data is not None:
                 self._publish(u, data, now)
+        # The next tick anyone can be due at (a tick early is harmless).
+        self._next_emit_s = float(np.min(sched.next_broadcast_s - self._offsets)) \
+            - self.period_s
 
     def _tick_batched(self, now: float, k: int, pos: np.ndarray, zoff: np.ndarray,
                       dmin: np.ndarray, pair_d: np.ndarray) -> None:
-        self._receive_and_plan(now)
-        for u in self.uavs:
-            if u.plant.wind is not None:
-                u.plant.hold_wind(self.period_s)
+        self._receive_and_plan_batched(now)
+        for plant in self._windy:
+            plant.hold_wind(self.period_s)
         ob = self.onboard
         trk = ob.tracker
         table = trk.table()
@@ -569,6 +745,8 @@ class World:
         # Receive and plan for everyone first, as the batched tick does: a UAV must not see a
         # message another UAV sent in this same tick.
         self._receive_and_plan(now)
+        self._started = True
+        self._next_round_s = self._next_emit_s = -math.inf  # if the batched path takes over
         for u in self.uavs:
             # received and planned above: those phases are no-ops here
             out = u.stack.tick(now + u.clock_offset_s, u.plant.state())

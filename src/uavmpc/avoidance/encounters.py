@@ -1,0 +1,371 @@
+"""Who comes near whom: the received predictions aligned with ours, for many receivers at once.
+
+Each avoidance update of a UAV compares its own plan with the newest prediction it received
+from every other UAV (:mod:`uavmpc.avoidance.proximity`). With hundreds of UAVs most of those
+are far away, and comparing all of them would cost O(N²) alignments per round. Two facts make
+the comparison cheap without changing its result:
+
+- **A bounding box decides most pairs.** A received prediction, aligned in time and
+  extrapolated for at most ``timeout_s`` past its end, stays inside the box of its points and
+  of its extrapolated end point. If that box, widened by the cylinder radius, does not meet the
+  box of our plan, no point of the pair can be horizontally within the radius: the pair has no
+  near point and changes nothing in the decision. That test is part of the law
+  (:func:`encounter_rows` applies it to every pair it looks at).
+- **A spatial index finds the pairs whose boxes can meet.** A hashed grid over the boxes of the
+  messages the receivers hold gives each receiver its candidates
+  (:func:`build_grid`, :func:`grid_candidates`); ``use_index=False`` looks at every sender
+  instead. Both give the same rows, bit for bit (tested): the index only saves work.
+
+The result per receiver are its **encounters**: the senders with a fresh prediction (or a
+silent one at its last known plan) that come horizontally near at some point of our horizon,
+with those points and our height minus theirs. The strategy decides from them alone
+(:class:`uavmpc.avoidance.strategy.HeightOffsetStrategy.decide`); every receiver still decides
+from what its own inbox holds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavmpc.avoidance.proximity import near_and_dz
+from uavmpc.comms.inbox import InboxRows, InboxTable, Store
+from uavmpc.jit import kernel
+
+#: Boxes are widened by this much more than the radius: the aligned points are computed with
+#: a rounding the box bounds do not share, and a pair must never be pruned by round-off.
+BOX_MARGIN_M = 1e-3
+_HASH_X = 73856093
+_HASH_Y = 19349663
+
+
+@dataclass(frozen=True, eq=False)
+class Encounters:
+    """The others that come near, aligned with our prediction (k senders, m points).
+
+    Attributes:
+        ids: (k,) sender ids; priority: (k,) int64; avoiding: (k,) bool (their flags).
+        silent_row: (k,) bool the row is a silent UAV's last known plan.
+        near_xy: (k, m) bool known and horizontally within the pair's radius.
+        dz_m: (k, m) our z (without offset) minus theirs.
+        silent: every sender heard from recently whose newest prediction is stale now (near
+            or not), in column order.
+    """
+
+    ids: tuple[str, ...]
+    priority: np.ndarray
+    avoiding: np.ndarray
+    silent_row: np.ndarray
+    near_xy: np.ndarray
+    dz_m: np.ndarray
+    silent: tuple[str, ...] = ()
+
+    def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
+        """(k,) we yield to them: their flag is down, or a higher priority (lower number;
+        equal numbers, which a valid set-up never has, are broken by id)."""
+        return np.array([(not a) or p < own_priority or (p == own_priority and i < own_id)
+                         for i, p, a in zip(self.ids, self.priority.tolist(),
+                                            self.avoiding.tolist(), strict=True)], dtype=bool)
+
+
+@kernel
+def _inflated_box(store: Store, slot: int, extrapolate_s: float, out: np.ndarray) -> None:
+    """The box of a prediction's points and of its extrapolated end (where its alignment can
+    put it), into ``out`` (4,)."""
+    n = store.points[slot]
+    b = store.bbox_m[slot]
+    ex = store.positions_m[slot, n - 1, 0] + store.end_velocity_mps[slot, 0] * extrapolate_s
+    ey = store.positions_m[slot, n - 1, 1] + store.end_velocity_mps[slot, 1] * extrapolate_s
+    out[0] = min(b[0], ex)
+    out[1] = max(b[1], ex)
+    out[2] = min(b[2], ey)
+    out[3] = max(b[3], ey)
+
+
+@kernel
+def _own_box(pos: np.ndarray, out: np.ndarray) -> None:
+    out[0] = out[1] = pos[0, 0]
+    out[2] = out[3] = pos[0, 1]
+    for k in range(1, pos.shape[0]):
+        out[0] = min(out[0], pos[k, 0])
+        out[1] = max(out[1], pos[k, 0])
+        out[2] = min(out[2], pos[k, 1])
+        out[3] = max(out[3], pos[k, 1])
+
+
+@kernel
+def _hash(cx: int, cy: int, mask: int) -> int:
+    return ((cx * _HASH_X) ^ (cy * _HASH_Y)) & mask
+
+
+@kernel
+def build_grid(store: Store, extrapolate_s: float, cell_m: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """A hashed grid of cells ``cell_m`` wide over the inflated boxes of the held slots
+    (``holders`` > 0): (bucket starts (H + 1,), slots by bucket). A slot is listed in the
+    bucket of every cell its box covers (a bucket may also hold other cells' slots: the
+    candidates are a superset, and the law's box test decides)."""
+    c = store.holders.shape[0]
+    box = np.empty(4)
+    cells = 0
+    for s in range(c):
+        if store.holders[s] > 0:
+            _inflated_box(store, s, extrapolate_s, box)
+            nx = math.floor(box[1] / cell_m) - math.floor(box[0] / cell_m) + 1
+            ny = math.floor(box[3] / cell_m) - math.floor(box[2] / cell_m) + 1
+            cells += nx * ny
+    h = 16
+    while h < 2 * cells:
+        h *= 2
+    mask = h - 1
+    start = np.zeros(h + 1, dtype=np.int64)
+    for phase in range(2):
+        fill = start.copy()
+        entries = np.empty(max(cells, 1), dtype=np.int64)
+        for s in range(c):
+            if store.holders[s] <= 0:
+                continue
+            _inflated_box(store, s, extrapolate_s, box)
+            x0, x1 = math.floor(box[0] / cell_m), math.floor(box[1] / cell_m)
+            y0, y1 = math.floor(box[2] / cell_m), math.floor(box[3] / cell_m)
+            for cx in range(x0, x1 + 1):
+                for cy in range(y0, y1 + 1):
+                    b = _hash(cx, cy, mask)
+                    if phase == 0:
+                        start[b + 1] += 1
+                    else:
+                        entries[fill[b]] = s
+                        fill[b] += 1
+        if phase == 0:
+            for b in range(h):
+                start[b + 1] += start[b]
+        else:
+            return start, entries
+    return start, np.empty(0, dtype=np.int64)  # not reached
+
+
+@kernel
+def grid_candidates(rows: InboxRows, store: Store, r: int, box: np.ndarray, cell_m: float,
+                    start: np.ndarray, entries: np.ndarray, mark: np.ndarray, stamp: int,
+                    out: np.ndarray) -> int:
+    """The columns of row ``r`` whose held slot is listed in a cell of ``box`` (4,) (already
+    widened by the radius); written into ``out``, sorted; returns their count. ``mark``
+    (S,) int64: scratch, set to ``stamp`` for the columns found."""
+    mask = start.shape[0] - 2
+    x0, x1 = math.floor(box[0] / cell_m), math.floor(box[1] / cell_m)
+    y0, y1 = math.floor(box[2] / cell_m), math.floor(box[3] / cell_m)
+    k = 0
+    for cx in range(x0, x1 + 1):
+        for cy in range(y0, y1 + 1):
+            b = _hash(cx, cy, mask)
+            for e in range(start[b], start[b + 1]):
+                s = entries[e]
+                col = store.col[s]
+                if mark[col] != stamp and rows.held_slot[r, col] == s:
+                    mark[col] = stamp
+                    out[k] = col
+                    k += 1
+    out[:k] = np.sort(out[:k])
+    return k
+
+
+@kernel
+def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np.ndarray,
+                   own_pos: np.ndarray, now_s: np.ndarray, timeout_s: float,
+                   silent_hold_s: float, use_received: bool, radius_m: np.ndarray,
+                   ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
+                   use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
+                   e_silent: np.ndarray, e_near: np.ndarray, e_dz: np.ndarray,
+                   s_start: np.ndarray, s_col: np.ndarray) -> tuple[int, int]:
+    """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
+    ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
+    offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
+    (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``).
+
+    Per receiver, as :class:`Encounters` rows in column order: ``e_col``, ``e_silent``,
+    ``e_near`` (·, m), ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``; and every
+    silent column in ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time
+    reference (stamp, or its receive time with ``use_received``) is within ``timeout_s`` of
+    now; a stale one is "silent" when it is at most ``silent_hold_s`` old, else ignored.
+    Returns (encounter rows, silent entries); when either exceeds its output's capacity,
+    nothing is written past it and the caller retries with larger outputs."""
+    m = own_times.shape[1]
+    n_cols = rows.held_slot.shape[1]
+    cap_e, cap_s = e_col.shape[0], s_col.shape[0]
+    ne = 0
+    ns = 0
+    box_own = np.empty(4)
+    box = np.empty(4)
+    shifted = np.empty(store.times_s.shape[1])
+    near = np.empty(m, dtype=np.bool_)
+    dz = np.empty(m)
+    cand = np.empty(n_cols, dtype=np.int64)
+    mark = np.full(n_cols, -1, dtype=np.int64)
+    start = np.zeros(2, dtype=np.int64)
+    entries = np.zeros(0, dtype=np.int64)
+    if use_index:
+        start, entries = build_grid(store, timeout_s, cell_m)
+    for j in range(due.shape[0]):
+        r = due[j]
+        now = now_s[j]
+        e_start[j] = ne
+        s_start[j] = ns
+        # Silence is a property of the sender's last message, near or not (the release waits
+        # for every silent UAV heard from recently).
+        for col in range(n_cols):
+            slot = rows.held_slot[r, col]
+            if slot < 0:
+                continue
+            ref = rows.held_stamp_s[r, col]
+            if use_received and not math.isnan(rows.held_received_s[r, col]):
+                ref = rows.held_received_s[r, col]
+            age = now - ref
+            if abs(age) > timeout_s and 0.0 < age <= silent_hold_s:
+                if ns < cap_s:
+                    s_col[ns] = col
+                ns += 1
+        r_max = radius_m[j]
+        for o in range(ov_start[j], ov_start[j + 1]):
+            r_max = max(r_max, ov_radius[o])
+        _own_box(own_pos[j], box_own)
+        if use_index:
+            for a in range(4):
+                box[a] = box_own[a] + (r_max + BOX_MARGIN_M) * (1.0 if a % 2 else -1.0)
+            n_cand = grid_candidates(rows, store, r, box, cell_m, start, entries, mark, j,
+                                     cand)
+        else:
+            n_cand = 0
+            for col in range(n_cols):
+                if rows.held_slot[r, col] >= 0:
+                    cand[n_cand] = col
+                    n_cand += 1
+        for c in range(n_cand):
+            col = cand[c]
+            slot = rows.held_slot[r, col]
+            stamp = rows.held_stamp_s[r, col]
+            ref = stamp
+            if use_received and not math.isnan(rows.held_received_s[r, col]):
+                ref = rows.held_received_s[r, col]
+            age = now - ref
+            silent = False
+            if abs(age) > timeout_s:
+                if not 0.0 < age <= silent_hold_s:
+                    continue
+                silent = True
+            radius = radius_m[j]
+            for o in range(ov_start[j], ov_start[j + 1]):
+                if ov_col[o] == col:
+                    radius = ov_radius[o]
+            _inflated_box(store, slot, timeout_s, box)
+            reach = radius + BOX_MARGIN_M
+            if (box[0] - reach > box_own[1] or box[1] + reach < box_own[0]
+                    or box[2] - reach > box_own[3] or box[3] + reach < box_own[2]):
+                continue
+            n = store.points[slot]
+            # With the receive-time fallback the prediction is moved onto our clock: its stamp
+            # is taken to be the moment we received it (error: the link latency).
+            for k in range(n):
+                shifted[k] = store.times_s[slot, k] + (ref - stamp)
+            near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times[j], timeout_s,
+                        own_pos[j], radius, near, dz)
+            hit = False
+            for k in range(m):
+                hit = hit or near[k]
+            if not hit:
+                continue
+            if ne < cap_e:
+                e_col[ne] = col
+                e_silent[ne] = silent
+                e_near[ne] = near
+                e_dz[ne] = dz
+            ne += 1
+    e_start[due.shape[0]] = ne
+    s_start[due.shape[0]] = ns
+    return ne, ns
+
+
+class EncounterFinder:
+    """Runs :func:`encounter_rows` for the receivers of one :class:`InboxTable` and hands out
+    :class:`Encounters` (its output arrays are kept and grown between rounds).
+
+    Args:
+        table: the receivers' inboxes.
+        timeout_s, silent_hold_s, use_received: the strategy's parameters (``timeout_s``,
+            ``silent_hold_s``, ``time_reference == "receive"``).
+        use_index: find candidates with the grid (default) or look at every sender.
+        cell_m: the grid's cell size (default: 2 × the largest radius, at least 16 m).
+    """
+
+    def __init__(self, table: InboxTable, *, timeout_s: float, silent_hold_s: float,
+                 use_received: bool, use_index: bool = True, cell_m: float | None = None
+                 ) -> None:
+        self.table = table
+        self.timeout_s = float(timeout_s)
+        self.silent_hold_s = float(silent_hold_s)
+        self.use_received = bool(use_received)
+        self.use_index = bool(use_index)
+        self.cell_m = cell_m
+        self._cap_e = 16
+        self._cap_s = 16
+        self._out: tuple[np.ndarray, ...] | None = None
+
+    def find(self, due: np.ndarray, own_times: np.ndarray, own_pos: np.ndarray,
+             now_s: np.ndarray, radius_m: np.ndarray,
+             overrides: list[dict[int, float]] | None = None) -> list[Encounters]:
+        """The encounters of each receiver row in ``due`` (R,), see :func:`encounter_rows`
+        (``overrides``: per receiver, column → radius)."""
+        r_count = due.shape[0]
+        m = own_times.shape[1]
+        ov_start = np.zeros(r_count + 1, dtype=np.int64)
+        cols: list[int] = []
+        radii: list[float] = []
+        for j, ov in enumerate(overrides or [{}] * r_count):
+            cols.extend(ov)
+            radii.extend(ov.values())
+            ov_start[j + 1] = len(cols)
+        ov_col = np.array(cols, dtype=np.int64)
+        ov_radius = np.array(radii, dtype=float)
+        cell = self.cell_m
+        if cell is None:
+            cell = max(16.0, 2.0 * float(max(radius_m.max(initial=0.0),
+                                             ov_radius.max(initial=0.0))))
+        t = self.table
+        while True:
+            out = self._buffers(r_count, m)
+            ne, ns = encounter_rows(t.rows, t.store, due, own_times, own_pos, now_s,
+                                    self.timeout_s, self.silent_hold_s, self.use_received,
+                                    radius_m, ov_start, ov_col, ov_radius, self.use_index,
+                                    cell, *out)
+            if ne <= self._cap_e and ns <= self._cap_s:
+                break
+            self._cap_e = max(self._cap_e, 2 * ne)
+            self._cap_s = max(self._cap_s, 2 * ns)
+            self._out = None
+        e_start, e_col, e_silent, e_near, e_dz, s_start, s_col = out
+        ids, st, rows = t.ids, t.store, t.rows
+        result = []
+        for j in range(r_count):
+            a, b = int(e_start[j]), int(e_start[j + 1])
+            silent = tuple(ids[c] for c in s_col[int(s_start[j]):int(s_start[j + 1])].tolist())
+            cols_j = e_col[a:b]
+            slots = rows.held_slot[int(due[j]), cols_j]
+            result.append(Encounters(
+                tuple(ids[c] for c in cols_j.tolist()), st.priority[slots].copy(),
+                st.avoiding[slots].copy(), e_silent[a:b].copy(), e_near[a:b].copy(),
+                e_dz[a:b].copy(), silent))
+        return result
+
+    def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:
+        out = self._out
+        if out is None or out[0].shape[0] < r_count + 1 or out[3].shape[1] != m:
+            ce, cs = self._cap_e, self._cap_s
+            out = (np.zeros(r_count + 1, dtype=np.int64), np.zeros(ce, dtype=np.int64),
+                   np.zeros(ce, dtype=np.bool_), np.zeros((ce, m), dtype=np.bool_),
+                   np.zeros((ce, m)), np.zeros(r_count + 1, dtype=np.int64),
+                   np.zeros(cs, dtype=np.int64))
+            self._out = out
+        if out[0].shape[0] != r_count + 1:
+            return (out[0][:r_count + 1], *out[1:5], out[5][:r_count + 1], out[6])
+        return out

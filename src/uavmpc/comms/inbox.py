@@ -1,0 +1,357 @@
+"""Received predictions as arrays: one store of decoded messages, one row of "newest per
+sender" per receiving UAV (SPEC §5.1).
+
+A simulated world of N UAVs delivers each broadcast to N − 1 receivers. The bytes are the same
+for all of them and decoding is a pure function of the bytes, so a :class:`InboxTable` decodes
+each distinct byte string once into a **slot** of its store (:class:`Store`) and each receiver
+holds, per sender, the slot of the newest message it accepted (:class:`InboxRows`). The rule
+a receiver applies to each copy it gets — reject a future-stamped or stale one, ignore its
+own, keep it only if newer than what it holds — is one compiled law, :func:`accept_copy`,
+run for a whole tick's deliveries by :func:`accept_copies` and for one datagram by
+:meth:`uavmpc.comms.link.Inbox.accept` (a view on one row).
+
+Slots are reference-counted by the receivers holding them and reused once nobody does; a
+decoded message is therefore never copied per receiver, and memory grows with the number of
+distinct messages held, not with N².
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from uavmpc.comms.message import InvalidMessageError, PredictionMessage, decode
+from uavmpc.jit import kernel
+
+#: Outcomes of :func:`accept_copy`.
+KEPT, SUPERSEDED, FUTURE, STALE, OWN = 0, 1, 2, 3, 4
+#: The rejection reasons as :func:`~uavmpc.comms.message.validate_on_receipt` names them.
+FUTURE_REASON = "future-stamped"
+STALE_REASON = "stale"
+#: Garbage is decoded once per distinct byte string; a flood of distinct garbage is bounded.
+_MAX_FAILURES_CACHED = 4096
+
+
+class Store(NamedTuple):
+    """Decoded messages, one slot each (C slots of up to M points).
+
+    Attributes:
+        times_s: (C, M) absolute times; positions_m: (C, M, 3) ENU; points: (C,) int64 m.
+        stamp_s: (C,); col: (C,) int64 sender column; priority: (C,) int64; avoiding: (C,).
+        bbox_m: (C, 4) [x_min, x_max, y_min, y_max] of the points; end_velocity_mps: (C, 2)
+            the last segment's horizontal velocity (its extrapolation past the end).
+        holders: (C,) int64 receivers holding the slot; pinned: (C,) int8 in use by a delivery
+            in progress; generation: (C,) int64 bumped when a slot is reused.
+    """
+
+    times_s: np.ndarray
+    positions_m: np.ndarray
+    points: np.ndarray
+    stamp_s: np.ndarray
+    col: np.ndarray
+    priority: np.ndarray
+    avoiding: np.ndarray
+    bbox_m: np.ndarray
+    end_velocity_mps: np.ndarray
+    holders: np.ndarray
+    pinned: np.ndarray
+    generation: np.ndarray
+
+    @classmethod
+    def empty(cls, slots: int, points: int) -> Store:
+        return cls(np.zeros((slots, points)), np.zeros((slots, points, 3)),
+                   np.zeros(slots, dtype=np.int64), np.zeros(slots),
+                   np.full(slots, -1, dtype=np.int64), np.zeros(slots, dtype=np.int64),
+                   np.zeros(slots, dtype=np.bool_), np.zeros((slots, 4)), np.zeros((slots, 2)),
+                   np.zeros(slots, dtype=np.int64), np.zeros(slots, dtype=np.int8),
+                   np.zeros(slots, dtype=np.int64))
+
+
+class InboxRows(NamedTuple):
+    """N receivers' views of S senders (row = receiver, column = sender).
+
+    Attributes:
+        held_slot: (N, S) int64 the store slot of the newest accepted message (−1: none).
+        held_stamp_s: (N, S) its stamp; held_received_s: (N, S) the receiver's clock when it
+            arrived (NaN unless the receiver uses the receive-time reference).
+        own_col: (N,) int64 each receiver's own column (its echoes are ignored).
+        receive_time: (N,) bool the receiver uses the receive-time reference: stamps are then
+            only compared with the same sender's stamps.
+        max_future_s, max_age_s: (N,) the clock tolerance and the age limit of the stamp check.
+        accepted, superseded, future, stale: (N,) int64 counters.
+    """
+
+    held_slot: np.ndarray
+    held_stamp_s: np.ndarray
+    held_received_s: np.ndarray
+    own_col: np.ndarray
+    receive_time: np.ndarray
+    max_future_s: np.ndarray
+    max_age_s: np.ndarray
+    accepted: np.ndarray
+    superseded: np.ndarray
+    future: np.ndarray
+    stale: np.ndarray
+
+
+@kernel
+def accept_copy(rows: InboxRows, store: Store, r: int, slot: int, now_s: float) -> int:
+    """The receiver's rule for one valid message (store ``slot``) arriving at row ``r`` at its
+    clock ``now_s``: :data:`FUTURE` / :data:`STALE` (stamp check, counted), :data:`OWN` (its
+    own echo, ignored), :data:`SUPERSEDED` (not newer than the one held, counted) or
+    :data:`KEPT` (held from now on)."""
+    col = store.col[slot]
+    stamp = store.stamp_s[slot]
+    if not rows.receive_time[r]:
+        ahead = stamp - now_s
+        if ahead > rows.max_future_s[r]:
+            rows.future[r] += 1
+            return FUTURE
+        if -ahead > rows.max_age_s[r]:
+            rows.stale[r] += 1
+            return STALE
+    if col == rows.own_col[r]:
+        return OWN
+    held = rows.held_slot[r, col]
+    if held >= 0 and stamp <= rows.held_stamp_s[r, col]:
+        rows.superseded[r] += 1
+        return SUPERSEDED
+    if held >= 0:
+        store.holders[held] -= 1
+    store.holders[slot] += 1
+    rows.held_slot[r, col] = slot
+    rows.held_stamp_s[r, col] = stamp
+    rows.held_received_s[r, col] = now_s if rows.receive_time[r] else np.nan
+    rows.accepted[r] += 1
+    return KEPT
+
+
+@kernel
+def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: np.ndarray,
+                  now_s: np.ndarray) -> None:
+    """:func:`accept_copy` for a tick's deliveries in their order: copy k of ``slots`` (K,)
+    to row ``receivers[k]`` at that row's clock ``now_s[receivers[k]]``."""
+    for k in range(receivers.shape[0]):
+        accept_copy(rows, store, receivers[k], slots[k], now_s[receivers[k]])
+
+
+@kernel
+def _bbox(times: np.ndarray, pos: np.ndarray, n: int, box: np.ndarray, vend: np.ndarray
+          ) -> None:
+    box[0] = box[1] = pos[0, 0]
+    box[2] = box[3] = pos[0, 1]
+    for k in range(1, n):
+        box[0] = min(box[0], pos[k, 0])
+        box[1] = max(box[1], pos[k, 0])
+        box[2] = min(box[2], pos[k, 1])
+        box[3] = max(box[3], pos[k, 1])
+    dt = times[n - 1] - times[n - 2]
+    vend[0] = (pos[n - 1, 0] - pos[n - 2, 0]) / dt
+    vend[1] = (pos[n - 1, 1] - pos[n - 2, 1]) / dt
+
+
+class InboxTable:
+    """The store and the rows of N receivers (ids ``receivers``, in row order).
+
+    Senders get a column the first time they are seen (the receivers themselves first, in
+    order); the arrays grow as needed. ``time_reference``, ``max_future_s``, ``max_age_s``:
+    as :class:`~uavmpc.comms.link.Inbox` documents them, the same for every row.
+    """
+
+    def __init__(self, receivers: Sequence[str], *, time_reference: str = "stamp",
+                 max_future_s: float = 0.5, max_age_s: float = 1.0, points: int = 40) -> None:
+        if time_reference not in ("stamp", "receive"):
+            raise ValueError(
+                f"time_reference: must be 'stamp' or 'receive', got {time_reference!r}")
+        self.receivers = list(receivers)
+        self.time_reference = time_reference
+        self.max_future_s = float(max_future_s)
+        self.max_age_s = float(max_age_s)
+        self.ids: list[str] = []
+        self.cols: dict[str, int] = {}
+        n = len(self.receivers)
+        self.rows = self._rows(n, max(4, n))
+        self.store = Store.empty(max(8, 2 * n), points)
+        for r, uid in enumerate(self.receivers):
+            self.rows.own_col[r] = self.col_of(uid)
+        #: Rejections the stamp check does not count (decoding, signatures), per row.
+        self.reasons: list[dict[str, int]] = [{} for _ in range(n)]
+        self._free: list[int] = list(range(self.store.holders.shape[0] - 1, -1, -1))
+        self._decoded: dict[bytes, tuple[int, int] | str] = {}
+        self._failures = 0
+
+    def _rows(self, n: int, s: int) -> InboxRows:
+        return InboxRows(np.full((n, s), -1, dtype=np.int64), np.zeros((n, s)),
+                         np.full((n, s), np.nan), np.zeros(n, dtype=np.int64),
+                         np.full(n, self.time_reference == "receive"),
+                         np.full(n, self.max_future_s), np.full(n, self.max_age_s),
+                         np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                         np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64))
+
+    # ------------------------------------------------------------------ senders
+    def col_of(self, uav_id: str) -> int:
+        """The column of ``uav_id`` (a new one the first time)."""
+        col = self.cols.get(uav_id)
+        if col is None:
+            col = len(self.ids)
+            self.ids.append(uav_id)
+            self.cols[uav_id] = col
+            if col >= self.rows.held_slot.shape[1]:
+                self._grow_columns(2 * col)
+        return col
+
+    def _grow_columns(self, s: int) -> None:
+        old = self.rows
+        n, s0 = old.held_slot.shape
+        new = self._rows(n, s)
+        new.held_slot[:, :s0] = old.held_slot
+        new.held_stamp_s[:, :s0] = old.held_stamp_s
+        new.held_received_s[:, :s0] = old.held_received_s
+        for name in ("own_col", "receive_time", "max_future_s", "max_age_s", "accepted",
+                     "superseded", "future", "stale"):
+            getattr(new, name)[:] = getattr(old, name)
+        self.rows = new
+
+    # ------------------------------------------------------------------ messages
+    def slot_for(self, data: bytes) -> int:
+        """The store slot holding the message ``data`` decodes to (decoded once per distinct
+        byte string while its slot lives), pinned until :meth:`unpin`; raises
+        :class:`~uavmpc.comms.message.InvalidMessageError` naming the problem."""
+        hit = self._decoded.get(data)
+        if isinstance(hit, str):
+            raise InvalidMessageError(hit)
+        if hit is not None and self.store.generation[hit[0]] == hit[1]:
+            self.store.pinned[hit[0]] = 1
+            return hit[0]
+        try:
+            msg = decode(data)
+        except InvalidMessageError as exc:
+            if self._failures >= _MAX_FAILURES_CACHED:
+                self._decoded = {k: v for k, v in self._decoded.items() if not isinstance(v, str)}
+                self._failures = 0
+            self._decoded[bytes(data)] = str(exc)
+            self._failures += 1
+            raise
+        slot = self.put(msg)
+        if len(self._decoded) > 4 * self.store.holders.shape[0]:
+            gen = self.store.generation
+            self._decoded = {k: v for k, v in self._decoded.items()
+                             if isinstance(v, str) or gen[v[0]] == v[1]}
+        self._decoded[bytes(data)] = (slot, int(self.store.generation[slot]))
+        return slot
+
+    def put(self, msg: PredictionMessage) -> int:
+        """Write a valid message into a free slot (pinned until :meth:`unpin`)."""
+        col = self.col_of(msg.uav_id)
+        if msg.points > self.store.times_s.shape[1]:
+            self._grow_store(self.store.holders.shape[0], msg.points)
+        slot = self._allocate()
+        st = self.store
+        m = msg.points
+        st.times_s[slot, :m] = msg.times_s
+        st.positions_m[slot, :m] = msg.positions_m
+        st.points[slot] = m
+        st.stamp_s[slot] = msg.stamp_s
+        st.col[slot] = col
+        st.priority[slot] = msg.priority
+        st.avoiding[slot] = msg.avoiding
+        _bbox(st.times_s[slot], st.positions_m[slot], m, st.bbox_m[slot],
+              st.end_velocity_mps[slot])
+        st.pinned[slot] = 1
+        return slot
+
+    def unpin(self) -> None:
+        """End of a delivery: slots nobody holds may be reused."""
+        self.store.pinned[:] = 0
+
+    def _allocate(self) -> int:
+        st = self.store
+        while self._free:
+            slot = self._free.pop()
+            if st.holders[slot] == 0 and not st.pinned[slot]:
+                st.generation[slot] += 1
+                return slot
+        free = np.flatnonzero((st.holders == 0) & (st.pinned == 0))
+        if free.size == 0:
+            c = st.holders.shape[0]
+            self._grow_store(2 * c, st.times_s.shape[1])
+            free = np.arange(c, 2 * c)
+        self._free = free[::-1].tolist()
+        return self._allocate()
+
+    def _grow_store(self, slots: int, points: int) -> None:
+        old = self.store
+        c, m = old.times_s.shape
+        new = Store.empty(slots, points)
+        for name, arr in zip(Store._fields, old, strict=True):
+            dst = getattr(new, name)
+            if arr.ndim == 1:
+                dst[:c] = arr
+            else:
+                dst[:c, :m] = arr
+        self.store = new
+
+    def message(self, r: int, col: int) -> PredictionMessage | None:
+        """Row ``r``'s message from column ``col`` as an object (None if it holds none)."""
+        slot = int(self.rows.held_slot[r, col])
+        if slot < 0:
+            return None
+        st = self.store
+        m = int(st.points[slot])
+        rec = float(self.rows.held_received_s[r, col])
+        return PredictionMessage(1, self.ids[col], int(st.priority[slot]),
+                                 float(st.stamp_s[slot]), st.times_s[slot, :m],
+                                 st.positions_m[slot, :m], bool(st.avoiding[slot]),
+                                 None if np.isnan(rec) else rec)
+
+
+class LatestView(Mapping[str, PredictionMessage]):
+    """Row ``r`` of an :class:`InboxTable` as "the newest message per sender" (column order),
+    the objects built when first asked for and kept while the row holds the same message."""
+
+    def __init__(self, table: InboxTable, r: int) -> None:
+        self._table = table
+        self._r = r
+        self._cache: dict[int, tuple[int, float, PredictionMessage]] = {}
+
+    def _cols(self) -> np.ndarray:
+        t = self._table
+        held = t.rows.held_slot[self._r, :len(t.ids)]
+        return np.flatnonzero(held >= 0)
+
+    def __getitem__(self, uav_id: str) -> PredictionMessage:
+        t = self._table
+        col = t.cols.get(uav_id)
+        if col is None:
+            raise KeyError(uav_id)
+        slot = int(t.rows.held_slot[self._r, col])
+        if slot < 0:
+            raise KeyError(uav_id)
+        rec = float(t.rows.held_received_s[self._r, col])
+        hit = self._cache.get(col)
+        if hit is not None and hit[0] == slot and (hit[1] == rec or (hit[1] != hit[1]
+                                                                     and rec != rec)):
+            return hit[2]
+        msg = t.message(self._r, col)
+        assert msg is not None
+        self._cache[col] = (slot, rec, msg)
+        return msg
+
+    def remember(self, col: int, msg: PredictionMessage) -> None:
+        """The object just accepted for ``col`` (returned by the same lookup from now on)."""
+        t = self._table
+        rec = float(t.rows.held_received_s[self._r, col])
+        self._cache[col] = (int(t.rows.held_slot[self._r, col]), rec, msg)
+
+    def __iter__(self) -> Iterator[str]:
+        ids = self._table.ids
+        return iter([ids[c] for c in self._cols()])
+
+    def __len__(self) -> int:
+        return int(self._cols().size)
+
+    def __contains__(self, uav_id: object) -> bool:
+        col = self._table.cols.get(uav_id) if isinstance(uav_id, str) else None
+        return col is not None and self._table.rows.held_slot[self._r, col] >= 0
