@@ -1,0 +1,188 @@
+"""Encounters at scale: the spatial index finds exactly what comparing every pair finds, the box
+test prunes only pairs that never come near, and the inbox store decodes each broadcast once."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
+from uavmpc.avoidance.encounters import EncounterFinder
+from uavmpc.avoidance.proximity import align
+from uavmpc.comms.inbox import InboxTable, accept_copies
+from uavmpc.comms.message import InvalidMessageError, PredictionMessage, encode
+from uavmpc.drivers.world import World
+from uavmpc.scenarios.random_walk import random_walk
+
+HORIZON = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
+
+
+def _plan(rng: np.random.Generator, centre: np.ndarray, t0: float) -> tuple[np.ndarray, ...]:
+    """A straight 40-point plan at a random speed and heading through ``centre``."""
+    v = rng.uniform(0.0, 12.0) * np.array([np.cos(a := rng.uniform(0, 2 * np.pi)), np.sin(a)])
+    xy = centre[:2] + (HORIZON - 4.0)[:, None] * v
+    z = centre[2] + rng.uniform(-1.0, 1.0) * HORIZON / 8.0
+    return t0 + HORIZON, np.column_stack([xy, z])
+
+
+def _world_table(seed: int, n: int, area_m: float, receive: bool):
+    """N UAVs' inbox rows after one round of broadcasts (some lost, some stale, some silent),
+    and their own plans."""
+    rng = np.random.default_rng(seed)
+    ids = [f"u{i}" for i in range(n)]
+    table = InboxTable(ids, time_reference="receive" if receive else "stamp", max_age_s=20.0)
+    centres = np.column_stack([rng.uniform(0, area_m, (n, 2)), rng.uniform(8, 14, n)])
+    now = 100.0
+    own_t = np.empty((n, 40))
+    own_p = np.empty((n, 40, 3))
+    for i in range(n):
+        own_t[i], own_p[i] = _plan(rng, centres[i], now)
+    for i in range(n):
+        # Each sender's newest message is 0–12 s old: fresh, silent or ignored by the strategy.
+        stamp = now - rng.choice([0.2, 0.6, 1.5, 4.0, 12.0])
+        times, pos = _plan(rng, centres[i], stamp)
+        msg = PredictionMessage(1, ids[i], i + 1, stamp, times, pos, bool(rng.random() < 0.9))
+        slot = table.slot_for(encode(msg))
+        receivers = np.flatnonzero(rng.random(n) < 0.8)  # the copies that got through
+        accept_copies(table.rows, table.store, receivers, np.full(receivers.size, slot),
+                      np.full(n, stamp + rng.uniform(0.0, 0.1)))
+        table.unpin()
+    return table, own_t, own_p, np.full(n, now), ids
+
+
+def _find(table, own_t, own_p, now, radius, overrides, use_index: bool):
+    finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0,
+                             use_received=table.time_reference == "receive",
+                             use_index=use_index, cell_m=None)
+    due = np.arange(own_t.shape[0])
+    return finder.find(due, own_t, own_p, now, radius, overrides)
+
+
+def _same(a, b) -> None:
+    assert a.ids == b.ids
+    assert a.silent == b.silent
+    assert np.array_equal(a.silent_row, b.silent_row)
+    assert np.array_equal(a.near_xy, b.near_xy)
+    assert np.array_equal(a.dz_m, b.dz_m)
+    assert np.array_equal(a.priority, b.priority)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 60), area=st.floats(20.0, 800.0),
+       receive=st.booleans(), radius=st.floats(1.0, 40.0))
+def test_the_index_finds_exactly_the_encounters_of_the_all_pairs_comparison(
+        seed, n, area, receive, radius) -> None:
+    table, own_t, own_p, now, ids = _world_table(seed, n, area, receive)
+    rng = np.random.default_rng(seed + 1)
+    overrides = [{int(c): float(rng.uniform(0.5, 2 * radius))
+                  for c in rng.choice(n, size=min(n, 3), replace=False)} for _ in range(n)]
+    radii = np.full(n, radius)
+    indexed = _find(table, own_t, own_p, now, radii, overrides, True)
+    every = _find(table, own_t, own_p, now, radii, overrides, False)
+    for a, b in zip(indexed, every, strict=True):
+        _same(a, b)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 30), area=st.floats(10.0, 300.0))
+def test_the_box_test_prunes_only_senders_that_never_come_near(seed, n, area) -> None:
+    """Against the alignment of every held message (no box, no index): a sender is an
+    encounter exactly when some aligned point is horizontally within the radius."""
+    table, own_t, own_p, now, ids = _world_table(seed, n, area, False)
+    radius = 5.0
+    found = _find(table, own_t, own_p, now, np.full(n, radius), None, True)
+    st_ = table.store
+    for r in range(n):
+        expect = []
+        for col in range(len(ids)):
+            slot = table.rows.held_slot[r, col]
+            if slot < 0:
+                continue
+            age = now[r] - st_.stamp_s[slot]
+            if abs(age) > 1.0 and not 0.0 < age <= 10.0:
+                continue
+            k = st_.points[slot]
+            aligned, known = align(st_.times_s[slot, :k], st_.positions_m[slot, :k], own_t[r],
+                                   1.0)
+            d2 = ((aligned[:, :2] - own_p[r, :, :2]) ** 2).sum(axis=1)
+            if np.any(known & (d2 <= radius**2)):
+                expect.append(ids[col])
+        assert list(found[r].ids) == expect
+
+
+def test_update_from_messages_and_decide_from_a_table_agree() -> None:
+    """The strategy's Mapping entry point (nodes, tests) and the world's table path decide the
+    same, for every UAV of a dense round."""
+    table, own_t, own_p, now, ids = _world_table(7, 25, 60.0, False)
+    params = AvoidanceParams()
+    found = _find(table, own_t, own_p, now, np.full(25, params.radius_m), None, True)
+    for r in range(25):
+        latest = {ids[c]: table.message(r, c) for c in range(25)
+                  if table.rows.held_slot[r, c] >= 0}
+        a = HeightOffsetStrategy(params).update(now[r], ids[r], r + 1, own_t[r], own_p[r],
+                                                latest)
+        b = HeightOffsetStrategy(params).decide(now[r], ids[r], r + 1, own_t[r], found[r])
+        assert a == b
+
+
+def test_a_broadcast_is_decoded_once_and_its_slot_reused_after_the_last_holder() -> None:
+    table = InboxTable(["a", "b", "c"])
+    msg = PredictionMessage(1, "a", 1, 10.0, 10.0 + HORIZON, np.zeros((40, 3)), True)
+    data = encode(msg)
+    slot = table.slot_for(data)
+    assert table.slot_for(bytes(data)) == slot  # equal bytes: the same slot, no decoding
+    accept_copies(table.rows, table.store, np.array([1, 2]), np.array([slot, slot]),
+                  np.full(3, 10.05))
+    table.unpin()
+    assert table.store.holders[slot] == 2
+    newer = encode(PredictionMessage(1, "a", 1, 10.5, 10.5 + HORIZON, np.ones((40, 3)), True))
+    slot2 = table.slot_for(newer)
+    assert slot2 != slot
+    accept_copies(table.rows, table.store, np.array([1, 2]), np.array([slot2, slot2]),
+                  np.full(3, 10.55))
+    table.unpin()
+    assert table.store.holders[slot] == 0 and table.store.holders[slot2] == 2
+    # A long flight: each new message replaces the last in every inbox, and the store keeps
+    # reusing the slots nobody holds any more (it never grows).
+    capacity = table.store.holders.shape[0]
+    for j in range(200):
+        stamp = 11.0 + 0.5 * j
+        data_j = encode(PredictionMessage(1, "a", 1, stamp, stamp + HORIZON, np.ones((40, 3)),
+                                          True))
+        s = table.slot_for(data_j)
+        accept_copies(table.rows, table.store, np.array([1, 2]), np.array([s, s]),
+                      np.full(3, stamp + 0.05))
+        table.unpin()
+    assert table.store.holders.shape[0] == capacity
+    assert table.store.holders.sum() == 2
+    assert table.message(1, table.cols["a"]).stamp_s == 11.0 + 0.5 * 199
+    with pytest.raises(InvalidMessageError, match="truncated"):
+        table.slot_for(data[:30])
+
+
+def test_a_table_grows_for_new_senders_and_longer_messages() -> None:
+    table = InboxTable(["a"], points=40)
+    for j in range(20):
+        m = 40 + 8 * j
+        msg = PredictionMessage(1, f"s{j}", j, 1.0, 1.0 + np.arange(m) * 0.1,
+                                np.full((m, 3), float(j)), True)
+        slot = table.slot_for(encode(msg))
+        accept_copies(table.rows, table.store, np.array([0]), np.array([slot]), np.full(1, 1.0))
+        table.unpin()
+    assert len(table.ids) == 21
+    for j in range(20):
+        got = table.message(0, table.cols[f"s{j}"])
+        assert got.points == 40 + 8 * j and got.positions_m[0, 0] == j
+
+
+def test_a_world_flown_with_the_index_equals_the_same_world_flown_all_pairs() -> None:
+    """A dense 30-UAV random walk (several UAVs climbing at once), 20 s."""
+    def fly(index: bool):
+        sc = random_walk(30, area_m=120.0, duration_s=30.0, seed=3)
+        return World(sc, seed=3, index=index).run(20.0)
+
+    a, b = fly(True), fly(False)
+    assert np.array_equal(a.positions_m, b.positions_m)
+    assert np.array_equal(a.z_offset_m, b.z_offset_m)
+    assert a.per_uav == b.per_uav
+    assert a.z_offset_m.max() > 0.0, "the scenario must make someone climb"
