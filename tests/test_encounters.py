@@ -72,7 +72,7 @@ def _same(a, b) -> None:
        receive=st.booleans(), radius=st.floats(1.0, 40.0))
 def test_the_index_finds_exactly_the_encounters_of_the_all_pairs_comparison(
         seed, n, area, receive, radius) -> None:
-    table, own_t, own_p, now, ids = _world_table(seed, n, area, receive)
+    table, own_t, own_p, now, _ids = _world_table(seed, n, area, receive)
     rng = np.random.default_rng(seed + 1)
     overrides = [{int(c): float(rng.uniform(0.5, 2 * radius))
                   for c in rng.choice(n, size=min(n, 3), replace=False)} for _ in range(n)]
@@ -179,7 +179,7 @@ def test_a_world_flown_with_the_index_equals_the_same_world_flown_all_pairs() ->
     """A dense 30-UAV random walk (several UAVs climbing at once), 20 s."""
     def fly(index: bool):
         sc = random_walk(30, area_m=120.0, duration_s=30.0, seed=3)
-        return World(sc, seed=3, index=index).run(20.0)
+        return World(sc, seed=3, index=index).run(20.0)  # 30 < 32: both forced
 
     a, b = fly(True), fly(False)
     assert np.array_equal(a.positions_m, b.positions_m)

@@ -166,6 +166,7 @@ def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
     nominal = np.empty((m, 4))
     for j in range(idx.shape[0]):
         i = idx[j]
+        # The very plan the UAV broadcasts (one law: the positions are not summed again here).
         plan(trk.rel[i], trk.u_plan[i], trk.p0[i], consts.free_t, consts.forced_t, out)
         t0 = trk.t_s[i] - h[0]
         for k in range(m):

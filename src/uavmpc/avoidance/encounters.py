@@ -286,6 +286,28 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     return ne, ns
 
 
+#: With this many senders or more, ``use_index=None`` finds candidates through the grid (below
+#: it, looking at every sender costs less than building the grid).
+AUTO_INDEX_SENDERS = 32
+_NO_COLS = np.zeros(0, dtype=np.int64)
+_NO_RADII = np.zeros(0)
+_NOBODY: dict[int, Encounters] = {}
+
+
+def _nobody(m: int, silent: tuple[str, ...]) -> Encounters:
+    """No encounter (arrays shared: an Encounters is never written to)."""
+    enc = _NOBODY.get(m)
+    if enc is None:
+        enc = Encounters((), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.bool_),
+                         np.zeros(0, dtype=np.bool_), np.zeros((0, m), dtype=np.bool_),
+                         np.zeros((0, m)))
+        _NOBODY[m] = enc
+    if silent:
+        return Encounters(enc.ids, enc.priority, enc.avoiding, enc.silent_row, enc.near_xy,
+                          enc.dz_m, silent)
+    return enc
+
+
 class EncounterFinder:
     """Runs :func:`encounter_rows` for the receivers of one :class:`InboxTable` and hands out
     :class:`Encounters` (its output arrays are kept and grown between rounds).
@@ -294,18 +316,19 @@ class EncounterFinder:
         table: the receivers' inboxes.
         timeout_s, silent_hold_s, use_received: the strategy's parameters (``timeout_s``,
             ``silent_hold_s``, ``time_reference == "receive"``).
-        use_index: find candidates with the grid (default) or look at every sender.
+        use_index: find candidates with the grid (True), look at every sender (False), or
+            choose by the number of senders (None, default: :data:`AUTO_INDEX_SENDERS`).
         cell_m: the grid's cell size (default: 2 × the largest radius, at least 16 m).
     """
 
     def __init__(self, table: InboxTable, *, timeout_s: float, silent_hold_s: float,
-                 use_received: bool, use_index: bool = True, cell_m: float | None = None
-                 ) -> None:
+                 use_received: bool, use_index: bool | None = None,
+                 cell_m: float | None = None) -> None:
         self.table = table
         self.timeout_s = float(timeout_s)
         self.silent_hold_s = float(silent_hold_s)
         self.use_received = bool(use_received)
-        self.use_index = bool(use_index)
+        self.use_index = None if use_index is None else bool(use_index)
         self.cell_m = cell_m
         self._cap_e = 16
         self._cap_s = 16
@@ -319,14 +342,16 @@ class EncounterFinder:
         r_count = due.shape[0]
         m = own_times.shape[1]
         ov_start = np.zeros(r_count + 1, dtype=np.int64)
-        cols: list[int] = []
-        radii: list[float] = []
-        for j, ov in enumerate(overrides or [{}] * r_count):
-            cols.extend(ov)
-            radii.extend(ov.values())
-            ov_start[j + 1] = len(cols)
-        ov_col = np.array(cols, dtype=np.int64)
-        ov_radius = np.array(radii, dtype=float)
+        ov_col, ov_radius = _NO_COLS, _NO_RADII
+        if overrides is not None and any(overrides):
+            cols: list[int] = []
+            radii: list[float] = []
+            for j, ov in enumerate(overrides):
+                cols.extend(ov)
+                radii.extend(ov.values())
+                ov_start[j + 1] = len(cols)
+            ov_col = np.array(cols, dtype=np.int64)
+            ov_radius = np.array(radii, dtype=float)
         cell = self.cell_m
         if cell is None:
             cell = max(16.0, 2.0 * float(max(radius_m.max(initial=0.0),
@@ -334,9 +359,11 @@ class EncounterFinder:
         t = self.table
         while True:
             out = self._buffers(r_count, m)
+            use_index = (self.use_index if self.use_index is not None
+                         else len(t.ids) >= AUTO_INDEX_SENDERS)
             ne, ns = encounter_rows(t.rows, t.store, due, own_times, own_pos, now_s,
                                     self.timeout_s, self.silent_hold_s, self.use_received,
-                                    radius_m, ov_start, ov_col, ov_radius, self.use_index,
+                                    radius_m, ov_start, ov_col, ov_radius, use_index,
                                     cell, *out)
             if ne <= self._cap_e and ns <= self._cap_s:
                 break
@@ -346,9 +373,15 @@ class EncounterFinder:
         e_start, e_col, e_silent, e_near, e_dz, s_start, s_col = out
         ids, st, rows = t.ids, t.store, t.rows
         result = []
+        starts = e_start[:r_count + 1].tolist()
+        silent_starts = s_start[:r_count + 1].tolist()
         for j in range(r_count):
-            a, b = int(e_start[j]), int(e_start[j + 1])
-            silent = tuple(ids[c] for c in s_col[int(s_start[j]):int(s_start[j + 1])].tolist())
+            a, b = starts[j], starts[j + 1]
+            sa, sb = silent_starts[j], silent_starts[j + 1]
+            silent = tuple(ids[c] for c in s_col[sa:sb].tolist()) if sb > sa else ()
+            if a == b:  # nobody near (most UAVs, most of the time)
+                result.append(_nobody(m, silent))
+                continue
             cols_j = e_col[a:b]
             slots = rows.held_slot[int(due[j]), cols_j]
             result.append(Encounters(

@@ -216,8 +216,10 @@ class SimulatedLink:
     def release(self, payload_ids: np.ndarray) -> None:
         """The copies of ``payload_ids`` (one entry per copy) were read: forget their bytes
         after the last one."""
-        ids, counts = np.unique(payload_ids, return_counts=True)
-        for pid, c in zip(ids.tolist(), counts.tolist(), strict=True):
+        counts: dict[int, int] = {}
+        for pid in payload_ids.tolist():
+            counts[pid] = counts.get(pid, 0) + 1
+        for pid, c in counts.items():
             left = self._copies_left[pid] - c
             if left:
                 self._copies_left[pid] = left

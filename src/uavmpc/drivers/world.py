@@ -254,8 +254,9 @@ class World:
         batched: tick every UAV in one compiled call (default); False ticks each stack and
             plant on its own (:meth:`OnboardStack.tick`, :meth:`Multirotor.step`): the same
             kernels, bit for bit the same flight, slower.
-        index: find each UAV's encounters through the spatial index (default) or compare it
-            with every other UAV (:mod:`uavmpc.avoidance.encounters`): the same flight.
+        index: find each UAV's encounters through the spatial index (True) or compare it
+            with every other UAV (False; :mod:`uavmpc.avoidance.encounters`): the same
+            flight. Default: the index from 32 UAVs on.
     """
 
     def __init__(
@@ -271,7 +272,7 @@ class World:
         tracker_config: TrackerConfig | None = None,
         clock_offsets_s: Sequence[float] | None = None,
         batched: bool = True,
-        index: bool = True,
+        index: bool | None = None,
     ) -> None:
         self.scenario = scenario
         self.avoidance = avoidance
@@ -384,16 +385,6 @@ class World:
         self._next_emit_s = -math.inf
         self._yielding: set[int] = set()
         self._started = False
-
-    @property
-    def index(self) -> bool:
-        """Encounters are found through the spatial index (else: every pair is compared)."""
-        return self._finder is None or self._finder.use_index
-
-    @index.setter
-    def index(self, value: bool) -> None:
-        if self._finder is not None:
-            self._finder.use_index = bool(value)
 
     def run(self, duration_s: float | None = None, *, realtime: float | None = None,
             on_log: Callable[[World], None] | None = None) -> WorldResult:
@@ -573,27 +564,35 @@ class World:
         receivers, payloads = due
         table = self.inboxes
         n = len(self.uavs)
-        pids, inverse = np.unique(payloads, return_inverse=True)
-        slots = np.empty(pids.shape[0], dtype=np.int64)
+        # A tick's copies come from a few broadcasts: each is decoded (or found) once.
+        slot_of: dict[int, int] = {}
         errors: dict[int, str] = {}
-        for j, pid in enumerate(pids.tolist()):
+        for pid in set(payloads.tolist()):
             try:
-                slots[j] = table.slot_for(self.link.payload(pid))
+                slot_of[pid] = table.slot_for(self.link.payload(pid))
             except InvalidMessageError as exc:
-                slots[j] = -1
-                errors[j] = str(exc)
+                slot_of[pid] = -1
+                errors[pid] = str(exc)
         self.link.release(payloads)
-        copy_slots = slots[inverse]
-        ours = receivers < n  # copies injected for ids that are not UAVs of this world
-        good = ours & (copy_slots >= 0)
-        for k in np.flatnonzero(ours & (copy_slots < 0)).tolist():
-            self.uavs[receivers[k]].stack.inbox.count_rejected(errors[int(inverse[k])])
+        if len(slot_of) == 1:
+            copy_slots = np.full(payloads.shape[0], next(iter(slot_of.values())),
+                                 dtype=np.int64)
+        else:
+            copy_slots = np.array([slot_of[p] for p in payloads.tolist()], dtype=np.int64)
+        good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
+        if errors:
+            for k in np.flatnonzero((receivers < n) & (copy_slots < 0)).tolist():
+                self.uavs[receivers[k]].stack.inbox.count_rejected(errors[int(payloads[k])])
         rec = self.recorder
         if rec is not None:
             before = table.rows.accepted.copy()
         try:
-            accept_copies(table.rows, table.store, receivers[good], copy_slots[good],
-                          now + self._offsets)
+            if good.all():
+                accept_copies(table.rows, table.store, receivers, copy_slots,
+                              now + self._offsets)
+            else:
+                accept_copies(table.rows, table.store, receivers[good], copy_slots[good],
+                              now + self._offsets)
         finally:
             table.unpin()
         if rec is not None:
