@@ -121,13 +121,10 @@ class SimulatedLink:
         self.stats = LinkStats()
         self._rng = np.random.default_rng(seed)
         self._members: dict[str, int] = {}
-        # Copies in flight, as arrays (delivery time, FIFO sequence number for equal times,
-        # receiver index, payload id); new ones are appended as chunks and merged when read.
-        self._t = np.zeros(0)
-        self._seq_of = np.zeros(0, dtype=np.int64)
-        self._rcv = np.zeros(0, dtype=np.int64)
-        self._pay = np.zeros(0, dtype=np.int64)
-        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        # Copies in flight, one chunk per broadcast: [sender or None (injected), payload id,
+        # delivery times, sequence numbers, receiver indices, next undelivered], each sorted
+        # by (time, sequence number) — the order a heap per receiver would give.
+        self._chunks: list[list] = []
         self._payloads: dict[int, bytes] = {}
         self._copies_left: dict[int, int] = {}
         self._next_payload = 0
@@ -167,47 +164,89 @@ class SimulatedLink:
         self.stats.dropped += int(np.count_nonzero(in_range & lost))
         count = int(np.count_nonzero(kept))
         if count:
-            self._queue(t_s + delay[kept], receivers[kept], bytes(msg_bytes), count)
+            self._queue(t_s + delay[kept], receivers[kept], bytes(msg_bytes), count, sender)
 
-    def _queue(self, at_s: np.ndarray, receivers: np.ndarray, payload: bytes, count: int
-               ) -> None:
+    def _queue(self, at_s: np.ndarray, receivers: np.ndarray, payload: bytes, count: int,
+               sender: int | None) -> None:
         pid = self._next_payload
         self._next_payload += 1
         self._payloads[pid] = payload
         self._copies_left[pid] = count
         seq = np.arange(self._seq, self._seq + count, dtype=np.int64)
         self._seq += count
-        self._chunks.append((at_s, seq, receivers.astype(np.int64),
-                             np.full(count, pid, dtype=np.int64)))
-        self.next_due_s = min(self.next_due_s, float(at_s.min()))
+        order = np.argsort(at_s, kind="stable")  # equal times keep the sending order
+        self._chunks.append([sender, pid, at_s[order], seq[order],
+                             receivers.astype(np.int64)[order], 0])
+        self.next_due_s = min(self.next_due_s, float(at_s[order[0]]))
 
     def inject(self, receiver_id: str, msg_bytes: bytes, at_s: float) -> None:
         """Deliver raw bytes to ``receiver_id`` at ``at_s``, as if from the air (a foreign or
         broken transmitter): no sender, no loss, no random draw; counted as ``injected``."""
         self.join(receiver_id)
         self._queue(np.array([float(at_s)]), np.array([self._members[receiver_id]]),
-                    bytes(msg_bytes), 1)
+                    bytes(msg_bytes), 1, None)
         self.stats.injected += 1
 
     def receive(self, receiver_id: str, t_s: float) -> list[bytes]:
         self.join(receiver_id)
         if t_s < self.next_due_s:
             return []
-        due = self._take((self._rcv == self._members[receiver_id]) & (self._t <= t_s)
-                         if self._merge() else None)
-        return [self._payload(pid) for pid in due[1]]
+        r = self._members[receiver_id]
+        due: list[tuple[float, int, int]] = []
+        for chunk in self._chunks:
+            at, seq, rcv, pos = chunk[2], chunk[3], chunk[4], chunk[5]
+            end = int(np.searchsorted(at, t_s, side="right"))
+            mine = np.flatnonzero(rcv[pos:end] == r) + pos
+            if mine.size:
+                due.extend((float(at[k]), int(seq[k]), chunk[1]) for k in mine.tolist())
+                rcv[mine] = -1  # delivered: a receiver index no one has
+        due.sort()
+        self._drop_delivered()
+        self.stats.delivered += len(due)
+        out = []
+        for _, _, pid in due:
+            out.append(self._payloads[pid])
+            self.release(np.array([pid]))
+        return out
 
     def take_due(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """Every copy due by ``t_s``, for all receivers at once, in delivery order (by time,
-        then sending order): (receiver indices in :attr:`members` order, payload ids), or
-        None if nothing is due. :meth:`payload` gives the bytes of an id while copies of it
-        are in flight or just taken; :meth:`release` drops the bytes once read."""
+        """Every copy due by ``t_s``, for all receivers at once: (receiver indices in
+        :attr:`members` order, payload ids), or None if nothing is due. Each receiver gets
+        its copies of one sender in delivery order (by time, then sending order); copies of
+        different senders are independent. :meth:`payload` gives the bytes of an id while
+        copies of it are in flight or just taken; :meth:`release` drops them once read."""
         if t_s < self.next_due_s:
             return None
-        if not self._merge():
+        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        senders: set[int | None] = set()
+        ordered = True
+        for chunk in self._chunks:
+            at, pos = chunk[2], chunk[5]
+            if pos >= at.shape[0] or at[pos] > t_s:
+                continue
+            end = int(np.searchsorted(at, t_s, side="right"))
+            rcv = chunk[4][pos:end]
+            keep = rcv >= 0  # not taken already by receive()
+            parts.append((at[pos:end][keep], chunk[3][pos:end][keep], rcv[keep],
+                          np.full(int(keep.sum()), chunk[1], dtype=np.int64)))
+            chunk[5] = end
+            # Two due broadcasts of one sender (or injected bytes, whose sender is unknown):
+            # their copies must keep the delivery order between them.
+            if chunk[0] is None or chunk[0] in senders:
+                ordered = False
+            senders.add(chunk[0])
+        self._drop_delivered()
+        if not parts:
             return None
-        due = self._take(self._t <= t_s)
-        return due if due[0].size else None
+        if len(parts) == 1:
+            _, _, rcv, pay = parts[0]
+        else:
+            at, seq, rcv, pay = (np.concatenate([p[j] for p in parts]) for j in range(4))
+            if not ordered:
+                order = np.lexsort((seq, at))
+                rcv, pay = rcv[order], pay[order]
+        self.stats.delivered += int(rcv.size)
+        return (rcv, pay) if rcv.size else None
 
     def payload(self, pid: int) -> bytes:
         """The bytes of payload ``pid`` (see :meth:`take_due`)."""
@@ -216,9 +255,13 @@ class SimulatedLink:
     def release(self, payload_ids: np.ndarray) -> None:
         """The copies of ``payload_ids`` (one entry per copy) were read: forget their bytes
         after the last one."""
-        counts: dict[int, int] = {}
-        for pid in payload_ids.tolist():
-            counts[pid] = counts.get(pid, 0) + 1
+        if payload_ids.shape[0] > 16:
+            ids, n = np.unique(payload_ids, return_counts=True)
+            counts = dict(zip(ids.tolist(), n.tolist(), strict=True))
+        else:
+            counts = {}
+            for pid in payload_ids.tolist():
+                counts[pid] = counts.get(pid, 0) + 1
         for pid, c in counts.items():
             left = self._copies_left[pid] - c
             if left:
@@ -227,31 +270,21 @@ class SimulatedLink:
                 del self._copies_left[pid]
                 del self._payloads[pid]
 
-    def _payload(self, pid: int) -> bytes:
-        data = self._payloads[pid]
-        self.release(np.array([pid]))
-        return data
-
-    def _merge(self) -> bool:
-        """Merge the new chunks; False when nothing is in flight."""
-        if self._chunks:
-            parts = [(self._t, self._seq_of, self._rcv, self._pay), *self._chunks]
-            self._t, self._seq_of, self._rcv, self._pay = (
-                np.concatenate([p[j] for p in parts]) for j in range(4))
-            self._chunks.clear()
-        return self._t.size > 0
-
-    def _take(self, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        if mask is None or not mask.any():
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        order = np.lexsort((self._seq_of[mask], self._t[mask]))
-        rcv, pay = self._rcv[mask][order], self._pay[mask][order]
-        keep = ~mask
-        self._t, self._seq_of = self._t[keep], self._seq_of[keep]
-        self._rcv, self._pay = self._rcv[keep], self._pay[keep]
-        self.next_due_s = float(self._t.min()) if self._t.size else math.inf
-        self.stats.delivered += int(rcv.size)
-        return rcv, pay
+    def _drop_delivered(self) -> None:
+        """Forget the chunks delivered in full; the next due time."""
+        live = []
+        nxt = math.inf
+        for chunk in self._chunks:
+            at, rcv = chunk[2], chunk[4]
+            pos = chunk[5]
+            while pos < at.shape[0] and rcv[pos] < 0:
+                pos += 1
+            chunk[5] = pos
+            if pos < at.shape[0]:
+                live.append(chunk)
+                nxt = min(nxt, float(at[pos]))
+        self._chunks = live
+        self.next_due_s = nxt
 
     def _in_range(self, sender_id: str, receivers: np.ndarray) -> np.ndarray:
         if self.range_m is None or self.position_of is None:

@@ -565,20 +565,18 @@ class World:
         table = self.inboxes
         n = len(self.uavs)
         # A tick's copies come from a few broadcasts: each is decoded (or found) once.
-        slot_of: dict[int, int] = {}
+        pids = np.unique(payloads)
+        slots = np.empty(pids.shape[0], dtype=np.int64)
         errors: dict[int, str] = {}
-        for pid in set(payloads.tolist()):
+        for j, pid in enumerate(pids.tolist()):
             try:
-                slot_of[pid] = table.slot_for(self.link.payload(pid))
+                slots[j] = table.slot_for(self.link.payload(pid))
             except InvalidMessageError as exc:
-                slot_of[pid] = -1
+                slots[j] = -1
                 errors[pid] = str(exc)
         self.link.release(payloads)
-        if len(slot_of) == 1:
-            copy_slots = np.full(payloads.shape[0], next(iter(slot_of.values())),
-                                 dtype=np.int64)
-        else:
-            copy_slots = np.array([slot_of[p] for p in payloads.tolist()], dtype=np.int64)
+        copy_slots = (np.full(payloads.shape[0], slots[0]) if pids.shape[0] == 1
+                      else slots[np.searchsorted(pids, payloads)])
         good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
         if errors:
             for k in np.flatnonzero((receivers < n) & (copy_slots < 0)).tolist():
