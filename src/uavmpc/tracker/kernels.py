@@ -239,22 +239,68 @@ def braking_plan(rel: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray, tau: float
             s_out[ax, c // 3, c % 3] = acc
 
 
+#: Rows of a product's matrix with at least this many nonzero columns are summed over a slice.
+_SLICE_MIN = 8
+
+
 @kernel(fastmath=FASTMATH)
-def _axpy4(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray) -> None:
-    """y[j] += Σ_k a[j, k] x[k] for the 4 rows j of a (4, K) and y (4, W), x (K, W): rows of
-    x scaled and summed, k in order, each read once for all four; only the columns
+def _axpy2(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray, i0: int,
+           i1: int) -> None:
+    """y[i] += Σ_k a[i, k] x[k] for the rows i = i0, i1 of a (4, K) and y (4, W), x (K, W):
+    rows of x scaled and summed, k in order, each read once for both; only the columns
     ``span[k, 0] ≤ j < span[k, 1]`` of row k, outside of which it is exactly zero (the
     model's matrices are triangular or banded: :func:`nonzero_spans`)."""
+    y0, y1 = y[i0], y[i1]
     for k in range(x.shape[0]):
-        xk = x[k]
-        a0, a1, a2, a3 = a[0, k], a[1, k], a[2, k], a[3, k]
-        y0, y1, y2, y3 = y[0], y[1], y[2], y[3]
-        for j in range(span[k, 0], span[k, 1]):
-            xj = xk[j]
-            y0[j] += a0 * xj
-            y1[j] += a1 * xj
-            y2[j] += a2 * xj
-            y3[j] += a3 * xj
+        lo, hi = span[k, 0], span[k, 1]
+        a0, a1 = a[i0, k], a[i1, k]
+        if hi - lo >= _SLICE_MIN:
+            # Indexed from the start of a slice, j is known to be ≥ 0 (no wrap-around test in
+            # the loop), so LLVM vectorises it: element by element the same fused operation.
+            xs, s0, s1 = x[k, lo:hi], y0[lo:hi], y1[lo:hi]
+            for j in range(hi - lo):
+                xj = xs[j]
+                s0[j] += a0 * xj
+                s1[j] += a1 * xj
+        else:
+            xk = x[k]
+            for j in range(lo, hi):
+                xj = xk[j]
+                y0[j] += a0 * xj
+                y1[j] += a1 * xj
+
+
+@kernel(fastmath=FASTMATH)
+def _axpy1(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray, i0: int) -> None:
+    """:func:`_axpy2` for the one row i0."""
+    y0 = y[i0]
+    for k in range(x.shape[0]):
+        lo, hi = span[k, 0], span[k, 1]
+        a0 = a[i0, k]
+        if hi - lo >= _SLICE_MIN:
+            xs, s0 = x[k, lo:hi], y0[lo:hi]
+            for j in range(hi - lo):
+                s0[j] += a0 * xs[j]
+        else:
+            xk = x[k]
+            for j in range(lo, hi):
+                y0[j] += a0 * xk[j]
+
+
+@kernel(fastmath=FASTMATH)
+def _axpy_axes(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray, n: int,
+               i0: int, i1: int, i2: int, i3: int) -> None:
+    """:func:`_axpy2` for the first ``n`` of the rows ``i0, i1, i2, i3`` of a and y (the
+    others left as they are), two at a time: more rows per pass leave LLVM too many
+    possibly overlapping stores to vectorise."""
+    if n >= 2:
+        _axpy2(a, x, span, y, i0, i1)
+    elif n == 1:
+        _axpy1(a, x, span, y, i0)
+    if n == 4:
+        _axpy2(a, x, span, y, i2, i3)
+    elif n == 3:
+        _axpy1(a, x, span, y, i2)
 
 
 @kernel(fastmath=FASTMATH)
@@ -263,10 +309,19 @@ def excess4(u: np.ndarray, c_t: np.ndarray, c_t_span: np.ndarray, lower: np.ndar
     """The largest violation of lower ≤ [u; u C_tᵀ] ≤ upper for each of the four axes (inputs
     ``u`` (4, m), bounds (4, m + r)) into ``worst`` (4,): −inf if none, NaN for an axis with
     a NaN input (callers test ``not worst <= tol``). ``cu`` (4, r): scratch for the rows."""
+    _excess_axes(u, c_t, c_t_span, lower, upper, cu, worst, 4, 0, 1, 2, 3)
+
+
+@kernel(fastmath=FASTMATH)
+def _excess_axes(u: np.ndarray, c_t: np.ndarray, c_t_span: np.ndarray, lower: np.ndarray,
+                 upper: np.ndarray, cu: np.ndarray, worst: np.ndarray, n: int, i0: int,
+                 i1: int, i2: int, i3: int) -> None:
+    """:func:`excess4` forming the rows C u of the first ``n`` of the axes ``i0, i1, i2, i3``
+    only (for the others, whose u is +0, they are the +0 they start from)."""
     m = u.shape[1]
     nr = c_t.shape[1]
     cu[:] = 0.0
-    _axpy4(u, c_t, c_t_span, cu)
+    _axpy_axes(u, c_t, c_t_span, cu, n, i0, i1, i2, i3)
     for ax in range(4):
         w = -math.inf
         for k in range(m):
@@ -448,35 +503,58 @@ def prepare_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConst
             lower[ax, 2 * m] = min(lower[ax, 2 * m], w1)
             upper[ax, 2 * m] = max(upper[ax, 2 * m], w1)
 
-    # The linear terms, the constraint rows' free response and the unconstrained optima, for
-    # the four axes at once: each row of a matrix is read once for all four (the matrices do
-    # not fit in L1 together), and written as sums of scaled rows (contiguous memory), which
-    # LLVM vectorises. Every element sums its terms in the same order as one axis at a time.
+    # The linear terms, the constraint rows' free response and the unconstrained optima, two
+    # axes at a time: each row of a matrix is read once for both, and written as sums of
+    # scaled rows (contiguous memory), which LLVM vectorises. Every element sums its terms in
+    # the same order as one axis at a time.
     vref, rows_free = sc.vref, sc.rows_free
-    for ax in range(4):
-        r1, r2, up = rel[ax, 1], rel[ax, 2], rows.u_prev[i, ax]
-        for k in range(m):
-            f[ax, k] = r1 * c.f_state_t[1, k] + r2 * c.f_state_t[2, k] + up * c.f_uprev[k]
-    _axpy4(r_rel, c.f_ref_t, c.spans[0], f)
-    if c.use_vref:
-        # The reference's own velocity, clipped: a jump in it is not a speed to match.
-        vref[:] = 0.0
-        _axpy4(r_rel, c.vref_of_ref, c.spans[1], vref)
-        for ax in range(4):
-            for k in range(m):
-                vref[ax, k] = min(max(vref[ax, k], v_lo[ax]), v_hi[ax])
-        _axpy4(vref, c.f_vref_t, c.spans[2], f)
     for ax in range(4):
         r1, r2 = rel[ax, 1], rel[ax, 2]
         for k in range(nr):
             rows_free[k] = r1 * c.cfree_t[1, k] + r2 * c.cfree_t[2, k]
             lower[ax, m + k] -= rows_free[k]
             upper[ax, m + k] -= rows_free[k]
+    # An axis at rest on its reference over the whole horizon (no offset, speed, acceleration
+    # or last input: the heading, mostly, and z until a climb) with 0 inside all its bounds
+    # has the optimum U = 0 and no active bound; the products below would only add exact
+    # zeros to it, so they run for the other axes only (a resting axis keeps u and the rows
+    # C u at the +0 they start from, and f at 0, of either sign). Most ticks, half the axes.
+    n_act = 0
+    i0 = i1 = i2 = i3 = 0
+    for ax in range(4):
+        rest = rel[ax, 1] == 0.0 and rel[ax, 2] == 0.0 and rows.u_prev[i, ax] == 0.0
+        for k in range(m):
+            rest = rest and r_rel[ax, k] == 0.0
+        for k in range(m + nr):
+            rest = rest and lower[ax, k] <= 0.0 <= upper[ax, k]
+        if not rest:
+            if n_act == 0:
+                i0 = ax
+            elif n_act == 1:
+                i1 = ax
+            elif n_act == 2:
+                i2 = ax
+            else:
+                i3 = ax
+            n_act += 1
+    for ax in range(4):
+        r1, r2, up = rel[ax, 1], rel[ax, 2], rows.u_prev[i, ax]
+        for k in range(m):
+            f[ax, k] = r1 * c.f_state_t[1, k] + r2 * c.f_state_t[2, k] + up * c.f_uprev[k]
+    _axpy_axes(r_rel, c.f_ref_t, c.spans[0], f, n_act, i0, i1, i2, i3)
+    if c.use_vref:
+        # The reference's own velocity, clipped: a jump in it is not a speed to match.
+        vref[:] = 0.0
+        _axpy_axes(r_rel, c.vref_of_ref, c.spans[1], vref, n_act, i0, i1, i2, i3)
+        for ax in range(4):
+            for k in range(m):
+                vref[ax, k] = min(max(vref[ax, k], v_lo[ax]), v_hi[ax])
+        _axpy_axes(vref, c.f_vref_t, c.spans[2], f, n_act, i0, i1, i2, i3)
     u[:] = 0.0
-    _axpy4(f, c.neg_hinv, c.spans[3], u)
+    _axpy_axes(f, c.neg_hinv, c.spans[3], u, n_act, i0, i1, i2, i3)
     # Bound check of the unconstrained optima.
     worst4 = sc.worst
-    excess4(u, c.c_t, c.spans[4], lower, upper, sc.cu, worst4)
+    _excess_axes(u, c.c_t, c.spans[4], lower, upper, sc.cu, worst4, n_act, i0, i1, i2, i3)
     for ax in range(4):
         worst = worst4[ax]
         rows.need[i, ax] = not worst <= 0.0  # a bound is active (or NaN): solve the QP
