@@ -15,6 +15,9 @@ on the same scenario:
    with Clarabel to compare the first inputs (``max_solution_diff``) and the objective values
    (``max_relative_objective_excess`` > 0 would mean our plan costs more than Clarabel's).
 
+``uavmpc bench world`` flies random_walk worlds of 5 to 1000 UAVs, each in a fresh process, and
+fits how the cost grows with N (see :func:`bench_world`).
+
 The last line of output is one JSON object.
 """
 
@@ -272,51 +275,188 @@ def bench_loop(duration_s: float = 60.0, repeats: int = 3, airframe: str = "f550
     }
 
 
-def bench_world(sizes: tuple[int, ...] = (5, 20, 100), duration_s: float = 20.0,
-                avoidance: bool = True, progress: Callable[[str], None] = print
-                ) -> dict[str, Any]:
-    """The per-core real-time factor of one random_walk world of N UAVs (full pipeline at
-    100 Hz, plants at 500 Hz, avoidance on), for each N in ``sizes``, every tick one compiled
-    call for all UAVs; the first size is flown again UAV by UAV through the per-object API
-    (``World(batched=False)``: the same kernels) as the in-run reference, and the two flights
-    are compared. The area grows with N so the density stays that of the protocol (5 UAVs in
-    100 m × 100 m)."""
+#: ``bench world``'s default sizes (UAVs per world).
+WORLD_SIZES: tuple[int, ...] = (5, 20, 100, 300, 1000)
+#: Worlds of at least this many UAVs fly ``duration_large_s`` (they are the slow ones).
+WORLD_LARGE_UAVS = 300
+#: The growth exponent is fitted over the sizes from this one up: below it the fixed cost per
+#: tick (Python overhead of one compiled call) dominates and would flatten the slope.
+WORLD_FIT_FROM_UAVS = 20
+
+
+def _maxrss_mib() -> float:
+    import resource
+    import sys
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 2**10  # bytes there, KiB here
+
+
+def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool) -> dict[str, Any]:
+    """Fly one random_walk world of ``n`` UAVs in this (fresh) process; see :func:`bench_world`.
+
+    Only the public ``World(scenario, ...)`` and ``run()`` are used, so the numbers stay
+    comparable while the world's internals change."""
+    import hashlib
+    import resource
+
     from uavmpc.drivers.world import World
     from uavmpc.scenarios.random_walk import random_walk
 
-    def fly(n: int, batched: bool) -> Any:
-        area = 100.0 * math.sqrt(n / 5.0)
-        world = World(random_walk(n, area_m=area, duration_s=duration_s, seed=1),
-                      avoidance=avoidance, seed=1, batched=batched)
-        return world.run(duration_s), area
+    # Load the on-disk kernels (seconds) on a throw-away flight, so the baseline holds them.
+    World(random_walk(2, duration_s=1.0), avoidance=avoidance, batched=batched).run(0.5)
+    baseline = _maxrss_mib()
+    area = 100.0 * math.sqrt(n / 5.0)  # the protocol's density: 5 UAVs per 100 m × 100 m
+    world = World(random_walk(n, area_m=area, duration_s=duration_s, seed=1),
+                  avoidance=avoidance, seed=1, batched=batched)
+    # run() also loads its tick before its own clock starts: CPU is set against this clock.
+    cpu0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    result = world.run(duration_s)
+    cpu1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    peak = _maxrss_mib()
+    digest = hashlib.sha256(np.ascontiguousarray(result.positions_m).tobytes())
+    digest.update(np.ascontiguousarray(result.z_offset_m).tobytes())
+    return {
+        "uavs": n, "path": "batched" if batched else "per-object", "area_m": area,
+        "duration_s": float(result.duration_s), "wall_s": float(result.wall_s),
+        "cpu_s": (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
+        "run_wall_s": t1 - t0,
+        "collisions": len(result.collisions),
+        "min_distance_m": float(np.min(result.min_distance_m)) if n > 1 else None,
+        "baseline_rss_mib": baseline, "peak_rss_mib": peak, "flight_digest": digest.hexdigest(),
+    }
 
-    rows = []
-    for batched in (True, False):  # compile and load the kernels first
-        World(random_walk(2, duration_s=1.0), avoidance=avoidance, batched=batched).run(0.5)
-    first = None
+
+def _spawn_world(n: int, duration_s: float, avoidance: bool, batched: bool) -> dict[str, Any]:
+    """:func:`_world_child` in a fresh interpreter: ru_maxrss is a high-water mark of the whole
+    process, so each size needs its own process to measure its own peak."""
+    import subprocess
+    import sys
+
+    code = ("import json, sys; from uavmpc.apps.bench import _world_child; "
+            "print(json.dumps(_world_child(*json.loads(sys.argv[1]))))")
+    # One thread for every pool the child might start: the factor is per core.
+    env = {**os.environ, **{k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                              "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}}
+    proc = subprocess.run([sys.executable, "-c", code,
+                           json.dumps([n, duration_s, avoidance, batched])],
+                          capture_output=True, text=True, env=env, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"bench world: the {n}-UAV child failed ({proc.returncode}):\n"
+                           f"{proc.stderr[-2000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _sig(x: float, digits: int = 4) -> float:
+    # Significant digits, not decimals: the factors span 0.01× to 100× over the sizes.
+    return float(f"{x:.{digits}g}")
+
+
+def _world_row(child: dict[str, Any]) -> dict[str, Any]:
+    n, sim, wall = child["uavs"], child["duration_s"], child["wall_s"]
+    factor = sim / wall
+    return {
+        "uavs": n, "path": child["path"], "area_m": round(child["area_m"], 1),
+        "duration_s": sim, "wall_s": _sig(wall),
+        "realtime_factor": _sig(factor),
+        "uav_seconds_per_wall_second": round(factor * n, 1),
+        "us_per_uav_second": _sig(wall * 1e6 / (sim * n)),
+        "wall_s_per_simulated_s": _sig(wall / sim),
+        "cpu_per_wall": round(child["cpu_s"] / child["run_wall_s"], 3),
+        "baseline_rss_mib": round(child["baseline_rss_mib"], 1),
+        "peak_rss_mib": round(child["peak_rss_mib"], 1),
+        "flight_rss_mib": round(child["peak_rss_mib"] - child["baseline_rss_mib"], 1),
+        "collisions": child["collisions"],
+        "min_distance_m": (None if child["min_distance_m"] is None
+                           else round(child["min_distance_m"], 3)),
+    }
+
+
+def _growth(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """α of cost ∝ N^α by least squares on log–log, and the cost per UAV-second at the largest
+    size over that at the first fitted one (20 UAVs by default; 1.0 means linear scaling)."""
+    by_n = {r["uavs"]: r for r in rows}
+    fit = sorted(n for n in by_n if n >= WORLD_FIT_FROM_UAVS)
+    if len(fit) < 2:  # e.g. a quick run of small sizes only: fit what there is
+        fit = sorted(by_n)
+    if len(fit) < 2:
+        return {"fit_uavs": fit, "growth_exponent": None, "ratio_reference_uavs": None,
+                "us_per_uav_second_ratio": None}
+    x = np.log(np.array(fit, float))
+    y = np.log([by_n[n]["wall_s_per_simulated_s"] for n in fit])
+    alpha = float(np.polyfit(x, y, 1)[0])
+    ref, top = fit[0], fit[-1]
+    ratio = by_n[top]["us_per_uav_second"] / by_n[ref]["us_per_uav_second"]
+    return {"fit_uavs": fit, "growth_exponent": round(alpha, 3), "ratio_reference_uavs": ref,
+            "ratio_largest_uavs": top, "us_per_uav_second_ratio": _sig(ratio)}
+
+
+def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
+                duration_large_s: float = 10.0, avoidance: bool = True,
+                progress: Callable[[str], None] = print) -> dict[str, Any]:
+    """How the world scales with N: one random_walk world of N UAVs (full pipeline at 100 Hz,
+    plants at 500 Hz, avoidance on) for each N in ``sizes``, every tick one compiled call for
+    all UAVs, each in a fresh process on one core (warmed up, only ``World.run`` timed).
+
+    Per size: the real-time factor, the cost per UAV-second (wall µs per simulated
+    UAV-second), the peak RSS of the child after the flight and its baseline after imports and
+    warm-up, collisions and the closest approach. Over the sizes ≥ 20: the exponent α of the
+    cost per simulated second ∝ N^α and the cost per UAV-second at the largest size over that
+    at 20 UAVs. The smallest size is flown again UAV by UAV (``World(batched=False)``: the same
+    kernels) as the in-run reference, and the two flights are compared bit for bit.
+
+    Worlds of ≥ :data:`WORLD_LARGE_UAVS` UAVs fly ``min(duration_s, duration_large_s)``; the
+    area grows with N so the density stays that of the protocol (5 UAVs in 100 m × 100 m)."""
+    from uavmpc.config import ConfigError  # a ValueError the CLI reports as a message
+
+    sizes = tuple(sizes)
+    if not sizes or any(isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1000
+                        for n in sizes):
+        raise ConfigError(f"bench world: sizes must be integers in [1, 1000], got {sizes!r}")
+    if len(set(sizes)) != len(sizes):
+        raise ConfigError(f"bench world: each size once, got {sizes!r}")
+    for name, v in (("duration_s", duration_s), ("duration_large_s", duration_large_s)):
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"bench world: {name} must be > 0, got {v}")
+
+    def duration(n: int) -> float:
+        return duration_s if n < WORLD_LARGE_UAVS else min(duration_s, duration_large_s)
+
+    progress(f"world benchmark: {', '.join(map(str, sizes))} UAVs, {duration_s:g} s "
+             f"({min(duration_s, duration_large_s):g} s from {WORLD_LARGE_UAVS} UAVs), "
+             f"avoidance {'on' if avoidance else 'off'}, one fresh process per size")
+    rows, digests = [], {}
     for n in sizes:
-        result, area = fly(n, True)
-        first = first or result
-        factor = result.duration_s / result.wall_s
-        rows.append({"uavs": n, "path": "batched", "area_m": round(area, 1),
-                     "realtime_factor": round(factor, 2),
-                     "uav_seconds_per_wall_second": round(factor * n, 1),
-                     "collisions": len(result.collisions)})
-        progress(f"{n} UAVs, batched: {factor:.1f}× real time "
-                 f"({factor * n:.0f} UAV-seconds per second)")
-    objects, area = fly(sizes[0], False)
-    factor = objects.duration_s / objects.wall_s
-    identical = bool(np.array_equal(objects.positions_m, first.positions_m))
-    rows.append({"uavs": sizes[0], "path": "per-object", "area_m": round(area, 1),
-                 "realtime_factor": round(factor, 2),
-                 "uav_seconds_per_wall_second": round(factor * sizes[0], 1),
-                 "collisions": len(objects.collisions)})
-    speedup = rows[0]["realtime_factor"] / factor
-    progress(f"{sizes[0]} UAVs, per object (reference): {factor:.1f}× real time; batched is "
-             f"{speedup:.1f}× faster, flights bit-identical: {identical}")
-    return {"duration_s": duration_s, "avoidance": avoidance, "worlds": rows,
+        child = _spawn_world(n, duration(n), avoidance, True)
+        digests[n] = child["flight_digest"]
+        row = _world_row(child)
+        rows.append(row)
+        closest = "-" if row["min_distance_m"] is None else f"{row['min_distance_m']:.2f} m"
+        progress(f"{n:5d} UAVs, batched: {row['realtime_factor']:8.2f}× real time, "
+                 f"{row['us_per_uav_second']:8.1f} µs per UAV-second, "
+                 f"RSS {row['peak_rss_mib']:.0f} MiB (+{row['flight_rss_mib']:.0f} over "
+                 f"{row['baseline_rss_mib']:.0f}), {row['collisions']} collision(s), "
+                 f"closest {closest}")
+    growth = _growth(rows)
+    smallest = min(sizes)
+    ref_child = _spawn_world(smallest, duration(smallest), avoidance, False)
+    ref = _world_row(ref_child)
+    identical = ref_child["flight_digest"] == digests[smallest]
+    fast = next(r for r in rows if r["uavs"] == smallest)
+    speedup = fast["realtime_factor"] / ref["realtime_factor"]
+    progress(f"{smallest:5d} UAVs, per object (reference): {ref['realtime_factor']:.2f}× real "
+             f"time; batched is {speedup:.1f}× faster, flights bit-identical: {identical}")
+    if growth["growth_exponent"] is not None:
+        progress(f"cost per simulated second ∝ N^{growth['growth_exponent']:.2f} over "
+                 f"{growth['fit_uavs']} UAVs; per UAV-second, {growth['ratio_largest_uavs']} "
+                 f"UAVs cost {growth['us_per_uav_second_ratio']:.2f}× what "
+                 f"{growth['ratio_reference_uavs']} do")
+    return {"duration_s": duration_s, "duration_large_s": duration_large_s,
+            "large_from_uavs": WORLD_LARGE_UAVS, "avoidance": avoidance,
+            "worlds": rows, "reference": ref, **growth,
             "batched_speedup": round(speedup, 2), "identical_to_per_object": identical,
-            "python": platform.python_version(), "machine": platform.machine()}
+            "python": platform.python_version(), "machine": platform.machine(),
+            "cores": os.cpu_count()}
 
 
 def bench_px4(duration_s: float = 20.0) -> dict[str, Any]:
@@ -432,8 +572,17 @@ def main_tracker(ticks: int, seed: int) -> int:
     return 0
 
 
-def main_world(duration_s: float) -> int:
-    print(json.dumps(bench_world(duration_s=duration_s)))
+def main_world(duration_s: float, sizes: str | None = None,
+               duration_large_s: float | None = None) -> int:
+    from uavmpc.config import ConfigError
+
+    try:
+        chosen = WORLD_SIZES if sizes is None else tuple(int(v) for v in sizes.split(","))
+    except ValueError:
+        raise ConfigError(f"bench world: --sizes must be integers like 5,20,100, got "
+                          f"{sizes!r}") from None
+    print(json.dumps(bench_world(chosen, duration_s,
+                                 10.0 if duration_large_s is None else duration_large_s)))
     return 0
 
 

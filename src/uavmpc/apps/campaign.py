@@ -643,15 +643,19 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
     """Adds ``campaign random-walk ...`` to the CLI's subparsers; sets ``func``."""
     p = subparsers.add_parser(
         "campaign", help="statistical campaign: many seeded random_walk trials (resumable), "
-                         "or many landings on the moving deck")
-    p.add_argument("kind", choices=["random-walk", "landing"], help="the campaign's scenario")
+                         "many landings on the moving deck, or dense traffics flown with and "
+                         "without avoidance")
+    p.add_argument("kind", choices=["random-walk", "landing", "traffic"],
+                   help="the campaign's scenario")
     p.add_argument("--scenario", default="moving_target_landing",
                    help="landing: the landing scenario (built-in name or TOML file)")
     p.add_argument("--speed-kmh", type=float, default=None,
                    help="landing: the car's speed (default: the scenario's)")
     p.add_argument("--duration", type=float, default=None,
-                   help="landing: simulated seconds per trial (default: the scenario's)")
-    p.add_argument("--uavs", type=int, default=5, help="UAVs per trial (default 5)")
+                   help="landing, traffic: simulated seconds per flight (default: the "
+                        "scenario's)")
+    p.add_argument("--uavs", type=int, default=None,
+                   help="UAVs per trial (default: random-walk 5, traffic 300)")
     p.add_argument("--avoidance", action=argparse.BooleanOptionalAction, default=True,
                    help="fly with collision avoidance (default) or without")
     stop = p.add_mutually_exclusive_group(required=True)
@@ -680,7 +684,8 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
-    return run_campaign(out, uavs=args.uavs, avoidance=args.avoidance, hours=args.hours,
+    return run_campaign(out, uavs=5 if args.uavs is None else args.uavs,
+                        avoidance=args.avoidance, hours=args.hours,
                         trials=args.trials, seed=args.seed, workers=args.workers,
                         loss=args.loss, latency=args.latency, wind=args.wind,
                         trial_s=args.trial_s, cap_s=args.cap_s, area_m=args.area,
@@ -707,9 +712,25 @@ def _landing_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _traffic_command(args: argparse.Namespace) -> int:
+    from uavmpc.apps.traffic_campaign import report_lines, run_traffic_campaign
+
+    if args.trials is None:
+        raise CampaignError("campaign traffic: give --trials N")
+    out = args.out or "out/campaign-traffic"
+    r = run_traffic_campaign(out, trials=args.trials, uavs=300 if args.uavs is None
+                             else args.uavs, seed=args.seed, duration_s=args.duration,
+                             workers=args.workers)
+    print("\n".join(report_lines(r)))
+    print(f"wrote {out}/report.json, trials.jsonl")
+    return 0 if r["with_avoidance"]["collisions"] == 0 else 1
+
+
 def campaign_command(args: argparse.Namespace) -> int:
     if args.kind == "landing":
         return _landing_command(args)
+    if args.kind == "traffic":
+        return _traffic_command(args)
     out = args.out or f"out/campaign-{'with' if args.avoidance else 'without'}-avoidance"
     try:
         r = _run_from_args(out, args)

@@ -10,19 +10,33 @@ from pathlib import Path
 
 import numpy as np
 
+#: ``uavmpc run`` writes a flight log for worlds of at most this many UAVs.
+MAX_LOGGED_UAVS = 50
+
 
 def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   duration: float | None, loss: float | None, latency: float | None,
                   wind: float = 0.0, ros2: str | None = None,
-                  realtime: float | None = None) -> dict:
+                  realtime: float | None = None, uavs: int | None = None,
+                  cruise_heights: tuple[float, ...] | None = None) -> dict:
+    import contextlib
     import dataclasses
 
     from uavmpc import scenarios
-    from uavmpc.apps.plots import plot_world
+    from uavmpc.apps.plots import close_figure, plot_world
     from uavmpc.drivers.world import COLLISION_DISTANCE_M, GROUND_VEHICLE_ID, World
     from uavmpc.log import FlightRecorder
 
-    sc = scenarios.load(scenario)
+    traffic_mod = None
+    if scenario == "traffic":  # generated, not a file: built from --uavs and --seed
+        from uavmpc.scenarios import traffic as traffic_mod
+
+        sc = traffic_mod.traffic(traffic_mod.DEFAULT_UAVS if uavs is None else uavs, seed,
+                                 duration_s=duration,
+                                 cruise_heights_m=cruise_heights or
+                                 traffic_mod.DEFAULT_CRUISE_HEIGHTS_M)
+    else:
+        sc = scenarios.load(scenario)
     link = sc.link
     if loss is not None:
         link = dataclasses.replace(link, loss=loss)
@@ -33,8 +47,14 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
             "latency_s": link.latency_s}
     objects = (GROUND_VEHICLE_ID,) if sc.ground_vehicle is not None else ()
-    with FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta,
-                        objects) as rec:
+    # A flight log of hundreds of UAVs is gigabytes (poses at 20 Hz, every prediction) and
+    # costs more than the flight: above MAX_LOGGED_UAVS only the summary and figures.
+    logged = len(sc.uavs) <= MAX_LOGGED_UAVS
+    if not logged:
+        print(f"{len(sc.uavs)} UAVs: no flight.mcap (logs are written up to {MAX_LOGGED_UAVS} "
+              "UAVs)")
+    with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
+          if logged else contextlib.nullcontext()) as rec:
         world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
                       recorder=rec)
         if ros2 is None:
@@ -49,11 +69,23 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                                    on_log=mirror)
     summary = result.summary()
     summary["link"] = dataclasses.asdict(link)
+    summary["flight_log"] = "flight.mcap" if logged else None
+    if traffic_mod is not None:
+        summary["traffic"] = traffic_mod.traffic_outcome(result, sc)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    figs = plot_world(result.t_s, result.positions_m, result.min_distance_m, result.uav_ids,
-                      f"{sc.name} ({'with' if avoidance else 'without'} avoidance)",
-                      COLLISION_DISTANCE_M)
-    names = ["top_view.png", "altitude.png", "min_distance.png"]
+    title = f"{sc.name} ({'with' if avoidance else 'without'} avoidance)"
+    if traffic_mod is not None:  # hundreds of paths: no per-UAV legend, decimated traces
+        from uavmpc.apps.plots import plot_min_distance_trace, plot_traffic
+
+        figs = (*plot_traffic(result, sc, title),
+                plot_min_distance_trace(result.t_s, result.min_distance_m, COLLISION_DISTANCE_M,
+                                        "time [s]", f"{title}: minimum distance between any "
+                                                    "two UAVs"))
+        names = ["top_view.png", "altitude.png", "traffic.png", "min_distance.png"]
+    else:
+        figs = plot_world(result.t_s, result.positions_m, result.min_distance_m,
+                          result.uav_ids, title, COLLISION_DISTANCE_M)
+        names = ["top_view.png", "altitude.png", "min_distance.png"]
     if "landing_uav" in summary:
         from uavmpc.apps.plots import plot_landing
 
@@ -66,6 +98,7 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
         names.append("formation.png")
     for fig, name in zip(figs, names, strict=True):
         fig.savefig(out / name, dpi=110)
+        close_figure(fig)  # hundreds of UAVs' lines: free them now, not at exit
     summary["figures"] = names
     return summary
 
@@ -75,23 +108,34 @@ def _goal_words(reached: bool | None) -> str:
         "reached its goal" if reached else "MISSED its goal")
 
 
+def _times(factor: float | None) -> str:
+    # Hundreds of UAVs fly slower than real time: "0×" would hide how much slower.
+    return "–" if factor is None else f"{factor:.0f}×" if factor >= 10 else f"{factor:.2g}×"
+
+
 def _print_world_summary(s: dict, out: Path) -> None:
     verdict = (f"{len(s['collisions'])} collision(s)" if s["collisions"]
                else "no collision")
     closest = ("one UAV" if s["min_distance_m"] is None
                else f"closest approach {s['min_distance_m']:.2f} m (collision < 1 m)")
     print(f"{s['scenario']}, {'with' if s['avoidance'] else 'without'} avoidance, seed "
-          f"{s['seed']}: {verdict}; {closest}; {s['realtime_factor']:.0f}× real time")
+          f"{s['seed']}: {verdict}; {closest}; {_times(s['realtime_factor'])} real time")
     for c in s["collisions"][:5]:
         print(f"  collision at t = {c['t']:.2f} s: {c['a']} and {c['b']}, "
               f"{c['distance_m']:.2f} m apart")
-    for uav, u in s["uavs"].items():
+    # A line per UAV is unreadable for a traffic of hundreds: the traffic block says it all.
+    per_uav = s["uavs"].items() if "traffic" not in s or len(s["uavs"]) <= 10 else ()
+    for uav, u in per_uav:
         print(f"  {uav}: climbed up to {u['max_z_offset_m']:.0f} m to avoid, avoiding for "
               f"{u['avoidance_active_s']:.1f} s, "
               f"{_goal_words(u['reached_goal'])}, tracking RMSE {u['tracking_rmse_m']:.3f} m")
     m = s["messages"]
     print(f"  link: {m['sent']} predictions sent, {m['delivered']} delivered, "
           f"{m['dropped']} dropped")
+    if "traffic" in s:
+        from uavmpc.scenarios.traffic import outcome_lines
+
+        print("\n".join(outcome_lines(s["traffic"])))
     if "landing_uav" in s:
         td = s["touchdown"]
         if s["landed"]:
@@ -114,7 +158,8 @@ def _print_world_summary(s: dict, out: Path) -> None:
         calm = s["formation_error_m"].get("while_no_member_avoids")
         if calm:
             print(f"    while no member avoids: rms {calm['rms']:.2f} m, max {calm['max']:.2f} m")
-    print(f"wrote {out}/summary.json, flight.mcap, {', '.join(s['figures'])}")
+    log = ", flight.mcap" if s.get("flight_log") else ""
+    print(f"wrote {out}/summary.json{log}, {', '.join(s['figures'])}")
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -130,10 +175,30 @@ def _run(args: argparse.Namespace) -> int:
     if args.realtime is not None and not args.realtime > 0:
         print("uavmpc run: --realtime must be > 0", file=sys.stderr)
         return 2
+    if args.uavs is not None and args.scenario != "traffic":
+        print(f"uavmpc run: --uavs is for the generated scenario 'traffic', not "
+              f"{args.scenario!r} (its UAVs are in its file)", file=sys.stderr)
+        return 2
+    if args.uavs is not None and not 1 <= args.uavs <= 1000:
+        print(f"uavmpc run: --uavs must be in [1, 1000], got {args.uavs}", file=sys.stderr)
+        return 2
+    heights = None
+    if args.cruise_heights is not None:
+        if args.scenario != "traffic":
+            print("uavmpc run: --cruise-heights is for the generated scenario 'traffic'",
+                  file=sys.stderr)
+            return 2
+        try:
+            heights = tuple(float(h) for h in args.cruise_heights.split(","))
+        except ValueError:
+            print(f"uavmpc run: --cruise-heights: comma-separated metres, e.g. 30,40; got "
+                  f"{args.cruise_heights!r}", file=sys.stderr)
+            return 2
     try:
         s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance, seed=args.seed,
                           duration=args.duration, loss=args.loss, latency=args.latency,
-                          wind=args.wind, ros2=args.ros2, realtime=args.realtime)
+                          wind=args.wind, ros2=args.ros2, realtime=args.realtime,
+                          uavs=args.uavs, cruise_heights=heights)
     except (OSError, ValueError) as exc:
         if args.ros2 is None:
             raise
@@ -420,7 +485,8 @@ def _bench(args: argparse.Namespace) -> int:
     if args.what == "loop":
         return main_loop(args.duration, args.repeats, args.airframe)
     if args.what == "world":
-        return main_world(args.duration if args.duration != 60.0 else 20.0)
+        return main_world(args.duration if args.duration != 60.0 else 20.0, args.sizes,
+                          args.duration_large)
     if args.what == "px4":
         return main_px4(args.duration if args.duration != 60.0 else 20.0)
     if args.what == "ros2":
@@ -440,7 +506,12 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(func=_demo)
     run = sub.add_parser("run", help="fly a scenario (built-in name or TOML file)")
-    run.add_argument("scenario", help="swap_through_static, converge_center, or a .toml file")
+    run.add_argument("scenario", help="swap_through_static, converge_center, traffic (generated: "
+                                      "--uavs, --seed), or a .toml file")
+    run.add_argument("--uavs", type=int, default=None,
+                     help="traffic: number of UAVs (default 300; the area grows with it)")
+    run.add_argument("--cruise-heights", default=None, metavar="Z1,Z2,...",
+                     help="traffic: cruise heights by direction of travel (default one: 30)")
     run.add_argument("--no-avoidance", action="store_true", help="fly without avoidance")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--duration", type=float, default=None, help="simulated seconds")
@@ -557,13 +628,18 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="benchmarks; the last line printed is JSON")
     bench.add_argument("what", choices=["tracker", "loop", "world", "px4", "ros2"],
                        help="tracker: one MpcTracker vs Clarabel; loop: the full one-UAV loop; "
-                            "world: random_walk worlds of 5, 20 and 100 UAVs; px4: three nodes "
-                            "flying stand-in PX4s over MAVLink vs their built-in plants; ros2: "
-                            "three nodes on a ROS 2 graph vs without")
+                            "world: random_walk worlds of 5 to 1000 UAVs, one process each; "
+                            "px4: three nodes flying stand-in PX4s over MAVLink vs their built-in "
+                            "plants; ros2: three nodes on a ROS 2 graph vs without")
     bench.add_argument("--ticks", type=int, default=3000, help="tracker ticks (≥ 2000 advised)")
     bench.add_argument("--seed", type=int, default=1)
     bench.add_argument("--duration", type=float, default=60.0,
                        help="loop, world, px4: seconds (world and px4 default 20)")
+    bench.add_argument("--sizes", default=None,
+                       help="world: UAVs per world, comma-separated (default 5,20,100,300,1000)")
+    bench.add_argument("--duration-large", type=float, default=None,
+                       help="world: seconds for worlds of ≥ 300 UAVs (default 10, at most "
+                            "--duration)")
     bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)

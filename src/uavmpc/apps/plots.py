@@ -101,6 +101,11 @@ def plot_world(t_s: np.ndarray, positions_m: np.ndarray, min_distance_m: np.ndar
     return top, alt, dist
 
 
+def close_figure(fig: Figure) -> None:
+    """Free a figure once saved (pyplot keeps every figure it made until closed)."""
+    plt.close(fig)
+
+
 def plot_min_distance_trace(t_s: object, d_m: object, collision_m: float,
                             xlabel: str = "time since mission start [s]",
                             title: str | None = None) -> Figure:
@@ -215,3 +220,72 @@ def plot_formation(result: Any) -> Figure:
     fig.suptitle(f"{result.scenario}, seed {result.seed}")
     fig.tight_layout()
     return fig
+
+
+def plot_traffic(result: Any, scenario: Any, title: str) -> tuple[Any, Any, Any]:
+    """A traffic run (:mod:`uavmpc.scenarios.traffic`): top view (paths by cruise layer, pads),
+    altitudes, and the numbers airborne and arrived
+    over time: figures that stay readable, and quick, with hundreds of UAVs (no per-UAV
+    legend; traces decimated to ~2000 points)."""
+    from uavmpc.scenarios.traffic import airborne_counts, arrival_times
+
+    stride = max(1, len(result.t_s) // 2000)  # ≤ ~2000 points per path is plenty to draw
+    index = {uid: k for k, uid in enumerate(result.uav_ids)}
+    heights = sorted(set(scenario.cruise_m))
+    colour = {h: f"C{k % 10}" for k, h in enumerate(heights)}
+    thin = 0.6 if len(scenario.uavs) > 50 else 1.0
+    top, ax = plt.subplots(figsize=(8, 7.5))
+    for u, h in zip(scenario.uavs, scenario.cruise_m, strict=True):
+        p = result.positions_m[::stride, index[u.uav_id]]
+        ax.plot(p[:, 0], p[:, 1], color=colour[h], lw=thin, alpha=0.7)
+    starts = np.array([u.start_m[:2] for u in scenario.uavs])
+    goals = np.array([u.goal_m[:2] for u in scenario.uavs])
+    mark = 4 if len(scenario.uavs) > 50 else 6
+    ax.plot(starts[:, 0], starts[:, 1], "o", ms=mark, mfc="none", color="k", label="origin pads")
+    ax.plot(goals[:, 0], goals[:, 1], "s", ms=mark, mfc="none", color="0.4",
+            label="destination pads")
+    for h in heights:
+        ax.plot([], [], color=colour[h], label=f"cruise {h:g} m")
+    for c in result.collisions:
+        k = int(np.searchsorted(result.t_s, c.t))
+        k = min(k, len(result.t_s) - 1)
+        p = result.positions_m[k, index[c.a], :2]
+        ax.plot(p[0], p[1], "x", color="r", ms=8, mew=2)
+    if result.collisions:
+        ax.plot([], [], "x", color="r", label="collision")
+    half = 0.5 * scenario.area_side_m
+    ax.plot([-half, half, half, -half, -half], [-half, -half, half, half, -half], "k:", lw=0.8)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (east) [m]")
+    ax.set_ylabel("y (north) [m]")
+    ax.set_title(f"{title}: top view")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    top.tight_layout()
+
+    alt, ax = plt.subplots(figsize=(8, 4))
+    t = result.t_s[::stride]
+    for u, h in zip(scenario.uavs, scenario.cruise_m, strict=True):
+        ax.plot(t, result.positions_m[::stride, index[u.uav_id], 2], color=colour[h], lw=thin,
+                alpha=0.7)
+    for h in heights:
+        ax.axhline(h, color=colour[h], ls="--", lw=0.8, label=f"cruise {h:g} m")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("altitude z [m]")
+    ax.set_title(f"{title}: altitude")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    alt.tight_layout()
+
+    air, ax = plt.subplots(figsize=(8, 4))
+    counts = airborne_counts(result, scenario)
+    ax.plot(result.t_s[::stride], counts[::stride], label="airborne")
+    arrive = [t for t in arrival_times(result, scenario).values() if t is not None]
+    ax.plot(np.sort(arrive), np.arange(1, len(arrive) + 1), label="arrived (cumulative)")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("UAVs")
+    ax.set_title(f"{title}: traffic")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    air.tight_layout()
+    return top, alt, air

@@ -125,6 +125,7 @@ class SimulatedLink:
         # delivery times, sequence numbers, receiver indices, next undelivered], each sorted
         # by (time, sequence number) — the order a heap per receiver would give.
         self._chunks: list[list] = []
+        self._others: dict[tuple[int, int], np.ndarray] = {}  # receivers of a sender
         self._payloads: dict[int, bytes] = {}
         self._copies_left: dict[int, int] = {}
         self._next_payload = 0
@@ -153,17 +154,26 @@ class SimulatedLink:
         self.stats.sent += n - 1
         if n == 1:
             return
-        receivers = np.delete(np.arange(n), sender)
+        receivers = self._others.get((n, sender))
+        if receivers is None:
+            receivers = self._others[(n, sender)] = np.delete(np.arange(n), sender)
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order.
         lost = self._rng.random(n - 1) < self.loss
         delay = self.latency_s + self.jitter_s * self._rng.random(n - 1)
-        in_range = self._in_range(sender_id, receivers)
-        kept = in_range & ~lost
-        self.stats.dropped_range += int(n - 1 - np.count_nonzero(in_range))
-        self.stats.dropped += int(np.count_nonzero(in_range & lost))
-        count = int(np.count_nonzero(kept))
-        if count:
+        if self.range_m is None:
+            kept = ~lost
+            dropped = int(np.count_nonzero(lost))
+        else:
+            in_range = self._in_range(sender_id, receivers)
+            kept = in_range & ~lost
+            self.stats.dropped_range += int(n - 1 - np.count_nonzero(in_range))
+            dropped = int(np.count_nonzero(in_range & lost))
+        self.stats.dropped += dropped
+        count = n - 1 - dropped if self.range_m is None else int(np.count_nonzero(kept))
+        if count == n - 1:
+            self._queue(t_s + delay, receivers, bytes(msg_bytes), count, sender)
+        elif count:
             self._queue(t_s + delay[kept], receivers[kept], bytes(msg_bytes), count, sender)
 
     def _queue(self, at_s: np.ndarray, receivers: np.ndarray, payload: bytes, count: int,
@@ -175,8 +185,7 @@ class SimulatedLink:
         seq = np.arange(self._seq, self._seq + count, dtype=np.int64)
         self._seq += count
         order = np.argsort(at_s, kind="stable")  # equal times keep the sending order
-        self._chunks.append([sender, pid, at_s[order], seq[order],
-                             receivers.astype(np.int64)[order], 0])
+        self._chunks.append([sender, pid, at_s[order], seq[order], receivers[order], 0])
         self.next_due_s = min(self.next_due_s, float(at_s[order[0]]))
 
     def inject(self, receiver_id: str, msg_bytes: bytes, at_s: float) -> None:

@@ -1,0 +1,50 @@
+"""``bench world``: the structure and internal consistency of its result (no timing thresholds:
+the numbers depend on the machine)."""
+
+import json
+import math
+
+import pytest
+
+from uavmpc.apps.bench import bench_world
+from uavmpc.apps.cli import main
+from uavmpc.config import ConfigError
+
+
+def test_bench_world_rows_are_consistent() -> None:
+    lines: list[str] = []
+    result = bench_world(sizes=(2, 4), duration_s=1.0, progress=lines.append)
+    json.dumps(result)  # the CLI prints it as one JSON line
+    assert [r["uavs"] for r in result["worlds"]] == [2, 4]
+    for row in [*result["worlds"], result["reference"]]:
+        n, factor = row["uavs"], row["realtime_factor"]
+        assert row["duration_s"] == pytest.approx(1.0)
+        assert factor == pytest.approx(row["duration_s"] / row["wall_s"], rel=2e-3)
+        # µs per UAV-second × simulated seconds per wall second × UAVs = 1e6 µs per second
+        assert row["us_per_uav_second"] * factor * n == pytest.approx(1e6, rel=2e-3)
+        assert row["wall_s_per_simulated_s"] * factor == pytest.approx(1.0, rel=2e-3)
+        assert row["peak_rss_mib"] >= row["baseline_rss_mib"] > 0
+        assert row["flight_rss_mib"] == pytest.approx(
+            row["peak_rss_mib"] - row["baseline_rss_mib"], abs=0.11)
+        assert row["collisions"] >= 0 and row["min_distance_m"] > 0
+    assert result["reference"]["path"] == "per-object" and result["reference"]["uavs"] == 2
+    # Too few sizes ≥ 20 for the protocol's fit: it falls back to all of them.
+    assert result["fit_uavs"] == [2, 4]
+    assert math.isfinite(result["growth_exponent"])
+    cost = {r["uavs"]: r["us_per_uav_second"] for r in result["worlds"]}
+    assert result["us_per_uav_second_ratio"] == pytest.approx(cost[4] / cost[2], rel=2e-3)
+    assert result["identical_to_per_object"] is True
+    assert len(lines) == 5  # the header, one line per size, the reference, the fit
+
+
+def test_bench_world_rejects_a_bad_duration() -> None:
+    with pytest.raises(ConfigError, match="duration_large_s"):
+        bench_world(sizes=(2,), duration_s=1.0, duration_large_s=0.0)
+
+
+@pytest.mark.parametrize("argv", [["bench", "world", "--sizes", "5,x"],
+                                  ["bench", "world", "--sizes", "0,5"],
+                                  ["bench", "world", "--sizes", "5,5"]])
+def test_bench_world_bad_sizes_exit_with_a_message(argv, capsys) -> None:
+    assert main(argv) == 2
+    assert "bench world" in capsys.readouterr().err
