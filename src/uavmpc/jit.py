@@ -30,6 +30,9 @@ F = TypeVar("F", bound=Callable[..., Any])
 #: Let LLVM reorder sums (vectorised dot products) and fuse multiply-adds, but keep NaN/inf
 #: semantics: the kernels rely on isnan/isfinite to reject bad data.
 FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+#: :data:`FASTMATH` without reordering sums: for a kernel whose sums must come out bit for bit
+#: as another kernel's that LLVM does not reorder.
+FASTMATH_ORDERED = {"contract", "nsz", "arcp"}
 
 
 _IMPORT = re.compile(r"^\s*(?:from|import)\s+(uavmpc(?:\.\w+)*)", re.MULTILINE)

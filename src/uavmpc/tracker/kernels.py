@@ -32,7 +32,7 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
-from uavmpc.jit import FASTMATH, kernel
+from uavmpc.jit import FASTMATH, FASTMATH_ORDERED, kernel
 from uavmpc.reference import sample_reference
 from uavmpc.solvers.batchqp import OPTIMAL, LdpData, solve_warm
 from uavmpc.solvers.contract import FEASIBILITY_TOL
@@ -673,19 +673,32 @@ def advance_rows(idx: np.ndarray, rows: TrackerRows, c: TrackerConsts, buf: np.n
         advance_row(i, rows, c, sc)
 
 
-@kernel(fastmath=FASTMATH)
+@kernel(fastmath=FASTMATH_ORDERED)
 def plan(rel: np.ndarray, u: np.ndarray, p0: np.ndarray, free_t: np.ndarray,
          forced_t: np.ndarray, out: np.ndarray) -> None:
     """A tick's plan from its record (``rel`` (4, 3), ``u`` (4, m), ``p0`` (4,); see
     :class:`TrackerRows`): ``out`` (4, m, 3) per axis and step [p, v, a], the same sums as
-    :func:`advance_row`, so ``out[:, 0]`` is the state the tick advanced to."""
+    :func:`advance_row`, so ``out[:, 0]`` is the state the tick advanced to.
+
+    The sums run along rows of ``forced_t`` (all 3m columns at once, vectorised) instead of
+    down its columns: each element still adds its terms in the same order, k ascending, and
+    without ``reassoc`` LLVM keeps that order, so the result is bit for bit the column-wise
+    one (the kernel runs for every broadcast and every avoidance update)."""
     m = u.shape[1]
+    w = 3 * m
+    acc = np.empty(w)
+    f1, f2 = free_t[1], free_t[2]
     for ax in range(4):
-        for j in range(3 * m):
-            acc = rel[ax, 1] * free_t[1, j] + rel[ax, 2] * free_t[2, j]
-            for k in range(m):
-                acc += u[ax, k] * forced_t[k, j]
-            out[ax, j // 3, j % 3] = acc
+        r1, r2 = rel[ax, 1], rel[ax, 2]
+        for j in range(w):
+            acc[j] = r1 * f1[j] + r2 * f2[j]
+        for k in range(m):
+            uk = u[ax, k]
+            fk = forced_t[k]
+            for j in range(w):
+                acc[j] += uk * fk[j]
+        for j in range(w):
+            out[ax, j // 3, j % 3] = acc[j]
         for k in range(m):
             out[ax, k, 0] += p0[ax]
 
