@@ -122,8 +122,9 @@ class SimulatedLink:
         self._rng = np.random.default_rng(seed)
         self._members: dict[str, int] = {}
         # Copies in flight, one chunk per broadcast: [sender or None (injected), payload id,
-        # delivery times, sequence numbers, receiver indices, next undelivered], each sorted
-        # by (time, sequence number) — the order a heap per receiver would give.
+        # delivery times, sequence numbers, receiver indices, next undelivered, some taken by
+        # receive()], each sorted by (time, sequence number) — the order a heap per receiver
+        # would give.
         self._chunks: list[list] = []
         self._others: dict[tuple[int, int], np.ndarray] = {}  # receivers of a sender
         self._payloads: dict[int, bytes] = {}
@@ -185,7 +186,7 @@ class SimulatedLink:
         seq = np.arange(self._seq, self._seq + count, dtype=np.int64)
         self._seq += count
         order = np.argsort(at_s, kind="stable")  # equal times keep the sending order
-        self._chunks.append([sender, pid, at_s[order], seq[order], receivers[order], 0])
+        self._chunks.append([sender, pid, at_s[order], seq[order], receivers[order], 0, False])
         self.next_due_s = min(self.next_due_s, float(at_s[order[0]]))
 
     def inject(self, receiver_id: str, msg_bytes: bytes, at_s: float) -> None:
@@ -209,6 +210,7 @@ class SimulatedLink:
             if mine.size:
                 due.extend((float(at[k]), int(seq[k]), chunk[1]) for k in mine.tolist())
                 rcv[mine] = -1  # delivered: a receiver index no one has
+                chunk[6] = True
         due.sort()
         self._drop_delivered()
         self.stats.delivered += len(due)
@@ -235,9 +237,13 @@ class SimulatedLink:
                 continue
             end = int(np.searchsorted(at, t_s, side="right"))
             rcv = chunk[4][pos:end]
-            keep = rcv >= 0  # not taken already by receive()
-            parts.append((at[pos:end][keep], chunk[3][pos:end][keep], rcv[keep],
-                          np.full(int(keep.sum()), chunk[1], dtype=np.int64)))
+            if chunk[6]:  # some copies were taken by receive() already
+                keep = rcv >= 0
+                parts.append((at[pos:end][keep], chunk[3][pos:end][keep], rcv[keep],
+                              np.full(int(keep.sum()), chunk[1], dtype=np.int64)))
+            else:
+                parts.append((at[pos:end], chunk[3][pos:end], rcv,
+                              np.full(end - pos, chunk[1], dtype=np.int64)))
             chunk[5] = end
             # Two due broadcasts of one sender (or injected bytes, whose sender is unknown):
             # their copies must keep the delivery order between them.

@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from uavmpc.jit import kernel
+
 #: The schema version this code writes and the only one it reads.
 SCHEMA_VERSION = 1
 MAGIC = b"UAVP"
@@ -237,20 +239,41 @@ def _check_arrays(times: np.ndarray, pos: np.ndarray) -> None:
         raise InvalidMessageError(f"points: m={m} outside [{MIN_POINTS}, {MAX_POINTS}]")
     if pos.shape != (m, 3):
         raise InvalidMessageError(f"positions_m: must have shape ({m}, 3), got {pos.shape}")
-    if not np.all(np.isfinite(times)):
-        bad = int(np.flatnonzero(~np.isfinite(times))[0])
-        raise InvalidMessageError(f"times_s[{bad}]: non-finite value {times[bad]}")
-    if not np.all(np.isfinite(pos)):
-        bad = int(np.flatnonzero(~np.isfinite(pos).all(axis=1))[0])
-        raise InvalidMessageError(f"positions_m[{bad}]: non-finite value {pos[bad].tolist()}")
-    steps = np.diff(times)
-    if np.any(steps <= 0.0):
-        i = int(np.flatnonzero(steps <= 0.0)[0])
+    kind, i = _first_problem(times, pos, MAX_ABS_POSITION_M)
+    if kind == _NON_FINITE_TIME:
+        raise InvalidMessageError(f"times_s[{i}]: non-finite value {times[i]}")
+    if kind == _NON_FINITE_POSITION:
+        raise InvalidMessageError(f"positions_m[{i}]: non-finite value {pos[i].tolist()}")
+    if kind == _NOT_INCREASING:
         raise InvalidMessageError(
             f"times_s: must increase strictly, times_s[{i}]={times[i]} then "
             f"times_s[{i + 1}]={times[i + 1]}")
-    if np.any(np.abs(pos) > MAX_ABS_POSITION_M):
-        bad = int(np.flatnonzero((np.abs(pos) > MAX_ABS_POSITION_M).any(axis=1))[0])
+    if kind == _ABSURD_POSITION:
         raise InvalidMessageError(
-            f"positions_m[{bad}]: {pos[bad].tolist()} beyond the absurd-position bound "
+            f"positions_m[{i}]: {pos[i].tolist()} beyond the absurd-position bound "
             f"{MAX_ABS_POSITION_M:g} m")
+
+
+_NON_FINITE_TIME, _NON_FINITE_POSITION, _NOT_INCREASING, _ABSURD_POSITION = 1, 2, 3, 4
+
+
+@kernel
+def _first_problem(times: np.ndarray, pos: np.ndarray, bound: float) -> tuple[int, int]:
+    """The first problem of a message's arrays, in the order they are reported: (kind, index)
+    or (0, 0). Every message received or sent passes here, so it is one pass, compiled."""
+    m = times.shape[0]
+    for i in range(m):
+        if not math.isfinite(times[i]):
+            return _NON_FINITE_TIME, i
+    for i in range(m):
+        for j in range(3):
+            if not math.isfinite(pos[i, j]):
+                return _NON_FINITE_POSITION, i
+    for i in range(m - 1):
+        if not times[i + 1] - times[i] > 0.0:
+            return _NOT_INCREASING, i
+    for i in range(m):
+        for j in range(3):
+            if abs(pos[i, j]) > bound:
+                return _ABSURD_POSITION, i
+    return 0, 0
