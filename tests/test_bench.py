@@ -27,6 +27,9 @@ def test_bench_world_rows_are_consistent() -> None:
         assert row["flight_rss_mib"] == pytest.approx(
             row["peak_rss_mib"] - row["baseline_rss_mib"], abs=0.11)
         assert row["collisions"] >= 0 and row["min_distance_m"] > 0
+    for row in result["worlds"]:  # the batched flights say where their wall time went
+        assert 0.0 < row["compiled_share"] < 1.0
+    assert result["reference"]["compiled_share"] is None  # no phases UAV by UAV
     assert result["reference"]["path"] == "per-object" and result["reference"]["uavs"] == 2
     # Too few sizes ≥ 20 for the protocol's fit: it falls back to all of them.
     assert result["fit_uavs"] == [2, 4]

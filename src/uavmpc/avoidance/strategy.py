@@ -6,6 +6,13 @@ fly with. :class:`HeightOffsetStrategy` is the reference design's "reshape": the
 yield climbs in steps of Δz until its prediction is clear, the other keeps its altitude and only
 slows down.
 
+Two entry points, one law: :meth:`ResolutionStrategy.update` takes the newest messages (nodes,
+tests, any strategy); a strategy that also has ``decide``, ``finder`` and ``overrides`` (as
+:class:`HeightOffsetStrategy` and its subclasses) is handed its encounters instead by the
+onboard stack and the simulated world (:mod:`uavmpc.avoidance.encounters`), and ``update``
+itself finds them and calls ``decide``: a subclass changes the decision by overriding
+``decide``.
+
 Note on flags: :attr:`AvoidanceDecision.avoiding` says "currently avoiding" (diagnostics, logs).
 The flag a UAV *broadcasts* (:attr:`~uavmpc.comms.PredictionMessage.avoiding`) means "I run
 collision avoidance and will yield" and must stay up whenever a strategy runs, conflict or not:

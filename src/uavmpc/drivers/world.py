@@ -385,6 +385,9 @@ class World:
         self._next_emit_s = -math.inf
         self._yielding: set[int] = set()
         self._started = False
+        #: Wall time of the batched ticks' phases in the current run [s]: receiving and
+        #: planning, the compiled tick, broadcasting.
+        self._phase_wall_s = [0.0, 0.0, 0.0]
 
     def run(self, duration_s: float | None = None, *, realtime: float | None = None,
             on_log: Callable[[World], None] | None = None) -> WorldResult:
@@ -421,6 +424,7 @@ class World:
             # Compile (or load) the tick before the clock starts: wall_s and the real-time
             # factor measure flying, not a first run's compilation.
             self._bound_tick(self.onboard.tracker.table(), (0, pos, zoff, dmin, pair_d))
+        self._phase_wall_s = [0.0, 0.0, 0.0]
         wall0 = time.perf_counter()
         for k in range(ticks):
             now = self.t_s
@@ -472,6 +476,11 @@ class World:
                              per_uav, messages, wall)
         if members.size:
             result.traces["members_avoiding"] = members_avoiding
+        if self.batched:
+            # Where a batched run's wall time went: the numbers of a scale benchmark.
+            result.extra["wall_s_by_phase"] = dict(zip(
+                ("receive_and_plan", "compiled_tick", "broadcast"),
+                (round(v, 6) for v in self._phase_wall_s), strict=True))
         self._applications(result)
         return result
 
@@ -706,7 +715,10 @@ class World:
 
     def _tick_batched(self, now: float, k: int, pos: np.ndarray, zoff: np.ndarray,
                       dmin: np.ndarray, pair_d: np.ndarray) -> None:
+        clock = time.perf_counter
+        t0 = clock()
         self._receive_and_plan_batched(now)
+        t1 = clock()
         for plant in self._windy:
             plant.hold_wind(self.period_s)
         ob = self.onboard
@@ -725,7 +737,12 @@ class World:
         if bad >= 0:
             raise ValueError(f"invalid attitude target for {self.uavs[bad].uav_id} "
                              "(not finite): the controller got a degenerate state")
+        t2 = clock()
         self._emit(now)
+        phase = self._phase_wall_s
+        phase[0] += t1 - t0
+        phase[1] += t2 - t1
+        phase[2] += clock() - t2
 
     def _bound_tick(self, table: Any, traces: tuple[Any, ...]) -> Any:
         """:func:`world_tick` bound to this world's records (compiled on first use)."""
