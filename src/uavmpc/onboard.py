@@ -440,18 +440,15 @@ class OnboardStack:
         plan_s = self.tracker.time_s
         if not self.avoidance_due():
             return
-        sched = self.batch.schedule
-        sched.next_avoidance_s[self.row] = plan_s + AVOIDANCE_PERIOD_S
-        if self._finder is None:  # a strategy of its own: hand it the messages
-            pred = self.tracker.prediction()
-            times, own = self._own_plan(pred)
-            self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times, own,
-                                             self.inbox.latest))
-            return
+        self.batch.schedule.next_avoidance_s[self.row] = plan_s + AVOIDANCE_PERIOD_S
         trk = self.batch.tracker
         times = np.empty((1, trk.config.steps))
         own = np.empty((1, trk.config.steps, 3))
         avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own)
+        if self._finder is None:  # a strategy of its own: hand it the messages
+            self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times[0],
+                                             own[0], self.inbox.latest))
+            return
         overrides = self.avoidance.overrides(self.inbox.table)  # type: ignore[attr-defined]
         enc = self._finder.find(self._idx, times, own, np.array([plan_s]),
                                 np.array([self.params.radius_m]), [overrides])[0]
@@ -524,14 +521,6 @@ class OnboardStack:
             messages_rejected=dict(self.inbox.rejected))
 
     # ------------------------------------------------------------------ internals
-    def _own_plan(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`avoidance_plans` of this row (times (m,), positions (m, 3))."""
-        trk = self.batch.tracker
-        times = np.empty((1, pred.times_s.shape[0]))
-        own = np.empty((1, pred.times_s.shape[0], 3))
-        avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own)
-        return times[0], own[0]
-
     def apply(self, decision: AvoidanceDecision) -> None:
         """Steer by an avoidance decision: its z offset and limits from the next tick on."""
         self.decision = decision

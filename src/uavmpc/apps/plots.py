@@ -256,12 +256,7 @@ def plot_traffic(result: Any, scenario: Any, title: str) -> tuple[Any, Any, Any]
     half = 0.5 * scenario.area_side_m
     ax.plot([-half, half, half, -half, -half], [-half, -half, half, half, -half], "k:", lw=0.8)
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (east) [m]")
-    ax.set_ylabel("y (north) [m]")
-    ax.set_title(f"{title}: top view")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
-    top.tight_layout()
+    _label(top, ax, "x (east) [m]", "y (north) [m]", f"{title}: top view")
 
     alt, ax = plt.subplots(figsize=(8, 4))
     t = result.t_s[::stride]
@@ -270,22 +265,22 @@ def plot_traffic(result: Any, scenario: Any, title: str) -> tuple[Any, Any, Any]
                 alpha=0.7)
     for h in heights:
         ax.axhline(h, color=colour[h], ls="--", lw=0.8, label=f"cruise {h:g} m")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("altitude z [m]")
-    ax.set_title(f"{title}: altitude")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
-    alt.tight_layout()
+    _label(alt, ax, "time [s]", "altitude z [m]", f"{title}: altitude")
 
     air, ax = plt.subplots(figsize=(8, 4))
     counts = airborne_counts(result, scenario)
     ax.plot(result.t_s[::stride], counts[::stride], label="airborne")
     arrive = [t for t in arrival_times(result, scenario).values() if t is not None]
     ax.plot(np.sort(arrive), np.arange(1, len(arrive) + 1), label="arrived (cumulative)")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("UAVs")
-    ax.set_title(f"{title}: traffic")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    air.tight_layout()
+    _label(air, ax, "time [s]", "UAVs", f"{title}: traffic")
     return top, alt, air
+
+
+def _label(fig: Figure, ax: Any, xlabel: str, ylabel: str, title: str) -> None:
+    """Axis labels, title, grid, legend and layout of one traffic figure."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()

@@ -9,8 +9,11 @@ Every tick is one compiled call for all UAVs (:func:`world_tick`): each UAV's nu
 its stack (:func:`~uavmpc.onboard.onboard_row`) and its plant
 (:func:`~uavmpc.plant.kernels.plant_step`) on its own row of the records the world owns — the
 same functions a stack and a plant run when ticked alone (``World(..., batched=False)`` does
-that, UAV by UAV, and flies bit for bit the same). Messages, avoidance (10 Hz) and broadcasts
-(2 Hz) stay per UAV in Python, in the stacks.
+that, UAV by UAV, and flies bit for bit the same). Around it, for all UAVs at once
+(docs/scale.md): the link's due copies go through each receiver's rule into its row of one
+:class:`~uavmpc.comms.inbox.InboxTable` (each broadcast decoded once), and every 0.1 s the UAVs
+due find their encounters in one compiled call (a box test and a spatial index over the plans
+they hold); each then decides alone (its strategy's ``decide``) and broadcasts at 2 Hz.
 """
 
 from __future__ import annotations
