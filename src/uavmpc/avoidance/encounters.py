@@ -100,6 +100,29 @@ def _hash(cx: int, cy: int, mask: int) -> int:
     return ((cx * _HASH_X) ^ (cy * _HASH_Y)) & mask
 
 
+_FRESH, _SILENT, _IGNORED = 0, 1, 2
+
+
+@kernel
+def _reference_s(rows: InboxRows, r: int, col: int, use_received: bool) -> float:
+    """The time row ``r`` takes column ``col``'s message to be from: its stamp, or its
+    receive time with the receive-time reference (when known)."""
+    if use_received and not math.isnan(rows.held_received_s[r, col]):
+        return rows.held_received_s[r, col]
+    return rows.held_stamp_s[r, col]
+
+
+@kernel
+def _standing(rows: InboxRows, r: int, col: int, now_s: float, use_received: bool,
+              timeout_s: float, silent_hold_s: float) -> int:
+    """:data:`_FRESH` (within ``timeout_s`` of now), :data:`_SILENT` (stale, at most
+    ``silent_hold_s`` old) or :data:`_IGNORED` (older, or stamped too far ahead)."""
+    age = now_s - _reference_s(rows, r, col, use_received)
+    if abs(age) <= timeout_s:
+        return _FRESH
+    return _SILENT if 0.0 < age <= silent_hold_s else _IGNORED
+
+
 @kernel
 def build_grid(store: Store, extrapolate_s: float, cell_m: float
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -218,11 +241,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             slot = rows.held_slot[r, col]
             if slot < 0:
                 continue
-            ref = rows.held_stamp_s[r, col]
-            if use_received and not math.isnan(rows.held_received_s[r, col]):
-                ref = rows.held_received_s[r, col]
-            age = now - ref
-            if abs(age) > timeout_s and 0.0 < age <= silent_hold_s:
+            if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) == _SILENT:
                 if ns < cap_s:
                     s_col[ns] = col
                 ns += 1
@@ -244,16 +263,12 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
         for c in range(n_cand):
             col = cand[c]
             slot = rows.held_slot[r, col]
+            standing = _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s)
+            if standing == _IGNORED:
+                continue
+            silent = standing == _SILENT
             stamp = rows.held_stamp_s[r, col]
-            ref = stamp
-            if use_received and not math.isnan(rows.held_received_s[r, col]):
-                ref = rows.held_received_s[r, col]
-            age = now - ref
-            silent = False
-            if abs(age) > timeout_s:
-                if not 0.0 < age <= silent_hold_s:
-                    continue
-                silent = True
+            ref = _reference_s(rows, r, col, use_received)
             radius = radius_m[j]
             for o in range(ov_start[j], ov_start[j + 1]):
                 if ov_col[o] == col:

@@ -17,6 +17,7 @@ distinct messages held, not with N².
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import NamedTuple
 
@@ -331,8 +332,8 @@ class LatestView(Mapping[str, PredictionMessage]):
             raise KeyError(uav_id)
         rec = float(t.rows.held_received_s[self._r, col])
         hit = self._cache.get(col)
-        if hit is not None and hit[0] == slot and (hit[1] == rec or (hit[1] != hit[1]
-                                                                     and rec != rec)):
+        if hit is not None and hit[0] == slot and (
+                hit[1] == rec or (math.isnan(hit[1]) and math.isnan(rec))):
             return hit[2]
         msg = t.message(self._r, col)
         assert msg is not None
