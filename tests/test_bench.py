@@ -9,6 +9,7 @@ import pytest
 from uavmpc.apps.bench import bench_world
 from uavmpc.apps.cli import main
 from uavmpc.config import ConfigError
+from uavmpc.jit import HAS_CYCLE_COUNTER
 
 
 def test_bench_world_rows_are_consistent() -> None:
@@ -29,7 +30,16 @@ def test_bench_world_rows_are_consistent() -> None:
         assert row["collisions"] >= 0 and row["min_distance_m"] > 0
     for row in result["worlds"]:  # the batched flights say where their wall time went
         assert 0.0 < row["compiled_share"] < 1.0
+        if HAS_CYCLE_COUNTER:
+            stages = row["compiled_us_per_uav_tick"]
+            assert set(stages) == {"stack", "plant", "trace"}
+            assert stages["stack"] > 0 and stages["plant"] > 0 and stages["trace"] >= 0
+            # The stages are a part of the compiled call (timed by the wall clock), so
+            # without the rest of the tick the world would fly faster, not slower.
+            from_wall = row["realtime_factor"] / row["compiled_share"]
+            assert from_wall * 0.9 <= row["compiled_only_realtime_factor"] <= from_wall * 3.0
     assert result["reference"]["compiled_share"] is None  # no phases UAV by UAV
+    assert result["reference"]["compiled_us_per_uav_tick"] is None
     assert result["reference"]["path"] == "per-object" and result["reference"]["uavs"] == 2
     # Too few sizes ≥ 20 for the protocol's fit: it falls back to all of them.
     assert result["fit_uavs"] == [2, 4]
@@ -37,7 +47,8 @@ def test_bench_world_rows_are_consistent() -> None:
     cost = {r["uavs"]: r["us_per_uav_second"] for r in result["worlds"]}
     assert result["us_per_uav_second_ratio"] == pytest.approx(cost[4] / cost[2], rel=2e-3)
     assert result["identical_to_per_object"] is True
-    assert len(lines) == 5  # the header, one line per size, the reference, the fit
+    # The header, per size one line and one for its compiled tick, the reference, the fit.
+    assert len(lines) == (7 if HAS_CYCLE_COUNTER else 5)
 
 
 def test_bench_world_rejects_a_bad_duration() -> None:

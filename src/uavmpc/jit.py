@@ -18,12 +18,16 @@ from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numba
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -112,3 +116,29 @@ def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
     """
     signature = tuple(numba.typeof(a) for a in args)
     return dispatcher.compile(signature)  # type: ignore[no-any-return]
+
+
+#: Whether :func:`cycle_count` reads a hardware counter here: x86's time-stamp counter, which
+#: user code may read and which ticks at a constant rate. Elsewhere LLVM's counter may trap
+#: or read 0, so callers skip their profile.
+HAS_CYCLE_COUNTER = platform.machine().lower() in ("x86_64", "amd64")
+
+
+@intrinsic
+def _read_cycle_counter(typingctx: Any) -> Any:
+    sig = types.int64()
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.IntType(64), []), "llvm.readcyclecounter")
+        return builder.call(fn, [])
+
+    return sig, codegen
+
+
+@kernel
+def cycle_count() -> int:
+    """The CPU's cycle counter (about 25 cycles to read; only where
+    :data:`HAS_CYCLE_COUNTER`): a compiled loop times its own stages with it, and the caller
+    converts counts to seconds against its wall clock over the same run."""
+    return _read_cycle_counter()

@@ -325,6 +325,8 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool) -> d
         "min_distance_m": float(np.min(result.min_distance_m)) if n > 1 else None,
         "baseline_rss_mib": baseline, "peak_rss_mib": peak, "flight_digest": digest.hexdigest(),
         "wall_s_by_phase": result.extra.get("wall_s_by_phase"),
+        "compiled_us_per_uav_tick": result.extra.get("compiled_us_per_uav_tick"),
+        "ticks_per_s": 1.0 / world.period_s,
     }
 
 
@@ -374,7 +376,20 @@ def _world_row(child: dict[str, Any]) -> dict[str, Any]:
         # it, receiving, planning and broadcasting at 10 and 2 Hz).
         "compiled_share": (None if not child.get("wall_s_by_phase")
                            else round(child["wall_s_by_phase"]["compiled_tick"] / wall, 3)),
+        # Inside the compiled tick, per UAV and tick: its stack (tracker with its QPs, SE(3)
+        # control, bookkeeping), its plant, the traces; and the real-time factor the world
+        # would have if nothing but the compiled tick ran (the floor of the cost).
+        **_floor(child),
     }
+
+
+def _floor(child: dict[str, Any]) -> dict[str, Any]:
+    stages = child.get("compiled_us_per_uav_tick")
+    if not stages:  # no cycle counter on this machine, or a per-object run
+        return {"compiled_us_per_uav_tick": None, "compiled_only_realtime_factor": None}
+    per_tick_s = sum(stages.values()) * 1e-6 * child["uavs"]
+    return {"compiled_us_per_uav_tick": stages,
+            "compiled_only_realtime_factor": _sig(1.0 / (per_tick_s * child["ticks_per_s"]))}
 
 
 def _growth(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -442,6 +457,11 @@ def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
                  f"RSS {row['peak_rss_mib']:.0f} MiB (+{row['flight_rss_mib']:.0f} over "
                  f"{row['baseline_rss_mib']:.0f}), {100 * row['compiled_share']:.0f} % in the "
                  f"compiled tick, {row['collisions']} collision(s), closest {closest}")
+        if row["compiled_us_per_uav_tick"]:
+            st = row["compiled_us_per_uav_tick"]
+            progress(f"{'':5s}       compiled tick per UAV: stack {st['stack']:.1f} µs + plant "
+                     f"{st['plant']:.1f} µs + traces {st['trace']:.2f} µs: "
+                     f"{row['compiled_only_realtime_factor']:.1f}× real time at most")
     growth = _growth(rows)
     smallest = min(sizes)
     ref_child = _spawn_world(smallest, duration(smallest), avoidance, False)

@@ -33,7 +33,7 @@ from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.comms.message import InvalidMessageError
 from uavmpc.config import ConfigError
-from uavmpc.jit import bind, kernel
+from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel
 from uavmpc.log import FlightRecorder
 from uavmpc.missions.formation import FormationFollower, formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
@@ -174,24 +174,41 @@ def broadcast_phase(i: int, n: int) -> float:
 
 @kernel
 def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d):
+               pair_d, cycles):
     """One 10 ms tick of every UAV, the compiled solver inline: each UAV's stack
     (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true state, then the
     plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row ``k`` of the traces
     (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the pair distances
     ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the index of a UAV whose attitude
-    target could not be flown (the tick stops there)."""
+    target could not be flown (the tick stops there).
+
+    ``cycles``: (4,) int64 to profile the tick, or (0,) not to: adds the cycle counts of the
+    stacks, the plants and the traces, and the number of UAV-ticks (:func:`cycle_count`)."""
     n = plant.x.shape[0]
     sc = make_scratch(consts.horizon_s.shape[0])
     qd = np.empty(4)
     ff = np.empty(3)
+    timed = cycles.shape[0] > 0
+    c0 = c1 = 0
     for i in range(n):
         x = plant.x[i]
+        if timed:
+            c0 = cycle_count()
         thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, sc,
                              qd, ff)
+        if timed:
+            c1 = cycle_count()
+            cycles[0] += c1 - c0
         if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
+        if timed:
+            cycles[1] += cycle_count() - c1
+            cycles[3] += 1
+    if timed:
+        c0 = cycle_count()
     _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    if timed:
+        cycles[2] += cycle_count() - c0
     return -1
 
 
@@ -391,6 +408,8 @@ class World:
         #: Wall time of the batched ticks' phases in the current run [s]: receiving and
         #: planning, the compiled tick, broadcasting.
         self._phase_wall_s = [0.0, 0.0, 0.0]
+        #: The compiled tick's cycle counts in the current run (see :func:`world_tick`).
+        self._cycles = np.zeros(4 if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
 
     def run(self, duration_s: float | None = None, *, realtime: float | None = None,
             on_log: Callable[[World], None] | None = None) -> WorldResult:
@@ -428,6 +447,9 @@ class World:
             # factor measure flying, not a first run's compilation.
             self._bound_tick(self.onboard.tracker.table(), (0, pos, zoff, dmin, pair_d))
         self._phase_wall_s = [0.0, 0.0, 0.0]
+        # The compiled tick times its stages in CPU cycles, read against the wall clock.
+        self._cycles[:] = 0
+        cycles0 = cycle_count() if HAS_CYCLE_COUNTER else 0
         wall0 = time.perf_counter()
         for k in range(ticks):
             now = self.t_s
@@ -456,6 +478,7 @@ class World:
                 if ahead > 0.0:
                     time.sleep(ahead)
         wall = time.perf_counter() - wall0
+        cycles_per_s = (cycle_count() - cycles0) / wall if HAS_CYCLE_COUNTER and wall > 0 else 0.0
         for i, u in enumerate(self.uavs):
             self._positions[u.uav_id] = pos[ticks - 1, i].copy()
         per_uav = {}
@@ -484,6 +507,12 @@ class World:
             result.extra["wall_s_by_phase"] = dict(zip(
                 ("receive_and_plan", "compiled_tick", "broadcast"),
                 (round(v, 6) for v in self._phase_wall_s), strict=True))
+            c = self._cycles
+            if c.size and c[3] > 0 and cycles_per_s > 0:
+                # Per UAV and tick, inside the compiled call: the floor of a UAV-second.
+                result.extra["compiled_us_per_uav_tick"] = {
+                    name: round(float(c[j] / c[3] / cycles_per_s * 1e6), 3)
+                    for j, name in enumerate(("stack", "plant", "trace"))}
         self._applications(result)
         return result
 
@@ -731,7 +760,7 @@ class World:
         if ob.inline:
             bad = self._bound_tick(table, traces)(trk.rows, table, trk.consts, ob.control,
                                                   ob.stats, self.plants, self.n_sub,
-                                                  self.period_s, *traces)
+                                                  self.period_s, *traces, self._cycles)
         else:
             world_pre(trk.rows, ob.stats, self.plants)
             trk.step()
@@ -754,7 +783,7 @@ class World:
             trk = ob.tracker
             self._kernels = (table, bind(world_tick, trk.rows, table, trk.consts, ob.control,
                                          ob.stats, self.plants, self.n_sub, self.period_s,
-                                         *traces))
+                                         *traces, self._cycles))
         return self._kernels[1]
 
     def _tick_objects(self, now: float, k: int, pos: np.ndarray, zoff: np.ndarray,
