@@ -67,25 +67,27 @@ def test_short_or_wrong_keys_are_refused() -> None:
         Inbox("uav1", key=b"short")
 
 
+def _private(path, data: bytes):  # type: ignore[no-untyped-def]
+    """A key file as a user makes one: ``chmod 600`` (others reading it is refused)."""
+    path.write_bytes(data)
+    path.chmod(0o600)
+    return path
+
+
 def test_load_key(tmp_path) -> None:
-    hexfile = tmp_path / "hex.key"
-    hexfile.write_text(KEY.hex() + "\n")
+    hexfile = _private(tmp_path / "hex.key", (KEY.hex() + "\n").encode())
     assert load_key(hexfile) == KEY
-    raw = tmp_path / "raw.key"
-    raw.write_bytes(b"\x00\xff" * 10)
+    raw = _private(tmp_path / "raw.key", b"\x00\xff" * 10)
     assert load_key(str(raw)) == b"\x00\xff" * 10
-    short = tmp_path / "short.key"
-    short.write_text("00112233445566778899\n")  # 10 bytes of hex
+    short = _private(tmp_path / "short.key", b"00112233445566778899\n")  # 10 bytes of hex
     with pytest.raises(ValueError, match=r"short\.key.*10 bytes of key material"):
         load_key(short)
-    odd = tmp_path / "odd.key"
-    odd.write_text("0" * 33)
+    odd = _private(tmp_path / "odd.key", b"0" * 33)
     with pytest.raises(ValueError, match="odd"):
         load_key(odd)
     with pytest.raises(ValueError, match=r"missing\.key.*cannot read"):
         load_key(tmp_path / "missing.key")
-    big = tmp_path / "big.key"
-    big.write_bytes(b"a" * 10_000)
+    big = _private(tmp_path / "big.key", b"a" * 10_000)
     with pytest.raises(ValueError, match="not a key file"):
         load_key(big)
 

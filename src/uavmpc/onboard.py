@@ -27,9 +27,9 @@ from typing import NamedTuple
 import numpy as np
 
 from uavmpc.avoidance import AvoidanceDecision, AvoidanceParams, ResolutionStrategy
-from uavmpc.comms.auth import sign
+from uavmpc.comms.auth import Identity, Roster, seal, sign
 from uavmpc.comms.inbox import InboxTable
-from uavmpc.comms.link import Inbox
+from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
 from uavmpc.comms.message import PredictionMessage, encode, from_prediction
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
 from uavmpc.jit import bind, kernel
@@ -311,6 +311,9 @@ class OnboardStack:
             default: the strategy's, else the reference design's.
         key: the swarm's shared key: outgoing predictions are signed, unsigned or forged ones
             rejected (:mod:`uavmpc.comms.auth`).
+        identity, roster: per-member identities instead of a key: outgoing predictions are
+            sealed with this UAV's own identity (whose id must be ``uav_id``), incoming ones
+            accepted only when signed by the roster's UAV they claim to be from.
         broadcast_phase_s: first broadcast at ``t0_s + broadcast_phase_s``, then every
             ``broadcast_period_s`` (UAVs spread their phases over the period).
         batch, row: the row of an :class:`OnboardBatch` this stack's numbers live in (default:
@@ -330,6 +333,8 @@ class OnboardStack:
         avoidance: ResolutionStrategy | None = None,
         params: AvoidanceParams | None = None,
         key: bytes | None = None,
+        identity: Identity | None = None,
+        roster: Roster | None = None,
         broadcast_period_s: float = BROADCAST_PERIOD_S,
         broadcast_phase_s: float = 0.0,
         batch: OnboardBatch | None = None,
@@ -355,10 +360,15 @@ class OnboardStack:
         if params is None:
             params = getattr(avoidance, "params", None) or AvoidanceParams()
         self.params = params
+        if (identity is None) != (roster is None):
+            raise ValueError("identities need both this UAV's identity and the roster")
+        if identity is not None and identity.member_id != uav_id:
+            raise ValueError(f"identity {identity.member_id!r} cannot sign as {uav_id!r}")
         self.key = key
+        self.identity = identity
         self.inbox = Inbox(uav_id, time_reference=params.time_reference,  # type: ignore[arg-type]
                            max_age_s=params.timeout_s, key=key, table=inbox_table,
-                           row=self.row)
+                           row=self.row, roster=roster)
         self._finder = (avoidance.finder(self.inbox.table)  # type: ignore[attr-defined]
                         if hasattr(avoidance, "decide") else None)
         self.nominal_limits = self.tracker.limits
@@ -473,6 +483,9 @@ class OnboardStack:
         data = encode(msg)
         if self.key is not None:
             data = sign(data, self.key)
+        elif self.identity is not None:
+            # Stamps order a sender's predictions; the sequence number is the count.
+            data = seal(data, PREDICTION_CHANNEL, self.identity, self.predictions_sent)
         self.last_broadcast = pred
         self.predictions_sent += 1
         return data

@@ -7,6 +7,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -219,11 +220,14 @@ def _node(args: argparse.Namespace) -> int:
     from uavmpc.reference import InvalidReferenceError, Reference
 
     airframe = Airframe.named(args.airframe)
-    key = None
-    if args.key_file:
-        from uavmpc.comms.auth import load_key
-
-        key = load_key(args.key_file)
+    creds = _credentials(args, "uavmpc node", need_roster=True)
+    if creds is None:
+        return 2
+    key, identity, roster = creds
+    if identity is not None and identity.member_id != args.id:
+        print(f"uavmpc node: --identity-file is {identity.member_id!r}'s, not {args.id!r}'s",
+              file=sys.stderr)
+        return 2
     mission = None
     try:
         if args.mission_file:
@@ -277,12 +281,14 @@ def _node(args: argparse.Namespace) -> int:
             return 2
         # With a key, ROS 2 commands would be a way around it (ROS 2 has no signatures here):
         # they are taken only when asked for.
-        topics = UavTopics(graph, args.id, commands=key is None or args.ros2_commands)
+        topics = UavTopics(graph, args.id, commands=(key is None and roster is None)
+                           or args.ros2_commands)
     with ZenohTransport(args.id, swarm=args.swarm, listen=args.listen or [],
                         connect=args.connect or []) as transport:
         node = Node(args.id, args.priority, airframe, transport, start_m=args.start,
                     heading_rad=args.heading, avoidance=not args.no_avoidance, key=key,
-                    vehicle=vehicle, ros2=topics, mission=formation_mission,
+                    identity=identity, roster=roster, vehicle=vehicle, ros2=topics,
+                    mission=formation_mission,
                     pair_radius_m=pair_radius)
         if mission is not None:
             node.set_mission(mission)
@@ -372,6 +378,7 @@ def _swarm(args: argparse.Namespace) -> int:
 
 def _formation_shape(args: argparse.Namespace) -> int:
     from uavmpc.comms.zenoh_link import ZenohTransport
+    from uavmpc.drivers.node import FORMATION_CHANNEL
     from uavmpc.missions.formation import SHAPES
 
     if args.shape not in SHAPES:
@@ -381,13 +388,116 @@ def _formation_shape(args: argparse.Namespace) -> int:
     if not (args.in_s >= 0.0 and args.in_s < 3600.0):
         print("uavmpc formation-shape: --in must be in [0, 3600) s", file=sys.stderr)
         return 2
+    seal_for = _command_sealer(args, "uavmpc formation-shape")
+    if seal_for is None:
+        return 2
     payload = json.dumps({"shape": args.shape, "at_s": time.time() + args.in_s}).encode()
     with ZenohTransport(args.id, swarm=args.swarm, connect=args.connect or []) as transport:
-        # Peers need a moment to find each other; the same command again is ignored.
+        # Peers need a moment to find each other; the same command again is ignored (sealed
+        # anew each time: a sealed command sent twice would be refused as a replay).
         for _ in range(3):
             time.sleep(0.5)
-            transport.put("formation", payload)
+            transport.put("formation", seal_for(payload, FORMATION_CHANNEL))
     print(f"sent: {args.shape} in {args.in_s:g} s to swarm {args.swarm!r}")
+    return 0
+
+
+def _credentials(args: argparse.Namespace, prog: str, *, need_roster: bool) -> Any:
+    """(key, identity, roster) from ``--key-file``, ``--identity-file``, ``--roster``, or
+    None after printing what is wrong."""
+    key = identity = roster = None
+    given = [f for f in ("key_file", "identity_file") if getattr(args, f, None)]
+    if len(given) > 1:
+        print(f"{prog}: --key-file or --identity-file, not both", file=sys.stderr)
+        return None
+    try:
+        from uavmpc.comms import auth
+
+        if args.key_file:
+            key = auth.load_key(args.key_file)
+        if getattr(args, "identity_file", None):
+            identity = auth.load_identity(args.identity_file)
+        if need_roster:
+            if (identity is None) != (getattr(args, "roster", None) is None):
+                print(f"{prog}: --identity-file and --roster go together", file=sys.stderr)
+                return None
+            if args.roster:
+                roster = auth.load_roster(args.roster)
+    except ImportError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+    except ValueError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+    return key, identity, roster
+
+
+def _command_sealer(args: argparse.Namespace, prog: str) -> Any:
+    """``seal(payload, channel)`` for a command sender: sealed with its key or identity (a
+    node with keys refuses anything else), or the payload as it is."""
+    creds = _credentials(args, prog, need_roster=False)
+    if creds is None:
+        return None
+    key, identity, _ = creds
+    if key is None and identity is None:
+        return lambda payload, channel: payload
+    from uavmpc.comms.auth import CommandSigner, SharedKey
+
+    signer = CommandSigner(identity if identity is not None else SharedKey(key, args.id))
+    return signer.seal
+
+
+def _mission(args: argparse.Namespace) -> int:
+    from uavmpc.comms.zenoh_link import ZenohTransport
+    from uavmpc.drivers.node import parse_mission
+
+    payload = json.dumps({"goto": args.goto}).encode()
+    try:
+        parse_mission(payload, time.time())  # the node would refuse it: say so here
+    except ValueError as exc:
+        print(f"uavmpc mission: {exc}", file=sys.stderr)
+        return 2
+    seal_for = _command_sealer(args, "uavmpc mission")
+    if seal_for is None:
+        return 2
+    with ZenohTransport(args.id, swarm=args.swarm, connect=args.connect or []) as transport:
+        time.sleep(0.5)  # discovery; once only: a sealed mission sent again is a replay
+        transport.send(args.to, "mission", seal_for(payload, f"{args.to}/mission"))
+        time.sleep(0.2)
+    print(f"sent: goto {args.goto} to {args.to!r} in swarm {args.swarm!r}")
+    return 0
+
+
+def _keygen(args: argparse.Namespace) -> int:
+    from uavmpc.comms import auth
+
+    try:
+        auth.check_member_id(args.member_id, "ID")
+        ident = auth.Identity.generate(args.member_id)
+    except (ImportError, ValueError) as exc:
+        print(f"uavmpc keygen: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{args.member_id}.id"
+    roster_path = Path(args.roster) if args.roster else out / "roster.toml"
+    members: dict[str, auth.RosterEntry] = {}
+    try:
+        if roster_path.exists():
+            members = dict(auth.load_roster(roster_path))
+        if args.member_id in members:
+            raise ValueError(f"{roster_path}: already has a member {args.member_id!r}")
+        auth.write_identity(ident, path)
+    except FileExistsError:
+        print(f"uavmpc keygen: {path} exists (keys are never overwritten)", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f"uavmpc keygen: {exc}", file=sys.stderr)
+        return 2
+    members[args.member_id] = auth.RosterEntry(args.role, ident.public_key)
+    roster_path.write_text(auth.Roster(members).to_toml())
+    print(f"wrote {path} (private, mode 600) and {args.role} {args.member_id!r} into "
+          f"{roster_path}")
     return 0
 
 
@@ -543,7 +653,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help="fly as a member of this formation (a [formation] table, TOML or "
                            "JSON): a follower flies its slot along the leader's plans")
     node.add_argument("--no-avoidance", action="store_true")
-    node.add_argument("--key-file", help="shared key: sign predictions, drop unsigned ones")
+    node.add_argument("--key-file", help="shared key: sign predictions, drop unsigned ones; "
+                                         "missions must be sealed with it")
+    node.add_argument("--identity-file", help="this UAV's own identity (uavmpc keygen): sign "
+                                              "its predictions as itself (with --roster)")
+    node.add_argument("--roster", help="the swarm's roster: accept predictions only from the "
+                                       "UAV they claim, commands only from operators")
     node.add_argument("--duration", type=float, default=None,
                       help="stop after S seconds (with --mavlink: then land)")
     node.add_argument("--mavlink", metavar="URL",
@@ -605,7 +720,28 @@ def build_parser() -> argparse.ArgumentParser:
     shape.add_argument("--in", dest="in_s", type=float, default=0.0,
                        help="start the change this many seconds from now (default 0)")
     shape.add_argument("--id", default="ground", help="this sender's id (default ground)")
+    shape.add_argument("--key-file", help="seal the command with the swarm's shared key")
+    shape.add_argument("--identity-file", help="seal the command as this operator")
     shape.set_defaults(func=_formation_shape)
+    mission = sub.add_parser("mission", help="send one UAV node a mission over Zenoh (sealed "
+                                             "with a key or an operator's identity)")
+    mission.add_argument("--to", required=True, help="the UAV's id")
+    mission.add_argument("--goto", type=float, nargs=4, required=True,
+                         metavar=("X", "Y", "Z", "HEADING"), help="fly to this point (ENU, rad)")
+    mission.add_argument("--swarm", default="default", help="swarm name (key prefix)")
+    mission.add_argument("--connect", action="append", help="a node's endpoint")
+    mission.add_argument("--id", default="ground", help="this sender's id (default ground)")
+    mission.add_argument("--key-file", help="seal with the swarm's shared key")
+    mission.add_argument("--identity-file", help="seal as this operator (uavmpc keygen)")
+    mission.set_defaults(func=_mission)
+    keygen = sub.add_parser("keygen", help="a new Ed25519 identity and its roster entry "
+                                           "(pip install 'uavmpc[auth]')")
+    keygen.add_argument("member_id", metavar="ID", help="a UAV's or an operator's id")
+    keygen.add_argument("--role", choices=["uav", "operator"], required=True)
+    keygen.add_argument("--dir", default="keys", help="where ID.id goes (default keys/)")
+    keygen.add_argument("--roster", default=None,
+                        help="the roster to add it to (default DIR/roster.toml)")
+    keygen.set_defaults(func=_keygen)
     bag = sub.add_parser("export-bag", help="a run's flight.mcap as a rosbag2 (ROS 2 types, "
                                             "CDR, MCAP storage)")
     bag.add_argument("run_dir", help="a folder written by uavmpc run, demo or swarm")

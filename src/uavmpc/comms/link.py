@@ -5,7 +5,8 @@ decode and validate whatever arrives (:class:`Inbox`).
 
 - :class:`Transport` is the one contract: ``publish`` a broadcast, ``receive`` what arrived.
 - :class:`SimulatedLink` is the in-process broadcast medium of the simulated world, on the
-  simulated clock: fixed latency plus uniform jitter, random loss, an optional range limit.
+  simulated clock: fixed latency plus uniform jitter, random loss (independent, or in bursts),
+  an optional range limit.
 - :class:`Inbox` keeps the newest valid message per sender and counts what it rejected.
 """
 
@@ -18,7 +19,7 @@ from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from uavmpc.comms.auth import check_key, verify
+from uavmpc.comms.auth import Roster, check_key, unseal, verify
 from uavmpc.comms.inbox import (
     FUTURE_REASON,
     KEPT,
@@ -52,7 +53,7 @@ class LinkStats:
         published: ``publish`` calls.
         sent: copies attempted (one per other member per publish).
         delivered: copies handed to receivers by ``receive``.
-        dropped: copies lost at random (``loss``).
+        dropped: copies lost at random (``loss``; in bursts too, with ``burst_len``).
         dropped_range: copies not delivered because the receiver was out of range.
         injected: raw byte strings delivered by :meth:`SimulatedLink.inject`.
     """
@@ -71,13 +72,51 @@ class LinkStats:
                 - self.dropped_range)
 
 
+def _burst_thresholds(loss: float, burst_len: float) -> np.ndarray:
+    """The Gilbert channel of loss rate ``loss`` and mean burst ``burst_len`` (copies), as the
+    loss thresholds of a uniform draw in [0, 1) by previous state: (no copy yet, Good, Bad) →
+    (P, p, 1 − r) with r = 1 / burst_len, p = P r / (1 − P) (see :class:`SimulatedLink`)."""
+    if not (math.isfinite(burst_len) and burst_len >= 1.0):
+        raise ValueError(f"burst_len: must be 0 (independent losses) or a finite mean burst "
+                         f"length ≥ 1 (copies), got {burst_len}")
+    if not (0.0 <= loss < 1.0):
+        raise ValueError(f"burst_len: needs loss < 1 (a channel always Bad has no bursts), "
+                         f"got burst_len={burst_len:g} with loss={loss:g}")
+    r = 1.0 / burst_len
+    p = loss * r / (1.0 - loss)
+    if p > 1.0 + 1e-12:  # rounding at the limit L = P / (1 − P) is not an error
+        raise ValueError(f"burst_len={burst_len:g} with loss={loss:g} needs P(good→bad) = "
+                         f"{p:.3g} > 1 (bursts that short cannot lose that much: need "
+                         f"burst_len ≥ loss / (1 − loss) = {loss / (1.0 - loss):.3g})")
+    return np.array([loss, min(p, 1.0), 1.0 - r])
+
+
 class SimulatedLink:
     """In-process broadcast link on a simulated clock.
 
     Every member except the sender gets its own copy of each broadcast, decided independently
-    (as on a radio channel): first the range check, then loss with probability ``loss``, then a
-    delivery delay of ``latency_s + U(0, jitter_s)``. Jitter can reorder messages; receivers
+    (as on a radio channel): first the range check, then loss with probability ``loss``
+    (independently, or in bursts: below), then a delivery delay of ``latency_s + U(0,
+    jitter_s)``. Jitter can reorder messages; receivers
     keep the newest stamp per sender (:class:`Inbox`).
+
+    Burst loss: field radios lose packets in bursts (a fade, a blocked line of sight), and
+    bursts are what hurts a prediction-sharing avoidance: one lost prediction is covered by the
+    previous one, several consecutive predictions of one neighbour missing leave it planning
+    against an ageing (then stale) trajectory. With ``burst_len`` > 0 every directed pair
+    (sender → receiver) has its own two-state Markov chain (the simple Gilbert model): Good (the
+    copy arrives) or Bad (the copy is lost). Its stationary probability of Bad is ``loss`` = P
+    and its mean sojourn in Bad is ``burst_len`` = L copies, so
+
+        r = P(Bad → Good) = 1 / L,        p = P(Good → Bad) = P · r / (1 − P),
+
+    which needs P < 1 and p ≤ 1 (L ≥ P / (1 − P)). The chain takes one step per copy the pair
+    sends *in range*: a copy to a receiver out of range does not touch the channel, and the
+    pair's chain stays frozen until it is in range again. The state of a pair's first copy is
+    drawn from the stationary distribution (Bad with probability P), so the loss rate is P from
+    the first broadcast on. Chains of different pairs are independent, including two receivers
+    of one sender: a burst is a property of a path, not of the transmitter. ``burst_len`` = 0
+    is the independent loss above (mean run of losses 1 / (1 − P)).
 
     Range: when ``range_m`` is set, ``position_of(uav_id) -> (3,)`` gives each UAV's position
     (m, ENU) and is queried at *publish* time (a packet flies for milliseconds; the range is
@@ -86,14 +125,18 @@ class SimulatedLink:
 
     Determinism: all randomness comes from ``numpy.random.default_rng(seed)``; draws happen in
     ``publish`` in member-join order, so the same seed and the same call order give the same
-    deliveries.
+    deliveries. Each publish draws one uniform per other member for the loss (the i.i.d. test,
+    or the step of the pair's chain) and one for the jitter, whatever ``burst_len`` is.
 
     Args:
         members: ids of the UAVs on the link (more can :meth:`join` later; a member only gets
             copies of broadcasts made after it joined).
         latency_s: fixed delay (s), ≥ 0.
         jitter_s: extra delay, uniform in [0, jitter_s] (s), ≥ 0.
-        loss: probability in [0, 1] that a copy is lost.
+        loss: probability in [0, 1] that a copy is lost (with ``burst_len`` > 0: the long-run
+            fraction lost, < 1).
+        burst_len: mean length of a burst of losses, in copies of one pair: 0 (independent
+            losses) or ≥ 1.
         range_m: maximum 3-D sender–receiver distance (m) or ``None`` for unlimited.
         position_of: required with ``range_m``.
         seed: seed of the random generator.
@@ -102,7 +145,7 @@ class SimulatedLink:
     def __init__(self, members: Iterable[str] = (), *, latency_s: float = 0.0,
                  jitter_s: float = 0.0, loss: float = 0.0, range_m: float | None = None,
                  position_of: Callable[[str], np.ndarray | None] | None = None,
-                 seed: int | None = 0) -> None:
+                 seed: int | None = 0, burst_len: float = 0.0) -> None:
         for name, v in (("latency_s", latency_s), ("jitter_s", jitter_s)):
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name}: must be finite and ≥ 0, got {v}")
@@ -113,6 +156,12 @@ class SimulatedLink:
                 raise ValueError(f"range_m: must be > 0 or None, got {range_m}")
             if position_of is None:
                 raise ValueError("range_m: needs position_of(uav_id) to know where UAVs are")
+        self.burst_len = float(burst_len)
+        #: Loss thresholds of a uniform draw, by chain state + 1: first copy (stationary: P),
+        #: after Good (p), after Bad (1 − r: a Bad pair stays Bad unless the draw is ≥ 1 − r).
+        self._thresholds: np.ndarray | None = None
+        if self.burst_len != 0.0:
+            self._thresholds = _burst_thresholds(float(loss), self.burst_len)
         self.latency_s = float(latency_s)
         self.jitter_s = float(jitter_s)
         self.loss = float(loss)
@@ -131,6 +180,9 @@ class SimulatedLink:
         self._copies_left: dict[int, int] = {}
         self._next_payload = 0
         self._seq = 0  # FIFO tie-break for equal delivery times
+        # Burst model: the state of each pair's chain, [sender, receiver]: −1 no copy yet, 0
+        # Good, 1 Bad. Capacity doubles as members join (a 1000-UAV swarm joins one by one).
+        self._state = np.full((0, 0), -1, dtype=np.int8)
         #: No copy is due before this time (a lower bound).
         self.next_due_s = math.inf
         for uav_id in members:
@@ -144,6 +196,11 @@ class SimulatedLink:
         """Add a member (idempotent)."""
         if uav_id not in self._members:
             self._members[uav_id] = len(self._members)
+            n, cap = len(self._members), self._state.shape[0]
+            if self._thresholds is not None and n > cap:
+                grown = np.full((max(n, 2 * cap), max(n, 2 * cap)), -1, dtype=np.int8)
+                grown[:cap, :cap] = self._state
+                self._state = grown
 
     def publish(self, msg_bytes: bytes, sender_id: str, t_s: float) -> None:
         if not isinstance(msg_bytes, bytes | bytearray):
@@ -160,13 +217,22 @@ class SimulatedLink:
             receivers = self._others[(n, sender)] = np.delete(np.arange(n), sender)
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order.
-        lost = self._rng.random(n - 1) < self.loss
+        if self._thresholds is None:
+            lost = self._rng.random(n - 1) < self.loss
+        else:
+            row = self._state[sender]
+            lost = self._rng.random(n - 1) < self._thresholds[row[receivers] + 1]
         delay = self.latency_s + self.jitter_s * self._rng.random(n - 1)
         if self.range_m is None:
+            if self._thresholds is not None:
+                row[receivers] = lost
             kept = ~lost
             dropped = int(np.count_nonzero(lost))
         else:
             in_range = self._in_range(sender_id, receivers)
+            if self._thresholds is not None:
+                # Out of range nothing was sent: those chains keep their state.
+                row[receivers[in_range]] = lost[in_range]
             kept = in_range & ~lost
             self.stats.dropped_range += int(n - 1 - np.count_nonzero(in_range))
             dropped = int(np.count_nonzero(in_range & lost))
@@ -323,6 +389,10 @@ class SimulatedLink:
         return None if p is None else np.asarray(p, dtype=float).reshape(3)
 
 
+#: The channel predictions are sealed for (:func:`uavmpc.comms.auth.seal`).
+PREDICTION_CHANNEL = "prediction"
+
+
 class Inbox:
     """A receiver's view of the others: the newest valid message per sender.
 
@@ -344,6 +414,11 @@ class Inbox:
         key: the swarm's shared key (:mod:`uavmpc.comms.auth`): when set, only messages signed
             with it are accepted (others are counted as ``"unsigned message"`` or ``"forged
             message (bad signature)"``); senders then publish ``sign(encode(msg), key)``.
+        roster: the swarm's roster of identities (:mod:`uavmpc.comms.auth`), instead of a
+            key: only predictions signed by the UAV they claim to be from are accepted (a
+            member's own id only: ``"wrong identity"``; an operator's or a stranger's key:
+            ``"not allowed"``, ``"unknown signer"``); senders publish
+            ``seal(encode(msg), "prediction", identity, seq)``.
         table, row: the shared table and this receiver's row in it (its settings are the
             table's).
     """
@@ -351,11 +426,14 @@ class Inbox:
     def __init__(self, own_id: str, *, time_reference: Literal["stamp", "receive"] = "stamp",
                  max_future_s: float = 0.5, max_age_s: float = 1.0,
                  key: bytes | None = None, table: InboxTable | None = None,
-                 row: int = 0) -> None:
+                 row: int = 0, roster: Roster | None = None) -> None:
         if key is not None:
             check_key(key)
             key = bytes(key)
+            if roster is not None:
+                raise ValueError("an inbox takes a shared key or a roster, not both")
         self.key = key
+        self.roster = roster
         self.own_id = own_id
         if table is None:
             table = InboxTable([own_id], time_reference=time_reference,
@@ -410,9 +488,16 @@ class Inbox:
         """Verify (with a key), decode, validate and keep one message; ``None`` if rejected or
         not newer."""
         table = self.table
+        signer = None
         try:
             if self.key is not None:
                 data = verify(data, self.key)
+            elif self.roster is not None:
+                sealed = unseal(data, PREDICTION_CHANNEL, self.roster)
+                if self.roster[sealed.signer_id].role != "uav":
+                    raise InvalidMessageError(
+                        f"not allowed: {sealed.signer_id!r} is not a UAV of the roster")
+                data, signer = sealed.data, sealed.signer_id
             if not isinstance(data, bytes | bytearray | memoryview):
                 raise InvalidMessageError(f"data: expected bytes, got {type(data).__name__}")
             slot = table.slot_for(bytes(data))
@@ -420,6 +505,12 @@ class Inbox:
             self.count_rejected(str(exc))
             return None
         try:
+            if signer is not None:
+                claimed = table.ids[int(table.store.col[slot])]
+                if claimed != signer:
+                    self.count_rejected(f"wrong identity: a prediction of {claimed!r} signed "
+                                        f"by {signer!r}")
+                    return None
             if not math.isfinite(now_s):
                 raise ValueError(f"now_s: must be finite, got {now_s}")
             outcome = accept_copy(table.rows, table.store, self.row, slot, float(now_s))

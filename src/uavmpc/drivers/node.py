@@ -33,6 +33,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
+from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
 from uavmpc.missions.mission import Mission, MissionInput
@@ -56,6 +57,11 @@ FLARE_SPEED_MPS = 0.5
 LANDING_DEPTH_M = 0.3
 #: Longest landing before the node gives up waiting (the vehicle is left to its autopilot).
 LANDING_TIMEOUT_S = 60.0
+#: A sealed command sent longer ago than this (by its signer's clock) is refused as stale: it
+#: bounds the replay of a recorded command to a node that restarted since [s].
+COMMAND_MAX_SKEW_S = 30.0
+#: The channel formation commands are sealed for (every member hears the same command).
+FORMATION_CHANNEL = "formation"
 
 
 def parse_mission(payload: bytes, now_s: float) -> Reference:
@@ -94,6 +100,9 @@ class NodeStats:
     accepted: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
     missions_rejected: int = 0
+    #: With a key or a roster: commands refused by the gate, by kind (``unsigned``,
+    #: ``forged``, ``unknown signer``, ``not allowed``, ``replayed``, ``stale``).
+    commands_rejected: dict[str, int] = field(default_factory=dict)
     tracking_rmse_m: float = 0.0
     max_z_offset_m: float = 0.0
     avoidance_active_s: float = 0.0
@@ -209,6 +218,8 @@ class Node:
         avoidance: bool = True,
         params: AvoidanceParams | None = None,
         key: bytes | None = None,
+        identity: Identity | None = None,
+        roster: Roster | None = None,
         state_rate_hz: float = 50.0,
         phase_s: float = 0.0,
         vehicle: VehicleDriver | None = None,
@@ -221,6 +232,18 @@ class Node:
         self.airframe = airframe
         self.transport: Transport = transport
         self.key = key
+        self.identity = identity
+        self.roster = roster
+        #: With a key or a roster, commands (missions, formation changes) must be sealed by
+        #: a holder of the key or by an operator of the roster, and newer than the last one
+        #: of their signer (:class:`~uavmpc.comms.auth.CommandGate`); else anyone may command.
+        self.commands: CommandGate | None = None
+        if key is not None and roster is not None:
+            raise ValueError("a node takes a shared key or identities, not both")
+        if key is not None:
+            self.commands = CommandGate(SharedKey(key), max_skew_s=COMMAND_MAX_SKEW_S)
+        elif roster is not None:
+            self.commands = CommandGate(roster, max_skew_s=COMMAND_MAX_SKEW_S)
         self.start_m = tuple(float(v) for v in start_m)
         self.heading_rad = float(heading_rad)
         self.avoidance = avoidance
@@ -263,7 +286,8 @@ class Node:
             uav_id=self.uav_id, priority=self.priority,
             avoidance=(HeightOffsetStrategy(self.params, pair_radius_m=self.pair_radius_m)
                        if self.avoidance else None),
-            params=self.params, key=self.key, broadcast_phase_s=self.phase_s)
+            params=self.params, key=self.key, identity=self.identity, roster=self.roster,
+            broadcast_phase_s=self.phase_s)
         # Hold where it is until it may fly (a mission starting later keeps this before).
         self.stack.set_mission(Reference.goto(*first.position_m, heading, start_s=now))
         return self.stack, first
@@ -362,6 +386,8 @@ class Node:
         s.predictions_sent = rep.predictions_sent
         s.accepted = rep.messages_accepted
         s.rejected = dict(rep.messages_rejected)
+        if self.commands is not None:
+            s.commands_rejected = dict(self.commands.rejected)
         s.tracking_rmse_m = rep.tracking_rmse_m
         s.max_z_offset_m = rep.max_z_offset_m
         s.avoidance_active_s = rep.avoidance_active_s
@@ -402,7 +428,8 @@ class Node:
         if self._mission_commands is not None:
             for _key, payload in self._mission_commands.drain(4):
                 try:
-                    self.mission.command(payload, now)  # type: ignore[attr-defined]
+                    self.mission.command(  # type: ignore[attr-defined]
+                        self._open_command(payload, FORMATION_CHANNEL), now)
                 except ValueError:
                     self.stats.missions_rejected += 1
         out = self.mission.step(MissionInput(now, state, False, self.stack.inbox.latest))
@@ -416,7 +443,7 @@ class Node:
             try:
                 if self.mission is not None:
                     raise ValueError("this UAV flies its mission (e.g. a formation slot)")
-                ref = parse_mission(payload, now)
+                ref = parse_mission(self._open_command(payload, f"{self.uav_id}/mission"), now)
             except (InvalidReferenceError, ValueError, TypeError):
                 self.stats.missions_rejected += 1
                 continue
@@ -434,6 +461,12 @@ class Node:
         if ref is not None:
             assert self.stack is not None
             self.stack.set_mission(ref)
+
+    def _open_command(self, payload: bytes, channel: str) -> bytes:
+        """The command inside ``payload`` (checked by the gate, if any)."""
+        if self.commands is None:
+            return payload
+        return self.commands.open(payload, channel, time.time()).data
 
     def _publish_ros2(self, now: float, state: VehicleState) -> None:
         assert self.ros2 is not None and self.stack is not None

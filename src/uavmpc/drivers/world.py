@@ -310,7 +310,7 @@ class World:
             [u.uav_id for u in scenario.uavs], latency_s=settings.latency_s,
             jitter_s=settings.jitter_s, loss=settings.loss,
             range_m=settings.range_m or None, position_of=self._positions.__getitem__,
-            seed=seed,
+            seed=seed, burst_len=settings.burst_len,
         )
         airframes: dict[str, Airframe] = {}
         for spec in scenario.uavs:

@@ -5,7 +5,8 @@ with errors that name the field, e.g. ``uavs[2].priority: duplicate of uavs[0]``
 
     name = "swap_through_static"
     duration_s = 60.0
-    [link]       latency_s, jitter_s, loss, range_m (0 = unlimited)
+    [link]       latency_s, jitter_s, loss, range_m (0 = unlimited),
+                 burst_len (mean burst of losses in messages; 0 = independent losses)
     [avoidance]  any AvoidanceParams field (defaults: the reference design)
     [limits]     any DynamicLimits field: every UAV's nominal limits (default: data/tracker.toml)
     [[uavs]]     id, priority, airframe, start = [x, y, z], heading_rad,
@@ -55,20 +56,32 @@ _ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
 @dataclass(frozen=True)
 class LinkSettings:
     """The simulated broadcast link: latency = latency_s + U(0, jitter_s), loss probability,
-    optional range limit (0 = unlimited)."""
+    optional range limit (0 = unlimited), mean burst of losses ``burst_len`` in messages (0 =
+    independent losses; see :class:`~uavmpc.comms.link.SimulatedLink`)."""
 
     latency_s: float = 0.05
     jitter_s: float = 0.02
     loss: float = 0.0
     range_m: float = 0.0
+    burst_len: float = 0.0
 
     @classmethod
     def from_dict(cls, t: dict[str, Any], prefix: str = "link") -> LinkSettings:
-        reject_unknown(t, {"latency_s", "jitter_s", "loss", "range_m"}, prefix)
+        reject_unknown(t, {"latency_s", "jitter_s", "loss", "range_m", "burst_len"}, prefix)
         d = cls()
         loss = positive(t.get("loss", d.loss), f"{prefix}.loss", upper=1.0, allow_zero=True)
         if loss >= 1.0:
             raise ConfigError(f"{prefix}.loss: must be < 1, got {loss}")
+        burst = positive(t.get("burst_len", d.burst_len), f"{prefix}.burst_len", upper=1e6,
+                         allow_zero=True)
+        if 0.0 < burst < 1.0:
+            raise ConfigError(f"{prefix}.burst_len: must be 0 (independent losses) or a mean "
+                              f"burst length ≥ 1 (messages), got {burst}")
+        # The Gilbert channel needs P(good→bad) = loss / ((1 − loss) burst_len) ≤ 1.
+        if burst > 0.0 and loss > burst * (1.0 - loss) * (1.0 + 1e-12):
+            raise ConfigError(f"{prefix}.burst_len: {burst:g} with loss={loss:g} needs "
+                              f"P(good→bad) = {loss / ((1.0 - loss) * burst):.3g} > 1 (need "
+                              f"burst_len ≥ loss / (1 − loss) = {loss / (1.0 - loss):.3g})")
         return cls(
             latency_s=positive(t.get("latency_s", d.latency_s), f"{prefix}.latency_s",
                                upper=10.0, allow_zero=True),
@@ -76,6 +89,7 @@ class LinkSettings:
                               allow_zero=True),
             loss=loss,
             range_m=positive(t.get("range_m", d.range_m), f"{prefix}.range_m", allow_zero=True),
+            burst_len=burst,
         )
 
 
