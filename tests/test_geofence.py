@@ -1,0 +1,127 @@
+"""The operational volume: its distance law, the missions it refuses, the way back in."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uavmpc.config import ConfigError
+from uavmpc.geofence import Geofence, GeofenceError
+from uavmpc.reference import Reference
+
+BOX = Geofence.box((0.0, 100.0), (0.0, 50.0), (2.0, 40.0))
+# An L: the square [0, 60]² without its quarter [30, 60] × [30, 60].
+ELL = Geofence(np.array([[0, 0], [60, 0], [60, 30], [30, 30], [30, 60], [0, 60]], float),
+               2.0, 40.0)
+
+
+def test_margin_is_the_distance_to_the_nearest_face() -> None:
+    pts = np.array([[50, 25, 20],   # centre: 20 m to the ceiling, 18 m to the floor, 25 m xy
+                    [1, 25, 20],    # 1 m from the wall x = 0
+                    [50, 25, 39.5],  # 0.5 m below the ceiling
+                    [50, 25, 1.0],  # 1 m below the floor
+                    [103, 25, 20],  # 3 m outside the wall x = 100
+                    [np.nan, 0, 0]], float)
+    d = BOX.margin(pts)
+    assert d[:5] == pytest.approx([18.0, 1.0, 0.5, -1.0, -3.0])
+    assert np.isnan(d[5])
+    # The L's notch is outside, its arms inside.
+    assert ELL.margin(np.array([[45, 45, 20]]))[0] == pytest.approx(-15.0)
+    assert ELL.margin(np.array([[45, 15, 20]]))[0] == pytest.approx(15.0)
+    assert ELL.contains(np.array([10, 50, 20]), margin_m=9.9)
+    assert not ELL.contains(np.array([10, 50, 20]), margin_m=10.1)
+
+
+@pytest.mark.parametrize(("points", "needle"), [
+    ([[10, 10, 20], [110, 10, 20]], "point 1 .* outside the operational volume by 10.00 m"),
+    ([[10, 10, 20], [10, 10, 45]], "point 1 .* outside .* by 5.00 m"),
+    ([[10, 10, 20], [10, 10, 1.5]], "point 1 .* outside .* by 0.50 m"),
+    ([[10, 10, 20], [10, 49.5, 20]], r"only 0\.50 m inside .* margin is 1\.00 m"),
+])
+def test_missions_outside_are_refused_naming_where(points, needle) -> None:
+    pts = np.array([[*p, 0.0] for p in points], float)
+    ref = Reference(np.arange(len(pts), dtype=float), pts)
+    with pytest.raises(GeofenceError, match=needle):
+        BOX.check_reference(ref)
+
+
+def test_a_piece_between_two_points_inside_may_leave_a_non_convex_volume() -> None:
+    # From the end of one arm to the end of the other: both points deep inside, the straight
+    # line between them through the notch.
+    cut = Reference(np.array([0.0, 10.0]), np.array([[55, 10, 20, 0], [10, 55, 20, 0]], float))
+    with pytest.raises(GeofenceError, match=r"piece 0 .* leaves the operational volume"):
+        ELL.check_reference(cut)
+    # Grazing the notch's corner (30, 30) exactly: inside, but not by the margin.
+    graze = Reference(np.array([0.0, 10.0]), np.array([[50, 10, 20, 0], [10, 50, 20, 0]],
+                                                       float))
+    with pytest.raises(GeofenceError, match="margin"):
+        ELL.check_reference(graze)
+    around = Reference(np.array([0.0, 10.0, 20.0]),
+                       np.array([[50, 10, 20, 0], [10, 10, 20, 0], [10, 50, 20, 0]], float))
+    ELL.check_reference(around)  # the same trip along the arms is inside
+    # A loop closes back to its first point: that piece is checked too.
+    loop = Reference(np.array([0.0, 10.0]), np.array([[50, 10, 20, 0], [10, 10, 20, 0]],
+                                                      float), loop=True)
+    ELL.check_reference(loop)  # back and forth along one arm: inside
+    loop = Reference(np.array([0.0, 10.0, 20.0]),
+                     np.array([[55, 10, 20, 0], [10, 10, 20, 0], [10, 55, 20, 0]], float),
+                     loop=True)
+    with pytest.raises(GeofenceError, match="leaves"):
+        ELL.check_reference(loop)
+
+
+def test_offset_ceiling_keeps_the_margin_below_the_top() -> None:
+    assert BOX.offset_ceiling_m(np.array([10.0, 25.0, 30.0])) == pytest.approx(9.0)
+    assert BOX.offset_ceiling_m(np.array([39.5])) == 0.0  # never negative
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(st.floats(-300, 300), st.floats(-300, 300), st.floats(-50, 100),
+       st.sampled_from(["box", "ell"]))
+def test_the_way_back_ends_inside_by_the_inset(x, y, z, which) -> None:
+    fence = BOX if which == "box" else ELL
+    target = fence.recovery_point(np.array([x, y, z]))
+    assert fence.margin(target)[0] >= fence.inset_m - 1e-6
+    # A point already deep inside is its own recovery point.
+    inside = np.array([20.0, 10.0, 20.0])
+    assert np.allclose(fence.recovery_point(inside), inside)
+
+
+def test_bad_volumes_name_the_problem() -> None:
+    with pytest.raises(GeofenceError, match="cross"):  # a bow tie
+        Geofence(np.array([[0, 0], [10, 10], [10, 0], [0, 6]], float), 0.0, 10.0)
+    with pytest.raises(GeofenceError, match="no area"):
+        Geofence(np.array([[0, 0], [5, 5], [10, 10]], float), 0.0, 10.0)
+    with pytest.raises(GeofenceError, match="above"):
+        Geofence.box((0, 1), (0, 1), (10.0, 5.0))
+    with pytest.raises(GeofenceError, match="too thin"):
+        Geofence.box((0, 10), (0, 10), (0.0, 3.0))
+    with pytest.raises(GeofenceError, match="margin_m"):
+        Geofence.box((0, 10), (0, 10), (0.0, 30.0), margin_m=3.0, inset_m=2.0)
+    cases = {
+        "x": "unknown",
+        "min_altitude_m": "exactly one of polygon",
+        "box": "missing",
+    }
+    base = {"box": [0, 0, 10, 10], "min_altitude_m": 0.0, "max_altitude_m": 30.0}
+    for field, needle in cases.items():
+        t = dict(base)
+        if field == "x":
+            t["x"] = 1
+        elif field == "min_altitude_m":
+            t["polygon"] = [[0, 0], [1, 0], [0, 1]]
+        else:
+            del t["min_altitude_m"]
+        with pytest.raises(ConfigError, match=needle):
+            Geofence.from_dict(t)
+    with pytest.raises(ConfigError, match=r"geofence\.box"):
+        Geofence.from_dict({**base, "box": [0, 0, "a", 1]})
+    with pytest.raises(ConfigError, match=r"geofence\.max_altitude_m.*finite"):
+        Geofence.from_dict({**base, "max_altitude_m": float("nan")})
+    with pytest.raises(ConfigError, match=r"geofence: .*cross"):
+        Geofence.from_dict({"polygon": [[0, 0], [10, 10], [10, 0], [0, 6]],
+                            "min_altitude_m": 0.0, "max_altitude_m": 30.0})
+    fence = Geofence.from_dict({**base, "margin_m": 0.5})
+    assert fence.margin_m == 0.5 and fence.contains(np.array([5.0, 5.0, 10.0]))
