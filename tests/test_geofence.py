@@ -125,3 +125,52 @@ def test_bad_volumes_name_the_problem() -> None:
                             "min_altitude_m": 0.0, "max_altitude_m": 30.0})
     fence = Geofence.from_dict({**base, "margin_m": 0.5})
     assert fence.margin_m == 0.5 and fence.contains(np.array([5.0, 5.0, 10.0]))
+
+
+def test_a_node_refuses_missions_outside_and_flies_back_in() -> None:
+    """Over Zenoh on loopback: a node that starts outside its volume flies back in and holds;
+    a mission outside is refused and counted, one inside is flown."""
+    import json
+    import threading
+    import time
+
+    pytest.importorskip("zenoh")
+    from uavmpc.comms.zenoh_link import ZenohTransport
+    from uavmpc.drivers.node import Node
+    from uavmpc.drivers.swarm import free_ports
+    from uavmpc.plant import Airframe
+
+    fence = Geofence.box((0.0, 50.0), (-25.0, 25.0), (1.0, 30.0))
+    ports = free_ports(2)
+    swarm = f"gf{ports[0]}"
+    eps = [f"tcp/127.0.0.1:{p}" for p in ports]
+    node_tx = ZenohTransport("uav1", swarm=swarm, listen=[eps[0]])
+    gcs = ZenohTransport("gcs", swarm=swarm, listen=[eps[1]], connect=[eps[0]])
+    node = Node("uav1", 1, Airframe.packaged("f550"), node_tx, start_m=(-5.0, 0.0, 5.0),
+                geofence=fence)
+    with pytest.raises(GeofenceError, match="outside"):  # from Python too
+        node.set_mission(Reference.goto(60.0, 0.0, 5.0))
+    states = gcs.subscribe("uav1/state", maxlen=100_000)
+    thread = threading.Thread(target=node.run, args=(11.0,), daemon=True)
+    thread.start()
+    try:
+        deadline = time.time() + 120.0  # the first flight after an edit compiles the kernels
+        while not states.drain() and time.time() < deadline:
+            time.sleep(0.05)
+        time.sleep(6.0)
+        held = node.vehicle.plant.state().position_m.copy()
+        assert node.stats.geofence["breaches"] == 1 and node.stats.geofence["holding"]
+        for goal in ([10.0, 0.0, 40.0, 0.0], [10.0, 0.0, 5.0, 0.0]):  # above the ceiling, fine
+            gcs.send("uav1", "mission", json.dumps({"goto": goal}).encode())
+            time.sleep(0.1)
+        thread.join(timeout=20)
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        gcs.close()
+        node_tx.close()
+    assert np.linalg.norm(held - [2.0, 0.0, 5.0]) < 0.5  # 2 m (the inset) inside
+    assert node.stats.geofence["missions_refused"] == 1
+    assert node.stats.missions_rejected == 1
+    assert not node.stats.geofence["holding"]
+    assert np.linalg.norm(node.vehicle.plant.state().position_m - [10.0, 0.0, 5.0]) < 0.5

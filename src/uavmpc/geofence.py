@@ -355,3 +355,56 @@ def _where(d: float, margin: float) -> str:
     if d < 0.0:
         return f"outside the operational volume by {-d:.2f} m"
     return f"only {d:.2f} m inside the operational volume (the margin is {margin:.2f} m)"
+
+
+class FenceWatch:
+    """One UAV's failsafe: when it is found outside the volume, where to fly back to.
+
+    A UAV taking off from below the floor is not outside until it has been inside once (the
+    floor is an operational limit, not the ground); horizontally and above the ceiling it is
+    outside from the start. Each exit counts as one breach and yields one recovery point; the
+    UAV then holds there (:attr:`holding`) until :meth:`mission_accepted` (a new mission,
+    checked against the same volume)."""
+
+    def __init__(self, fence: Geofence) -> None:
+        self.fence = fence
+        self.entered = False
+        self.outside = False
+        self.holding = False
+        self.breaches = 0
+        #: The farthest outside it has been [m] (0: never).
+        self.worst_outside_m = 0.0
+
+    def check(self, position_m: np.ndarray, margin_m: float | None = None) -> np.ndarray | None:
+        """The recovery point (3,) when ``position_m`` is a new exit, else None. ``margin_m``:
+        the position's :meth:`Geofence.margin`, if the caller computed it in a batch."""
+        f = self.fence
+        d = float(f.margin(position_m)[0]) if margin_m is None else float(margin_m)
+        if not math.isfinite(d):
+            return None  # no position to judge (the estimate is the controller's problem)
+        if d >= 0.0:
+            self.entered = True
+            self.outside = False
+            return None
+        p = np.asarray(position_m, dtype=float)
+        if not self.entered and p[2] < f.min_altitude_m and f.margin(
+                np.array([p[0], p[1], f.min_altitude_m + 1e-6]))[0] >= 0.0:
+            return None  # climbing into the volume from below its floor
+        self.worst_outside_m = max(self.worst_outside_m, -d)
+        if self.outside:
+            return None
+        self.outside = True
+        self.breaches += 1
+        if self.holding:
+            return None  # already flying back to a point inside
+        self.holding = True
+        return f.recovery_point(p)
+
+    def mission_accepted(self) -> None:
+        """A new mission (inside the volume) replaces the hold."""
+        self.holding = False
+
+    def report(self) -> dict[str, float | int | bool]:
+        """What a run's summary says of it."""
+        return {"breaches": self.breaches, "worst_outside_m": round(self.worst_outside_m, 3),
+                "holding": self.holding}

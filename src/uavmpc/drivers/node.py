@@ -36,6 +36,7 @@ from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
+from uavmpc.geofence import FenceWatch, Geofence, GeofenceError
 from uavmpc.missions.mission import Mission, MissionInput
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
@@ -103,6 +104,8 @@ class NodeStats:
     #: With a key or a roster: commands refused by the gate, by kind (``unsigned``,
     #: ``forged``, ``unknown signer``, ``not allowed``, ``replayed``, ``stale``).
     commands_rejected: dict[str, int] = field(default_factory=dict)
+    #: With a geofence: missions refused for leaving it, breaches, the farthest outside [m].
+    geofence: dict[str, Any] = field(default_factory=dict)
     tracking_rmse_m: float = 0.0
     max_z_offset_m: float = 0.0
     avoidance_active_s: float = 0.0
@@ -220,6 +223,7 @@ class Node:
         key: bytes | None = None,
         identity: Identity | None = None,
         roster: Roster | None = None,
+        geofence: Geofence | None = None,
         state_rate_hz: float = 50.0,
         phase_s: float = 0.0,
         vehicle: VehicleDriver | None = None,
@@ -244,6 +248,11 @@ class Node:
             self.commands = CommandGate(SharedKey(key), max_skew_s=COMMAND_MAX_SKEW_S)
         elif roster is not None:
             self.commands = CommandGate(roster, max_skew_s=COMMAND_MAX_SKEW_S)
+        #: The operational volume: missions outside it are refused, and a vehicle found
+        #: outside flies back in and holds (:class:`~uavmpc.geofence.FenceWatch`).
+        self.geofence = geofence
+        self._fence_watch = FenceWatch(geofence) if geofence is not None else None
+        self._fence_refused = 0
         self.start_m = tuple(float(v) for v in start_m)
         self.heading_rad = float(heading_rad)
         self.avoidance = avoidance
@@ -276,6 +285,10 @@ class Node:
         # Built when the flight starts, so the virtual UAV's clock starts on the wall clock
         # (stamps are absolute), after the kernels are loaded, at the vehicle's own state.
         warm_up(self.airframe)
+        if self.geofence is not None:  # its kernels too: none may load inside the 100 Hz loop
+            self.geofence.recovery_point(np.array(self.start_m))
+            self.geofence.check_reference(Reference.goto(*self.geofence.recovery_point(
+                np.array(self.start_m))))
         if self.vehicle is None:
             self.vehicle = SimulatedVehicle(self.airframe, self.start_m, self.heading_rad)
         first = self.vehicle.start()
@@ -293,9 +306,17 @@ class Node:
         return self.stack, first
 
     def set_mission(self, reference: Reference) -> None:
-        """Fly ``reference`` (thread-safe; taken at the next tick once the vehicle flies)."""
+        """Fly ``reference`` (thread-safe; taken at the next tick once the vehicle flies).
+
+        Raises:
+            GeofenceError: with a geofence, ``reference`` leaves it (the message says where).
+        """
         if not isinstance(reference, Reference):
             raise TypeError(f"reference must be a uavmpc.Reference, got {type(reference).__name__}")
+        if self.geofence is not None:
+            self.geofence.check_reference(reference)
+            assert self._fence_watch is not None
+            self._fence_watch.mission_accepted()
         with self._lock:
             self._pending_mission = reference
 
@@ -342,6 +363,9 @@ class Node:
                 if self.mission is not None and self._launched and vehicle.flying \
                         and landing_until is None and now >= self._next_mission_s:
                     self._step_mission(now, state)
+                if self._fence_watch is not None and self._launched and vehicle.flying \
+                        and landing_until is None and ticks % 10 == 0:
+                    self._watch_fence(state)
                 if commanded and not vehicle.commanding and fresh is not None \
                         and ticks % 10 == 0:
                     stack.follow(now, fresh)  # no longer ours: say what it really does
@@ -444,16 +468,19 @@ class Node:
                 if self.mission is not None:
                     raise ValueError("this UAV flies its mission (e.g. a formation slot)")
                 ref = parse_mission(self._open_command(payload, f"{self.uav_id}/mission"), now)
+                self._set_checked(ref)
             except (InvalidReferenceError, ValueError, TypeError):
                 self.stats.missions_rejected += 1
                 continue
-            self.set_mission(ref)
         if self.ros2 is not None:
             refs, rejected = self.ros2.missions(now, lambda times, pts: ros2_mission(
                 times, pts, now))
             self.stats.missions_rejected += len(rejected)
             for ref in refs:
-                self.set_mission(ref)
+                try:
+                    self._set_checked(ref)
+                except GeofenceError:
+                    self.stats.missions_rejected += 1
         if not self._launched:
             return  # missions wait until the vehicle is ours to fly
         with self._lock:
@@ -461,6 +488,29 @@ class Node:
         if ref is not None:
             assert self.stack is not None
             self.stack.set_mission(ref)
+
+    def _set_checked(self, ref: Reference) -> None:
+        """:meth:`set_mission`, counting a refusal by the geofence as such."""
+        try:
+            self.set_mission(ref)
+        except GeofenceError:
+            self._fence_refused += 1
+            if self._fence_watch is not None:
+                self.stats.geofence = {**self._fence_watch.report(),
+                                       "missions_refused": self._fence_refused}
+            raise
+
+    def _watch_fence(self, state: VehicleState) -> None:
+        """The failsafe at 10 Hz: a vehicle found outside the volume flies back in and holds."""
+        watch = self._fence_watch
+        assert watch is not None and self.stack is not None
+        back = watch.check(state.position_m)
+        if back is not None:
+            with self._lock:
+                self._pending_mission = None  # a mission that waited led out as well
+            self.stack.set_mission(Reference.goto(*back, float(heading_of(state.attitude_wxyz)),
+                                                  start_s=self.stack.tracker.time_s))
+        self.stats.geofence = {**watch.report(), "missions_refused": self._fence_refused}
 
     def _open_command(self, payload: bytes, channel: str) -> bytes:
         """The command inside ``payload`` (checked by the gate, if any)."""
