@@ -16,8 +16,8 @@ ROOT = Path(uavmpc.__file__).parent
 #: units of its own tier or below, never above.
 TIERS: dict[str, int] = {
     "config": 0, "jit": 0, "data": 0,
-    "reference": 1, "solvers": 1, "plant": 1,
-    "tracker": 2, "control": 2, "comms": 2, "missions": 2,
+    "reference": 1, "solvers": 1, "plant": 1, "estimation": 1,
+    "tracker": 2, "control": 2, "comms": 2, "missions": 2, "geofence": 2,
     "avoidance": 3,
     "onboard": 4,
     "scenarios": 5, "log": 5,
