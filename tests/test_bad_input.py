@@ -171,3 +171,108 @@ def test_an_airframe_is_named_by_its_package_name_or_its_file(tmp_path) -> None:
     assert Airframe.named(str(path)).mass_kg == Airframe.packaged("x500").mass_kg
     with pytest.raises(ConfigError, match="no such packaged airframe"):
         Airframe.named("x501")
+
+
+def test_a_value_that_should_be_a_table_is_named_not_iterated() -> None:
+    from uavmpc import scenarios
+    from uavmpc.config import reject_unknown
+
+    for value, got in [(5, "5"), ([], "an array of 0"), ("loss", "'loss'"), (None, "None")]:
+        with pytest.raises(ConfigError, match=rf"^link: must be a table, got {got}$"):
+            reject_unknown(value, {"loss"}, "link")
+    # The loader's reproducers: [link], a [[uavs]] entry, a trajectory that is a number.
+    one = {"id": "a", "priority": 1, "start": [0, 0, 1]}
+    for doc, field in [({"link": 5}, "link"), ({"uavs": [1]}, r"uavs\[0\]"),
+                       ({"uavs": [{**one, "trajectory": 1}]}, r"uavs\[0\]\.trajectory"),
+                       ({"limits": 1}, "limits")]:
+        with pytest.raises(ConfigError, match=rf"^{field}: must be a table"):
+            scenarios.from_dict({"duration_s": 10.0, "uavs": [one], **doc})
+
+
+def test_an_integer_beyond_the_float_range_is_named_too_large() -> None:
+    from uavmpc import scenarios
+    from uavmpc.config import finite, positive
+
+    with pytest.raises(ConfigError, match=r"^duration_s: an integer of about 401 digits is too "
+                                          r"large \(beyond the float range\)$"):
+        scenarios.from_dict({"duration_s": 10**400,
+                             "uavs": [{"id": "a", "priority": 1, "start": [0, 0, 1]}]})
+    with pytest.raises(ConfigError, match=r"^x: an integer of about 5001 digits is too large"):
+        positive(10**5000, "x")  # (its repr() would raise: more than 4300 digits)
+    with pytest.raises(ConfigError, match=r"^x: must be a finite number, got an integer"):
+        finite(-(10**400), "x")
+    with pytest.raises(ConfigError, match=r"^x: must be a finite number within ±10, got 11"):
+        finite(11, "x", 10.0)
+    with pytest.raises(ConfigError, match=r"^x: must be a finite number, got nan"):
+        finite(float("nan"), "x")
+    assert positive(10**300, "x") == 1e300 and finite(-3, "x") == -3.0
+
+
+def test_unreadable_and_undecodable_files_are_named(tmp_path, monkeypatch) -> None:
+    import re
+    from pathlib import Path
+
+    from uavmpc.config import read_toml
+
+    def refused(path, needle: str) -> None:
+        with pytest.raises(ConfigError, match=rf"^{re.escape(str(path))}: .*{needle}"):
+            read_toml(path)
+
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes('name = "\xff"\nduration_s = 10.0\n'.encode("latin-1"))
+    refused(latin, r"not UTF-8 text \(byte 0xff at offset 8\)")
+    refused(tmp_path, "cannot read: Is a directory")
+    refused(tmp_path / ("x" * 300 + ".toml"), "cannot read: File name too long")
+    refused(tmp_path / "a\x00b.toml", "cannot read: embedded null byte")
+    deep = tmp_path / "deep.toml"
+    deep.write_text("a = " + "[" * 5000 + "]" * 5000)
+    refused(deep, "invalid TOML: nested too deeply")
+    deep.write_text("a = 1" + "0" * 5000)
+    refused(deep, "invalid TOML: Exceeds the limit")
+    good = tmp_path / "good.toml"
+    good.write_text("a = 1\n")
+    assert read_toml(good) == {"a": 1}
+
+    def denied(self: Path) -> bytes:  # (chmod 000 does not stop root, who may run the tests)
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(Path, "read_bytes", denied)
+    refused(good, "cannot read: Permission denied")
+
+
+@pytest.mark.parametrize("name", ["a\x00b", "x" * 300, "../tracker", "../airframes/f550",
+                                  "airframes/f550", "", "F550", "f550 "])
+def test_an_airframe_name_is_only_looked_up_among_the_packaged_ones(name: str) -> None:
+    from uavmpc.plant import Airframe
+
+    # Never joined into a path: NUL and overlong names made the OS raise, "../tracker" read
+    # another file of the package's data folder.
+    for load in (Airframe.named, Airframe.packaged):
+        with pytest.raises(ConfigError, match=r"^airframe .*: no such packaged airframe "
+                                              r"\(packaged: f550, x500\)$"):
+            load(name)
+
+
+def test_an_airframe_file_that_cannot_be_read_is_named(tmp_path, monkeypatch) -> None:
+    import re
+    import tomllib
+    from importlib import resources
+
+    from uavmpc.plant import Airframe
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=r"^f550\.toml: file not found$"):
+        Airframe.named("f550.toml")  # a file (of the current directory), not the package's
+    folder = tmp_path / "dir.toml"
+    folder.mkdir()
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(folder))}: cannot read: Is a "
+                                          r"directory$"):
+        Airframe.named(str(folder))
+    with pytest.raises(ConfigError, match=r"cannot read: embedded null byte"):
+        Airframe.named("a\x00b.toml")
+    text = resources.files("uavmpc.data").joinpath("airframes/x500.toml").read_text()
+    d = tomllib.loads(text)
+    d["inertia"]["ixy_kgm2"] = 10**400
+    with pytest.raises(ConfigError, match=r"^airframe\.inertia\.ixy_kgm2: must be a finite "
+                                          r"number, got an integer of about 401 digits$"):
+        Airframe.from_dict(d)

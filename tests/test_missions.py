@@ -406,3 +406,51 @@ def test_a_formation_of_node_processes_over_zenoh(tmp_path) -> None:
     assert np.allclose(ends["w1"][:2], ends["lead"][:2] + np.array([-6.0, 0.0]), atol=1.0)
     assert np.allclose(ends["w2"][:2], ends["lead"][:2] + np.array([0.0, -6.0]), atol=1.0)
     assert s["uavs"]["w1"]["reached_goal"] is None
+
+
+def test_formation_members_must_be_id_strings() -> None:
+    ids = {"a", "b"}
+    # `m not in ids` of a list raised TypeError: unhashable type.
+    for table, field in [({"leader": [1], "followers": ["a"]}, "leader"),
+                         ({"leader": "a", "followers": [{"x": 1}]}, r"followers\[0\]"),
+                         ({"leader": "a", "followers": ["b", 7]}, r"followers\[1\]")]:
+        with pytest.raises(ConfigError, match=rf"^formation\.{field}: must be a UAV id string, "
+                                              r"got "):
+            FormationSpec.from_dict(table, ids)
+    # The scenario loader's reproducer.
+    with pytest.raises(ConfigError, match=r"^formation\.leader: must be a UAV id string, got "
+                                          r"an array of 1$"):
+        scenarios.from_dict({"duration_s": 10.0,
+                             "uavs": [{"id": "a", "priority": 1, "start": [0, 0, 1]}],
+                             "formation": {"leader": [1], "followers": ["a"]}})
+    # Its heading: bounded like every reference heading, a huge integer named.
+    base = {"leader": "a", "followers": ["b"]}
+    for heading in (10**400, 2e6, float("nan"), "north"):
+        with pytest.raises(ConfigError, match=r"^formation\.heading_rad: must be a finite "
+                                              r"number within ±1e\+06"):
+            FormationSpec.from_dict({**base, "heading_rad": heading}, ids)
+    assert FormationSpec.from_dict({**base, "heading_rad": 3}, ids).heading_rad == 3.0
+
+
+def test_a_formation_file_with_odd_members_is_refused_by_name(tmp_path) -> None:
+    from uavmpc.missions.formation import load_formation
+
+    path = tmp_path / "f.json"
+    for text, field in [('{"leader": [1], "followers": ["a"]}', "leader"),
+                        ('{"leader": "a", "followers": [[1]]}', r"followers\[0\]"),
+                        ('{"leader": "a", "followers": 5}', "followers")]:
+        path.write_text(text)
+        with pytest.raises(ConfigError, match=rf"^f\.json: formation\.{field}: must be "):
+            load_formation(path)
+
+
+def test_a_bad_formation_command_is_refused_by_name() -> None:
+    f1 = FormationFollower(_spec(), "f1")
+    for payload, needle in [(b'{"shape": "square", "at_s": 1' + b"0" * 400 + b"}", "at_s"),
+                            (b'{"shape": "square", "at_s": NaN}', "at_s"),
+                            (b'{"shape": ' + b"[" * 100_000 + b"]" * 100_000 + b"}",
+                             "nested too deeply"),
+                            (b'{"shape": [[1]]}', "shape must be one of")]:
+        with pytest.raises(ValueError, match=rf"^formation command.*{needle}"):
+            f1.command(payload, 0.0)
+    assert f1.command(b'{"shape": "square", "at_s": 5}', 0.0)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uavmpc.config import describe
 from uavmpc.jit import kernel
 
 #: Largest accepted |x|, |y|, |z| in metres: far beyond any mission, small enough that
@@ -21,6 +22,13 @@ MAX_ABS_POSITION_M = 1.0e5
 MAX_POINTS = 1_000_000
 #: Smallest accepted spacing between two reference stamps.
 MIN_SAMPLE_PERIOD_S = 1.0e-3
+#: Largest accepted |stamp| in seconds (Unix time until about the year 5000): a looping
+#: reference's closing knot, one gap after the last stamp, then stays finite (≤ 3e11 s), and a
+#: stamp keeps a resolution far finer than :data:`MIN_SAMPLE_PERIOD_S`.
+MAX_ABS_TIME_S = 1.0e11
+#: Largest accepted |heading| in rad (≈ 160 000 turns): headings are unwrapped on arrival, and
+#: the differences np.unwrap takes of headings near ±1e308 overflow to a NaN heading.
+MAX_ABS_HEADING_RAD = 1.0e6
 
 
 class InvalidReferenceError(ValueError):
@@ -63,12 +71,23 @@ class Reference:
             )
         if not np.all(np.isfinite(times)):
             raise InvalidReferenceError("times_s contains NaN or inf")
+        if np.any(np.abs(times) > MAX_ABS_TIME_S):
+            i = int(np.argmax(np.abs(times)))
+            raise InvalidReferenceError(
+                f"times_s[{i}]={times[i]} is beyond the sane bound of ±{MAX_ABS_TIME_S:g} s"
+            )
         bad = ~np.isfinite(points)
         if bad.any():
             row, col = np.argwhere(bad)[0]
             name = ("x", "y", "z", "heading")[col]
             raise InvalidReferenceError(
                 f"points[{row}] {name} is {points[row, col]}: NaN or inf is not allowed"
+            )
+        if np.any(np.abs(points[:, 3]) > MAX_ABS_HEADING_RAD):
+            row = int(np.argmax(np.abs(points[:, 3])))
+            raise InvalidReferenceError(
+                f"points[{row}] heading is {points[row, 3]:g} rad, beyond the sane bound of "
+                f"±{MAX_ABS_HEADING_RAD:g} rad"
             )
         if np.any(np.abs(points[:, :3]) > MAX_ABS_POSITION_M):
             row = int(np.argmax(np.abs(points[:, :3]).max(axis=1)))
@@ -119,19 +138,28 @@ class Reference:
             raise InvalidReferenceError(
                 f"sample_period_s must be ≥ {MIN_SAMPLE_PERIOD_S} s, got {period}"
             )
-        start = _finite_scalar(start_s, "start_s")
+        start = _time(start_s, "start_s")
         pts = _as_float_array(points, "points")
         n = pts.shape[0] if pts.ndim >= 1 else 0
         if n > MAX_POINTS:
             raise InvalidReferenceError(f"points has {n} rows, more than the limit {MAX_POINTS}")
+        # The last knot (a looping reference's closing one, a period after the last point)
+        # named by the inputs that put it out of range, not as an anonymous times_s entry.
+        last = start + period * (n if loop else max(n - 1, 0))
+        if not abs(last) <= MAX_ABS_TIME_S:
+            raise InvalidReferenceError(
+                f"sample_period_s={period} from start_s={start} puts the last "
+                f"{'(closing) ' if loop else ''}knot at {last} s, beyond the sane bound of "
+                f"±{MAX_ABS_TIME_S:g} s"
+            )
         return cls(start + period * np.arange(n), pts, loop)
 
     @classmethod
     def goto(cls, x: float, y: float, z: float, heading: float = 0.0,
              start_s: float = 0.0) -> Reference:
         """A single point to fly to and hold (a step reference, infeasible on purpose)."""
-        return cls(np.array([_finite_scalar(start_s, "start_s")]),
-                   np.array([[x, y, z, heading]], dtype=float))
+        return cls(np.array([_time(start_s, "start_s")]),
+                   _as_float_array([[x, y, z, heading]], "goto"))
 
     @classmethod
     def along_path(cls, waypoints_m: np.ndarray, speed_mps: float, start_s: float = 0.0,
@@ -144,6 +172,12 @@ class Reference:
             raise InvalidReferenceError(f"waypoints must have shape (k ≥ 2, 3), got {w.shape}")
         if not np.all(np.isfinite(w)):
             raise InvalidReferenceError("waypoints contain NaN or inf")
+        if np.any(np.abs(w) > MAX_ABS_POSITION_M):  # the curve's arithmetic would overflow
+            row = int(np.argmax(np.abs(w).max(axis=1)))
+            raise InvalidReferenceError(
+                f"waypoints[{row}] lies {np.abs(w[row]).max():.3g} m from the origin, beyond "
+                f"the sane bound of {MAX_ABS_POSITION_M:.0e} m"
+            )
         speed = _finite_scalar(speed_mps, "speed_mps")
         if speed <= 0.0:
             raise InvalidReferenceError(f"speed_mps must be > 0, got {speed}")
@@ -161,8 +195,16 @@ class Reference:
                                  + (3 * p1 - p0 - 3 * p2 + p3) * u**3))
         dense = np.vstack([*pieces, w[-1:]])
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
-        n = int(arc[-1] / (speed * period)) + 1
-        if n > MAX_POINTS:
+        length_m, step_m = float(arc[-1]), speed * period
+        # Compared as a product: a subnormal speed makes step_m ~0 (or exactly 0) and the
+        # quotient inf, which int() refuses with an OverflowError.
+        if not length_m < MAX_POINTS * step_m:
+            raise InvalidReferenceError(
+                f"speed_mps={speed:g} is too small: {length_m:.3g} m sampled every "
+                f"{period:g} s would need more than the limit of {MAX_POINTS} points"
+            )
+        n = int(length_m / step_m) + 1
+        if n > MAX_POINTS:  # (the product's rounding)
             raise InvalidReferenceError(f"the path needs {n} points, more than {MAX_POINTS}")
         at = np.minimum(np.arange(n + 1) * speed * period, arc[-1])
         xyz = np.column_stack([np.interp(at, arc, dense[:, j]) for j in range(3)])
@@ -258,6 +300,8 @@ def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
 def _as_float_array(value: object, name: str) -> np.ndarray:
     try:
         return np.asarray(value, dtype=float)
+    except OverflowError:  # a Python integer beyond the float range
+        raise InvalidReferenceError(f"{name} holds a number beyond the float range") from None
     except (TypeError, ValueError) as exc:
         raise InvalidReferenceError(f"{name} is not numeric: {exc}") from None
 
@@ -265,8 +309,21 @@ def _as_float_array(value: object, name: str) -> np.ndarray:
 def _finite_scalar(value: object, name: str) -> float:
     try:
         out = float(value)  # type: ignore[arg-type]
+    except OverflowError:  # float() of an integer beyond the float range
+        raise InvalidReferenceError(f"{name} must be finite, got {describe(value)} (beyond "
+                                    "the float range)") from None
     except (TypeError, ValueError):
-        raise InvalidReferenceError(f"{name} must be a number, got {value!r}") from None
+        raise InvalidReferenceError(f"{name} must be a number, got {describe(value)}") from None
     if not np.isfinite(out):
         raise InvalidReferenceError(f"{name} must be finite, got {out}")
+    return out
+
+
+def _time(value: object, name: str) -> float:
+    """A finite stamp within ±:data:`MAX_ABS_TIME_S`."""
+    out = _finite_scalar(value, name)
+    if abs(out) > MAX_ABS_TIME_S:
+        raise InvalidReferenceError(
+            f"{name}={out} is beyond the sane bound of ±{MAX_ABS_TIME_S:g} s"
+        )
     return out

@@ -51,9 +51,9 @@ import re
 import stat
 import string
 import time
+import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Literal
 
 from uavmpc.comms.message import InvalidMessageError
@@ -70,6 +70,8 @@ SIGNATURE_BYTES = len(AUTH_MAGIC) + TAG_BYTES
 MIN_KEY_BYTES = 16
 #: Longest key file read (a key file is small; anything larger is the wrong file).
 MAX_KEY_FILE_BYTES = 4096
+#: Longest roster file read (thousands of members; anything larger is the wrong file).
+MAX_ROSTER_FILE_BYTES = 1 << 20
 _CONTEXT = b"uavmpc-auth-v1\0"
 _HEX_RE = re.compile(r"[0-9A-Fa-f]+")
 
@@ -156,8 +158,8 @@ def _read_private(path: str | os.PathLike[str]) -> tuple[bytes, str]:
         with open(path, "rb") as f:
             mode = os.fstat(f.fileno()).st_mode
             raw = f.read(MAX_KEY_FILE_BYTES + 1)
-    except OSError as exc:
-        raise ValueError(f"{where}: cannot read it ({exc.strerror})") from None
+    except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
+        raise ValueError(f"{where}: cannot read it ({_reason(exc)})") from None
     if os.name == "posix" and mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise ValueError(f"{where}: readable by others (mode {stat.S_IMODE(mode):04o}); "
                          f"chmod 600 {os.fspath(path)}")
@@ -166,13 +168,17 @@ def _read_private(path: str | os.PathLike[str]) -> tuple[bytes, str]:
     return raw, where
 
 
+def _reason(exc: OSError | ValueError) -> str:
+    return getattr(exc, "strerror", None) or str(exc)
+
+
 # --------------------------------------------------------------------------- identities
 SEAL_MAGIC = b"UAVA"
 SCHEME_SHARED = 1
 SCHEME_ED25519 = 2
 _TAG_LEN = {SCHEME_SHARED: TAG_BYTES, SCHEME_ED25519: 64}
 _CONTEXT_V2 = b"uavmpc-auth-v2\0"
-_MEMBER_ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
+_MEMBER_ID = re.compile(r"[A-Za-z0-9_-]{1,32}")
 Role = Literal["uav", "operator"]
 ROLES: tuple[str, ...] = ("uav", "operator")
 ED25519_KEY_BYTES = 32
@@ -189,7 +195,8 @@ def _ed25519() -> Any:
 
 def check_member_id(member_id: Any, what: str = "member id") -> str:
     """``member_id`` if it is 1–32 characters of ``[A-Za-z0-9_-]`` (a UAV or operator id)."""
-    if not isinstance(member_id, str) or not _MEMBER_ID.match(member_id):
+    # fullmatch: with match and "^...$", "$" also matches before a trailing newline.
+    if not isinstance(member_id, str) or not _MEMBER_ID.fullmatch(member_id):
         raise ValueError(f"{what}: must be 1-32 characters of [A-Za-z0-9_-], got {member_id!r}")
     return member_id
 
@@ -321,11 +328,25 @@ def load_roster(path: str | os.PathLike[str]) -> Roster:
     Raises:
         ValueError: unreadable or invalid (the text names the file and the field).
     """
-    from uavmpc.config import ConfigError, read_toml, reject_unknown
+    from uavmpc.config import ConfigError, reject_unknown
 
     where = f"roster {os.fspath(path)!r}"
     try:
-        data = read_toml(Path(path))
+        with open(path, "rb") as f:
+            raw = f.read(MAX_ROSTER_FILE_BYTES + 1)
+    except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
+        raise ValueError(f"{where}: cannot read it ({_reason(exc)})") from None
+    if len(raw) > MAX_ROSTER_FILE_BYTES:
+        raise ValueError(f"{where}: larger than {MAX_ROSTER_FILE_BYTES} bytes, not a roster")
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{where}: not UTF-8 text (byte {exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{where}: invalid TOML: {exc}") from None
+    except RecursionError:  # tomllib recurses into nested arrays and tables
+        raise ValueError(f"{where}: invalid TOML: nested too deeply") from None
+    try:
         reject_unknown(data, {"members"}, where)
         members = data.get("members")
         if not isinstance(members, dict) or not members:

@@ -35,9 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from uavmpc.config import ConfigError, positive, read_toml, reject_unknown, take
+from uavmpc.config import ConfigError, describe, finite, positive, read_toml, reject_unknown, take
 from uavmpc.missions.mission import MissionInput, MissionOutput
-from uavmpc.reference import InvalidReferenceError, Reference
+from uavmpc.reference import (
+    MAX_ABS_HEADING_RAD,
+    MAX_ABS_TIME_S,
+    InvalidReferenceError,
+    Reference,
+)
 
 __all__ = ["SHAPES", "FormationFollower", "FormationSpec", "extend_plan", "formation_error",
            "formation_frame", "formation_table", "load_formation", "slot_offsets",
@@ -157,6 +162,9 @@ class FormationSpec:
         members = [leader, *followers]
         for k, m in enumerate(members):
             where = f"{prefix}.leader" if k == 0 else f"{prefix}.followers[{k - 1}]"
+            # Checked first: `m not in ids` of a list or a table raises TypeError (unhashable).
+            if not isinstance(m, str):
+                raise ConfigError(f"{where}: must be a UAV id string, got {describe(m)}")
             if m not in ids:
                 raise ConfigError(f"{where}: {m!r} is not a UAV of the scenario")
             if m in members[:k]:
@@ -164,7 +172,7 @@ class FormationSpec:
         shape = t.get("shape", "line")
         if shape not in SHAPES:
             raise ConfigError(f"{prefix}.shape: must be one of {', '.join(SHAPES)}, got "
-                              f"{shape!r}")
+                              f"{describe(shape)}")
         changes = []
         raw = t.get("changes", [])
         if not isinstance(raw, list):
@@ -180,12 +188,13 @@ class FormationSpec:
                 raise ConfigError(f"{p}.t_s: changes must be in time order")
             s = take(c, "shape", p)
             if s not in SHAPES:
-                raise ConfigError(f"{p}.shape: must be one of {', '.join(SHAPES)}, got {s!r}")
+                raise ConfigError(f"{p}.shape: must be one of {', '.join(SHAPES)}, got "
+                                  f"{describe(s)}")
             changes.append((at, s))
-        heading = t.get("heading_rad", 0.0)
-        if isinstance(heading, bool) or not isinstance(heading, int | float) \
-                or not math.isfinite(heading):
-            raise ConfigError(f"{prefix}.heading_rad: must be a finite number, got {heading!r}")
+        # Bounded as every reference heading is (the followers' slots are references); an
+        # integer beyond the float range is refused, not an OverflowError of math.isfinite().
+        heading = finite(t.get("heading_rad", 0.0), f"{prefix}.heading_rad",
+                         MAX_ABS_HEADING_RAD)
         d = cls("", ())
         spacing = positive(t.get("spacing_m", d.spacing_m), f"{prefix}.spacing_m", upper=1000.0)
         radius = positive(t.get("member_radius_m", d.member_radius_m),
@@ -198,7 +207,7 @@ class FormationSpec:
                    spacing_m=spacing, shape=str(shape), changes=tuple(changes),
                    transition_s=positive(t.get("transition_s", d.transition_s),
                                          f"{prefix}.transition_s", upper=3600.0),
-                   member_radius_m=radius, heading_rad=float(heading),
+                   member_radius_m=radius, heading_rad=heading,
                    period_s=positive(t.get("period_s", d.period_s), f"{prefix}.period_s",
                                      upper=10.0))
 
@@ -218,7 +227,10 @@ def load_formation(path: str | Path) -> FormationSpec:
         data = data["formation"]
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: must hold a formation table")
-    members = {data.get("leader"), *(data.get("followers") or [])}
+    # The file names its own members; only strings can be ids (from_dict names anything else,
+    # and a list among them would make the set comprehension raise TypeError: unhashable).
+    followers = data.get("followers")
+    members = [data.get("leader"), *(followers if isinstance(followers, list) else [])]
     return FormationSpec.from_dict(data, {m for m in members if isinstance(m, str)},
                                    prefix=f"{p.name}: formation")
 
@@ -259,17 +271,23 @@ class FormationFollower:
         naming the problem."""
         try:
             cmd = json.loads(payload)
-        except (ValueError, UnicodeDecodeError) as exc:
+        except RecursionError:
+            raise ValueError("formation command is not JSON: nested too deeply") from None
+        except (TypeError, ValueError) as exc:  # also bad UTF-8
             raise ValueError(f"formation command is not JSON: {exc}") from None
         if not isinstance(cmd, dict) or set(cmd) - {"shape", "at_s"} or "shape" not in cmd:
             raise ValueError('formation command must be {"shape": ..., "at_s": optional}')
         shape = cmd["shape"]
         if shape not in SHAPES:
             raise ValueError(f"formation command: shape must be one of {', '.join(SHAPES)}, "
-                             f"got {shape!r}")
+                             f"got {describe(shape)}")
         at = cmd.get("at_s", now_s)
-        if isinstance(at, bool) or not isinstance(at, int | float) or not math.isfinite(at):
-            raise ValueError(f"formation command: at_s must be a finite time, got {at!r}")
+        # A comparison, not math.isfinite(): that raises OverflowError for a JSON integer
+        # beyond the float range; NaN fails it too.
+        if isinstance(at, bool) or not isinstance(at, int | float) \
+                or not -MAX_ABS_TIME_S <= at <= MAX_ABS_TIME_S:
+            raise ValueError(f"formation command: at_s must be a finite time within "
+                             f"±{MAX_ABS_TIME_S:g} s, got {describe(at)}")
         change = (float(at), str(shape))
         if change in self.spec.changes:
             return False

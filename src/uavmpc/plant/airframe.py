@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,8 @@ import numpy as np
 
 from uavmpc.config import (
     ConfigError,
+    describe,
+    finite,
     positive,
     read_packaged_toml,
     read_toml,
@@ -77,9 +80,16 @@ def _vector(value: Any, field: str, n: int = 3, *, allow_zero: bool = False) -> 
 
 
 def _signed(value: Any, field: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(f"{field}: must be a finite number, got {value!r}")
-    return float(value)
+    # finite() compares before converting: math.isfinite() of a TOML integer beyond the float
+    # range raises OverflowError.
+    return finite(value, field)
+
+
+def packaged_airframes() -> tuple[str, ...]:
+    """The names of the airframes shipped in ``uavmpc/data/airframes`` (sorted)."""
+    folder = resources.files("uavmpc.data").joinpath("airframes")
+    return tuple(sorted(f.name.removesuffix(".toml") for f in folder.iterdir()
+                        if f.name.endswith(".toml")))
 
 
 @dataclass(frozen=True, eq=False)
@@ -353,17 +363,29 @@ class Airframe:
 
     @classmethod
     def packaged(cls, name: str) -> Airframe:
-        """One of the shipped airframes: ``"f550"`` (hexacopter) or ``"x500"`` (quadrotor)."""
-        try:
-            d = read_packaged_toml(f"airframes/{name}.toml")
-        except FileNotFoundError:
-            raise ConfigError(f"airframe {name!r}: no such packaged airframe") from None
-        return cls.from_dict(d)
+        """One of the shipped airframes: ``"f550"`` (hexacopter) or ``"x500"`` (quadrotor).
+
+        Raises:
+            ConfigError: ``name`` is not one of :func:`packaged_airframes`.
+        """
+        known = packaged_airframes()
+        # Looked up among the shipped names, never joined into a path: a name such as
+        # "../tracker" would read another data file, one with a NUL or of 300 characters
+        # would make the OS raise.
+        if not isinstance(name, str) or name not in known:
+            raise ConfigError(f"airframe {describe(name)}: no such packaged airframe "
+                              f"(packaged: {', '.join(known)})")
+        return cls.from_dict(read_packaged_toml(f"airframes/{name}.toml"))
 
     @classmethod
-    def named(cls, name_or_path: str) -> Airframe:
+    def named(cls, name_or_path: str | Path) -> Airframe:
         """A packaged airframe by name (``"f550"``), or an airframe file (``….toml``): what
-        every command's ``--airframe`` and a scenario's ``airframe`` take."""
+        every command's ``--airframe`` and a scenario's ``airframe`` take.
+
+        Raises:
+            ConfigError: an unknown name, or a file that is missing, unreadable or invalid
+                (the message names the file).
+        """
         if str(name_or_path).endswith(".toml"):
             return cls.from_toml(name_or_path)
-        return cls.packaged(name_or_path)
+        return cls.packaged(str(name_or_path))
