@@ -451,3 +451,33 @@ def test_a_new_offset_must_be_clear_of_silent_uavs_too() -> None:
     gone = msg("u2", 2, hover((2.0, 0.0, 13.0)), stamp=NOW - 11.0)
     d = HeightOffsetStrategy().update(NOW, "o", 5, NOW + REL, own, {"h": h, "u2": gone})
     assert d.z_offset_m == 3.0 and d.silent == ()
+
+
+def test_a_climb_raised_again_mid_climb_starts_from_where_the_uav_is() -> None:
+    """The gap closed (docs/campaign.md): with offset 3 m in force but none of it climbed yet,
+    a raise to 6 m reaches each height later than a climb from 3 m would. B, passing at the
+    6 m layer only while that late climb is still under way, blocks it; the old assumption
+    (the climb starts at 3 m) saw the UAV already there and climbed through B."""
+    from uavmpc.avoidance.encounters import Encounters
+    from uavmpc.avoidance.strategy import _climbed
+
+    prm = AvoidanceParams()
+    times = np.r_[0.01, 0.01 + 0.2 * np.arange(1, 40)]
+    up = _climbed(np.maximum(times - prm.climb_lag_s, 0.0), prm)  # slow edge, from rest
+    t_from_3 = times[np.argmax(3.0 + up >= 6.0)]  # there, starting at the offset in force
+    t_from_0 = times[np.argmax(up >= 6.0)]  # there, starting where it is
+    assert t_from_0 > t_from_3 + 0.5
+    b_near = (times > t_from_3 + 0.05) & (times < t_from_0 - 0.05)
+    known = Encounters(
+        ids=("a", "b"), priority=np.array([1, 9]), avoiding=np.array([True, True]),
+        silent_row=np.array([False, False]),
+        near_xy=np.vstack([np.ones_like(times, bool), b_near]),
+        dz_m=np.vstack([np.full_like(times, -3.0),   # A in the 3 m layer: we yield, climb
+                        np.full_like(times, -6.0)]))  # B in the 6 m layer, passing late
+    decisions = {}
+    for climbed in (3.0, 0.0):
+        s = HeightOffsetStrategy(prm)
+        s.z_offset_m = 3.0
+        decisions[climbed] = s.decide(100.0, "me", 5, 100.0 + times, known, climbed_m=climbed)
+    assert decisions[3.0].z_offset_m == 6.0 and not decisions[3.0].waiting_for
+    assert decisions[0.0].z_offset_m == 3.0 and decisions[0.0].waiting_for == ("b",)

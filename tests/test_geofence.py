@@ -174,3 +174,49 @@ def test_a_node_refuses_missions_outside_and_flies_back_in() -> None:
     assert node.stats.missions_rejected == 1
     assert not node.stats.geofence["holding"]
     assert np.linalg.norm(node.vehicle.plant.state().position_m - [10.0, 0.0, 5.0]) < 0.5
+
+
+def _swap(fence: dict | None, start1: tuple[float, float, float] = (-25.0, 0.0, 5.0)) -> dict:
+    """swap_through_static as a table, with a ``[geofence]``."""
+    import tomllib
+    from importlib import resources
+
+    data = tomllib.loads(resources.files("uavmpc.scenarios").joinpath(
+        "swap_through_static.toml").read_text())
+    data["uavs"][0]["start"] = list(start1)
+    if fence is not None:
+        data["geofence"] = fence
+    return data
+
+
+def test_a_scenario_with_a_mission_outside_its_volume_is_refused() -> None:
+    from uavmpc import scenarios
+
+    with pytest.raises(ConfigError,
+                       match=r"uavs\[1\] \(uav2\): mission point 0 .* outside .* by 5\.00 m"):
+        scenarios.from_dict(_swap({"box": [-20, -10, 30, 10], "min_altitude_m": 1.0,
+                                   "max_altitude_m": 30.0}))
+
+
+def test_in_the_world_a_uav_outside_flies_back_in_and_offsets_respect_the_ceiling() -> None:
+    from uavmpc import scenarios
+    from uavmpc.drivers.world import World
+
+    # uav1 starts 10 m beyond the wall x = −30; the ceiling leaves room for one layer (3 m)
+    # above the 5 m missions, so uav3, which yields to both, cannot take the second (6 m).
+    fence = {"box": [-30, -10, 30, 10], "min_altitude_m": 1.0, "max_altitude_m": 10.0}
+    sc = scenarios.from_dict(_swap(fence, start1=(-40.0, 0.0, 5.0)))
+    world = World(sc, seed=1)
+    res = world.run(50.0)
+    report = res.extra["geofence"]
+    assert report["uav1"]["breaches"] == 1 and report["uav1"]["holding"]
+    assert report["uav2"]["breaches"] == 0 and report["uav3"]["breaches"] == 0
+    end = res.positions_m[-1, 0]
+    assert np.linalg.norm(end - [-28.0, 0.0, 5.0]) < 0.5  # 2 m inside the wall, held
+    ceiling = 10.0 - 1.0 - 5.0  # max altitude − margin − mission altitude
+    assert all(o.max_z_offset_m <= ceiling + 1e-9 for o in res.per_uav.values())
+    assert np.all(res.positions_m[:, :, 2] <= 10.0)
+    # Without the volume uav1 flies its mission from outside, and uav3 climbs two layers.
+    free = World(scenarios.from_dict(_swap(None, start1=(-40.0, 0.0, 5.0))), seed=1).run(50.0)
+    assert "geofence" not in free.extra
+    assert np.linalg.norm(free.positions_m[-1, 0] - [25.0, 0.0, 5.0]) < 0.5

@@ -153,13 +153,15 @@ def onboard_one(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerC
 
 @kernel
 def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
-                    consts: TrackerConsts, times_out: np.ndarray, pos_out: np.ndarray) -> None:
+                    consts: TrackerConsts, times_out: np.ndarray, pos_out: np.ndarray,
+                    climbed_out: np.ndarray) -> None:
     """What rows ``idx`` (R,) hand their avoidance: each one's plan of its last tick (times
     ``times_out`` (R, m), positions ``pos_out`` (R, m, 3)) without the part of its z offset
     the virtual UAV has already climbed at each point (plan minus mission reference, clipped
     to [0, offset]). Subtracting the whole offset would put the early, still-climbing points
     below the mission and make the strategy climb again and again for a conflict the climb in
-    progress already resolves."""
+    progress already resolves. ``climbed_out`` (R,): the part of the offset climbed at the
+    plan's first point (where a climb raised again starts from) [m]."""
     h = consts.horizon_s
     m = h.shape[0]
     out = np.empty((4, m, 3))
@@ -174,6 +176,7 @@ def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
             for ax in range(3):
                 pos_out[j, k, ax] = out[ax, k, 0]
         offset = trk.z_offset_m[i]
+        climbed_out[j] = offset
         if offset == 0.0:
             continue
         n_ref = refs.length[i, 0]
@@ -185,7 +188,10 @@ def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
         sample_reference(refs.knots_s[a0:a0 + n_ref], refs.values[a0:a0 + n_ref],
                          refs.period_s[i, 0], refs.loop[i, 0], times_out[j], nominal)
         for k in range(m):
-            pos_out[j, k, 2] -= min(max(pos_out[j, k, 2] - nominal[k, 2], 0.0), offset)
+            up = min(max(pos_out[j, k, 2] - nominal[k, 2], 0.0), offset)
+            if k == 0:
+                climbed_out[j] = up
+            pos_out[j, k, 2] -= up
 
 
 class Schedule(NamedTuple):
@@ -454,7 +460,8 @@ class OnboardStack:
         trk = self.batch.tracker
         times = np.empty((1, trk.config.steps))
         own = np.empty((1, trk.config.steps, 3))
-        avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own)
+        climbed = np.empty(1)
+        avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own, climbed)
         if self._finder is None:  # a strategy of its own: hand it the messages
             self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times[0],
                                              own[0], self.inbox.latest))
@@ -463,7 +470,7 @@ class OnboardStack:
         enc = self._finder.find(self._idx, times, own, np.array([plan_s]),
                                 np.array([self.params.radius_m]), [overrides])[0]
         self.apply(self.avoidance.decide(  # type: ignore[attr-defined]
-            plan_s, self.uav_id, self.priority, times[0], enc))
+            plan_s, self.uav_id, self.priority, times[0], enc, climbed_m=float(climbed[0])))
 
     def avoidance_due(self) -> bool:
         """The avoidance runs at this tick (its period has passed on the tracker's clock)."""

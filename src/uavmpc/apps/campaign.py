@@ -32,19 +32,21 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import dataclasses
 import json
 import math
 import os
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from uavmpc.config import ConfigError
+from uavmpc.scenarios.faults import FaultSpec
 
 FORMAT = 1
 PERCENTILES = (50, 75, 95, 99)
@@ -78,6 +80,8 @@ class TrialJob:
     jitter_s: float
     wind_mps: float
     duration_s: float
+    #: The active fields of a :class:`~uavmpc.scenarios.faults.FaultSpec` (none: a clean run).
+    faults: dict[str, Any] = field(default_factory=dict)
 
 
 def trial_seeds(seed: int, index: int) -> tuple[int, int]:
@@ -89,16 +93,24 @@ def trial_seeds(seed: int, index: int) -> tuple[int, int]:
 
 def run_trial(job: TrialJob) -> dict[str, Any]:
     """Fly one trial; returns its JSON record."""
-    from uavmpc.drivers.world import World
+    from uavmpc.drivers.world import World, world_faults
     from uavmpc.scenarios import LinkSettings
-    from uavmpc.scenarios.random_walk import random_walk
+    from uavmpc.scenarios.faults import draw_faults
+    from uavmpc.scenarios.random_walk import random_walk, waypoints_reached
 
     wall0 = time.perf_counter()
-    link = LinkSettings(latency_s=job.latency_s, jitter_s=job.jitter_s, loss=job.loss)
+    spec = FaultSpec(**job.faults)
+    link = LinkSettings(latency_s=job.latency_s, jitter_s=job.jitter_s, loss=job.loss,
+                        burst_len=spec.burst_len)
     sc = random_walk(job.uavs, job.area_m, job.height_m, job.duration_s, job.scenario_seed,
                      link=link)
+    if spec.time_reference is not None:
+        sc = dataclasses.replace(sc, avoidance={**sc.avoidance,
+                                                "time_reference": spec.time_reference})
+    faults = draw_faults(spec, [u.uav_id for u in sc.uavs], job.duration_s, 0.0,
+                         job.world_seed)
     world = World(sc, avoidance=job.avoidance, seed=job.world_seed, link=link,
-                  wind_mps=job.wind_mps)
+                  wind_mps=job.wind_mps, **world_faults(faults))
     if job.avoidance:
         res = world.run(job.duration_s)
         collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
@@ -123,6 +135,12 @@ def run_trial(job: TrialJob) -> dict[str, Any]:
             sim_s = collisions[0][0]
             collisions = [c for c in collisions if c[0] <= sim_s + 1e-9]
     first = collisions[0] if collisions else None
+    extra: dict[str, Any] = {}
+    if job.avoidance:  # without, a trial ends at its first collision: no goals to count
+        reached, due = waypoints_reached(sc, res.t_s, res.positions_m)
+        extra = {"waypoints_reached": reached, "waypoints_due": due}
+    if job.faults:
+        extra["faults"] = faults.summary()
     return {
         "index": job.index,
         "scenario_seed": job.scenario_seed,
@@ -133,6 +151,7 @@ def run_trial(job: TrialJob) -> dict[str, Any]:
         "first_collision_pair": [first[1], first[2]] if first else None,
         "min_distance_m": dmin,
         "wall_s": time.perf_counter() - wall0,
+        **extra,
     }
 
 
@@ -425,7 +444,20 @@ def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
              for q in (1, 5, 50)} if dmins.size else None),
         "wall_s": wall_s,
         "trial_wall_s": float(sum(r["wall_s"] for r in selected)),
+        **_goals(selected),
     }
+
+
+def _goals(selected: list[dict[str, Any]]) -> dict[str, Any]:
+    """Waypoints reached over the trials that counted them (campaigns before they were
+    counted have none)."""
+    counted = [r for r in selected if "waypoints_due" in r]
+    if not counted or len(counted) != len(selected):
+        return {}
+    reached = sum(r["waypoints_reached"] for r in counted)
+    due = sum(r["waypoints_due"] for r in counted)
+    return {"waypoints_reached": reached, "waypoints_due": due,
+            "waypoints_reached_fraction": reached / due if due else None}
 
 
 def _fmt_ttc(report: dict[str, Any], key: str) -> str:
@@ -465,6 +497,16 @@ def markdown_table(*reports: dict[str, Any]) -> str:
         ("wind", lambda r: f"{r['parameters']['wind_mps']:g} m/s"),
         ("seed", lambda r: str(r["seed"])),
     ]
+    if any("waypoints_due" in r for r in reports):
+        rows.insert(-5, ("per-trial min. distance, 1 % / 5 % / 50 %", lambda r: (
+            " / ".join(f"{r['min_distance_per_trial_m'][f'p{q}']:.2f}" for q in (1, 5, 50))
+            + " m")))
+        rows.insert(-5, ("waypoints reached", lambda r: (
+            f"{r['waypoints_reached']} / {r['waypoints_due']}" if "waypoints_due" in r
+            else "–")))
+    if any(r["parameters"].get("faults") for r in reports):
+        rows.append(("faults", lambda r: ", ".join(
+            f"{k} {v}" for k, v in r["parameters"].get("faults", {}).items()) or "none"))
     lines = ["| random_walk | without avoidance | with avoidance |", "|---|---|---|"]
     lines += [f"| {name} | {cell(False, f)} | {cell(True, f)} |" for name, f in rows]
     return "\n".join(lines) + "\n"
@@ -547,8 +589,12 @@ def run_campaign(
     height_m: float = 10.0,
     ray_address: str | None = None,
     progress: bool = True,
+    faults: FaultSpec | None = None,
 ) -> dict[str, Any]:
     """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
+
+    ``faults``: what goes wrong in every trial, drawn per trial from its world seed
+    (:mod:`uavmpc.scenarios.faults`).
 
     Stops after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest
     prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
@@ -574,6 +620,11 @@ def run_campaign(
     if not (math.isfinite(wind) and wind >= 0):
         raise CampaignError(f"wind: must be ≥ 0, got {wind}")
     link = LinkSettings.from_dict({"loss": loss, "latency_s": latency, "jitter_s": jitter})
+    fault_fields = (faults or FaultSpec()).active()
+    if faults is not None:
+        faults.check_uavs(uavs)
+        if faults.burst_len and not link.loss:
+            raise CampaignError("burst loss needs a loss rate: give --loss P with --burst-loss")
     if workers is None:
         workers = os.cpu_count() or 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -588,6 +639,8 @@ def run_campaign(
     }
     # only the length that applies defines the trials
     params["trial_s" if avoidance else "cap_s"] = length
+    if fault_fields:  # a clean campaign's parameters stay what they were
+        params["faults"] = fault_fields
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _check_parameters(out, params)
@@ -596,7 +649,8 @@ def run_campaign(
     def job(i: int) -> TrialJob:
         s, w = trial_seeds(seed, i)
         return TrialJob(i, s, w, uavs, float(area_m), float(height_m), bool(avoidance),
-                        link.loss, link.latency_s, link.jitter_s, float(wind), length)
+                        link.loss, link.latency_s, link.jitter_s, float(wind), length,
+                        dict(fault_fields))
 
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
@@ -679,8 +733,33 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
                    help="run on Ray ('auto', 'local' or ray://host:port); "
                         "pip install 'uavmpc[cluster]'")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_fault_arguments(p)
     p.set_defaults(func=campaign_command)
     return p
+
+
+def add_fault_arguments(p: argparse.ArgumentParser) -> None:
+    """The fault flags (:mod:`uavmpc.scenarios.faults`), shared by ``run`` and ``campaign``."""
+    g = p.add_argument_group("faults (each drawn per flight from its seed)")
+    g.add_argument("--clock-offset", type=float, default=0.0, metavar="S",
+                   help="every UAV's clock off by up to ±S seconds")
+    g.add_argument("--time-reference", choices=["stamp", "receive"], default=None,
+                   help="how receivers judge a prediction's age (default: the scenario's)")
+    g.add_argument("--gnss", choices=["none", "single", "rtk"], default="none",
+                   help="controllers fly on an observer fed with GNSS-like positions")
+    g.add_argument("--burst-loss", type=float, default=0.0, metavar="MEAN_LEN",
+                   help="with --loss P: losses in bursts of this mean length (Gilbert channel)")
+    g.add_argument("--non-cooperative", type=int, default=0, metavar="K",
+                   help="K of the UAVs fly without avoidance (flag down)")
+    g.add_argument("--silent", type=int, default=0, metavar="K",
+                   help="K of the UAVs' radios go silent at a random time; they fly on")
+
+
+def fault_spec(args: argparse.Namespace) -> FaultSpec:
+    """The :class:`FaultSpec` of the fault flags."""
+    return FaultSpec(clock_offset_s=args.clock_offset, time_reference=args.time_reference,
+                     gnss=args.gnss, burst_len=args.burst_loss,
+                     non_cooperative=args.non_cooperative, silent=args.silent)
 
 
 def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -689,7 +768,8 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
                         trials=args.trials, seed=args.seed, workers=args.workers,
                         loss=args.loss, latency=args.latency, wind=args.wind,
                         trial_s=args.trial_s, cap_s=args.cap_s, area_m=args.area,
-                        ray_address=args.ray, progress=not args.no_progress)
+                        ray_address=args.ray, progress=not args.no_progress,
+                        faults=fault_spec(args))
 
 
 def _landing_command(args: argparse.Namespace) -> int:

@@ -19,7 +19,8 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   duration: float | None, loss: float | None, latency: float | None,
                   wind: float = 0.0, ros2: str | None = None,
                   realtime: float | None = None, uavs: int | None = None,
-                  cruise_heights: tuple[float, ...] | None = None) -> dict:
+                  cruise_heights: tuple[float, ...] | None = None,
+                  faults: Any = None) -> dict:
     import contextlib
     import dataclasses
 
@@ -43,6 +44,20 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
         link = dataclasses.replace(link, loss=loss)
     if latency is not None:
         link = dataclasses.replace(link, latency_s=latency)
+    drawn = None
+    if faults is not None and faults.active():
+        from uavmpc.drivers.world import world_faults
+        from uavmpc.scenarios.faults import draw_faults
+
+        if faults.burst_len:
+            if not link.loss:
+                raise scenarios.ConfigError("--burst-loss needs a loss rate (--loss P)")
+            link = dataclasses.replace(link, burst_len=faults.burst_len)
+        if faults.time_reference is not None:
+            sc = dataclasses.replace(sc, avoidance={**sc.avoidance,
+                                                    "time_reference": faults.time_reference})
+        drawn = draw_faults(faults, [u.uav_id for u in sc.uavs],
+                            sc.duration_s if duration is None else duration, 0.0, seed)
     link = scenarios.LinkSettings.from_dict(dataclasses.asdict(link))  # validate overrides
     out.mkdir(parents=True, exist_ok=True)
     meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
@@ -57,7 +72,7 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
           if logged else contextlib.nullcontext()) as rec:
         world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
-                      recorder=rec)
+                      recorder=rec, **(world_faults(drawn) if drawn is not None else {}))
         if ros2 is None:
             result = world.run(duration, realtime=realtime)
         else:
@@ -71,6 +86,8 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     summary = result.summary()
     summary["link"] = dataclasses.asdict(link)
     summary["flight_log"] = "flight.mcap" if logged else None
+    if drawn is not None:
+        summary["faults"] = drawn.summary()
     if traffic_mod is not None:
         summary["traffic"] = traffic_mod.traffic_outcome(result, sc)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -172,6 +189,8 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from uavmpc.apps.campaign import fault_spec
+
     out = Path(args.out)
     if args.realtime is not None and not args.realtime > 0:
         print("uavmpc run: --realtime must be > 0", file=sys.stderr)
@@ -199,7 +218,8 @@ def _run(args: argparse.Namespace) -> int:
         s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance, seed=args.seed,
                           duration=args.duration, loss=args.loss, latency=args.latency,
                           wind=args.wind, ros2=args.ros2, realtime=args.realtime,
-                          uavs=args.uavs, cruise_heights=heights)
+                          uavs=args.uavs, cruise_heights=heights,
+                          faults=fault_spec(args))
     except (OSError, ValueError) as exc:
         if args.ros2 is None:
             raise
@@ -635,6 +655,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "trajectories from ROS 2 are flown")
     run.add_argument("--realtime", type=float, default=None, metavar="FACTOR",
                      help="pace the simulation at FACTOR × real time (--ros2: default 1)")
+    from uavmpc.apps.campaign import add_fault_arguments
+
+    add_fault_arguments(run)
     run.set_defaults(func=_run)
     node = sub.add_parser("node", help="one UAV's onboard stack in real time over Zenoh")
     node.add_argument("--id", required=True, help="UAV id ([A-Za-z0-9_-], ≤ 32)")

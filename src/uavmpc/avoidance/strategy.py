@@ -232,7 +232,19 @@ class HeightOffsetStrategy:
         for other, r in (pair_radius_m or {}).items():
             self.pair_radius_m[str(other)] = positive(r, f"pair_radius_m[{other!r}]",
                                                       upper=MAX_DISTANCE_M)
+        #: The highest offset the operational volume allows over the mission flown (its
+        #: ceiling; :meth:`limit_offset`); ``max_offset_m`` applies too.
+        self.offset_ceiling_m = math.inf
         self.reset()
+
+    def limit_offset(self, ceiling_m: float) -> None:
+        """Offsets stay at or below ``ceiling_m`` [m] (≥ 0) as well as ``max_offset_m``: a
+        geofence's maximum altitude over the mission (:meth:`uavmpc.geofence.Geofence.
+        offset_ceiling_m`). A decision that wanted higher says so (``ceiling_hit``); an offset
+        already above is not cut (it is released as usual)."""
+        if not (ceiling_m >= 0.0):
+            raise ValueError(f"ceiling_m: must be ≥ 0, got {ceiling_m}")
+        self.offset_ceiling_m = float(ceiling_m)
 
     def reset(self) -> None:
         """Forget the offset and the conflict history (e.g. after landing)."""
@@ -281,9 +293,12 @@ class HeightOffsetStrategy:
         return {table.col_of(other): r for other, r in self.pair_radius_m.items()}
 
     def decide(self, now_s: float, own_id: str, own_priority: int,
-               own_prediction_times: np.ndarray, known: Encounters) -> AvoidanceDecision:
+               own_prediction_times: np.ndarray, known: Encounters,
+               climbed_m: float | None = None) -> AvoidanceDecision:
         """The decision from the encounters (:mod:`uavmpc.avoidance.encounters`): everyone
-        near, fresh or silent at its last known plan (``update`` finds them itself)."""
+        near, fresh or silent at its last known plan (``update`` finds them itself).
+        ``climbed_m``: how much of the offset in force the UAV has climbed now (default: all
+        of it); a climb raised again starts from there."""
         prm = self.params
         half_h = 0.5 * prm.height_m
         times = own_prediction_times
@@ -314,7 +329,8 @@ class HeightOffsetStrategy:
             # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
             # another climbed into its layer. A new offset must be clear of the silent ones too.
             self.z_offset_m, ceiling_hit, waiting_for = self._climb(
-                known, must_yield_known, half_h, times - now_s)
+                known, must_yield_known, half_h, times - now_s,
+                self.z_offset_m if climbed_m is None else min(climbed_m, self.z_offset_m))
         c_end = _conflicts(enc, self.z_offset_m, half_h)
         unresolved = c_end.any(axis=1) & must_yield
         # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
@@ -349,7 +365,7 @@ class HeightOffsetStrategy:
         )
 
     def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
-               ahead_s: np.ndarray) -> tuple[float, bool, tuple[str, ...]]:
+               ahead_s: np.ndarray, climbed: float) -> tuple[float, bool, tuple[str, ...]]:
         """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without
         crossing anyone; returns (offset, ceiling hit, the UAVs in the way).
 
@@ -361,17 +377,24 @@ class HeightOffsetStrategy:
         through the layer of a UAV passing over it 1.6 s later. When every offset clear at the
         end is blocked on the way, the offset is held (the conflict is reported unresolved and
         the limits stay tightened) and the climb starts once the way is clear.
+
+        A climb raised again while the last one is under way starts where the UAV is now
+        (``climbed`` of the offset in force ``z``), not at ``z``: the slow edge of the band
+        starts there (it reaches every height later), the fast edge at ``z`` (it cannot be
+        higher); the band holds every height the UAV can be at. Without this the slow edge was
+        too high, and a UAV passing while the climb was still under way went unseen (the gap
+        noted in docs/campaign.md).
         """
         prm = self.params
         z = self.z_offset_m
-        steps = math.floor((prm.max_offset_m - z) / prm.dz_m + _EPS)
+        steps = math.floor((min(prm.max_offset_m, self.offset_ceiling_m) - z) / prm.dz_m + _EPS)
         if steps < 1:
             return z, True, ()
         candidates = z + prm.dz_m * np.arange(1, steps + 1)
         sub = _subset(enc, must_yield)
         blocked_end = _conflicts(sub, candidates, half_h).any(axis=(1, 2))  # (c,)
         fast = z + _climbed(np.maximum(ahead_s, 0.0), prm)  # (m,)
-        slow = z + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
+        slow = climbed + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
         hi = np.minimum(fast[None, :], candidates[:, None])[:, None, :]  # (c, 1, m)
         lo = np.minimum(slow[None, :], candidates[:, None])[:, None, :]
         # While still climbing (lo < o; once there, the check at the end applies):

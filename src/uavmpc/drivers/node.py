@@ -67,25 +67,93 @@ FORMATION_CHANNEL = "formation"
 
 def parse_mission(payload: bytes, now_s: float) -> Reference:
     """A mission message: JSON ``{"goto": [x, y, z, heading]}`` or ``{"points": [[x, y, z, h],
-    ...], "sample_period_s": 0.2, "start_s": t}`` (``start_s`` absolute; default now)."""
+    ...], "sample_period_s": 0.2, "start_s": t, "loop": false}`` (``start_s`` absolute; default
+    now; a ``goto`` takes ``start_s`` only).
+
+    Raises:
+        InvalidReferenceError: anything else; the text starts with ``mission`` and names the
+            field. The payload comes from the network: it reaches numpy only once every value
+            is known to be a finite number, so nothing else is ever raised from inside.
+    """
+    from uavmpc.reference import MAX_POINTS, MIN_SAMPLE_PERIOD_S
+
+    # Bounds that keep every stamp (and a looping reference's closing knot, one period after
+    # the last) finite: Unix time up to about the year 5000, at most one point an hour, and
+    # headings whose differences cannot overflow when they are unwrapped (≈ 160 000 turns).
+    max_abs_time_s, max_period_s, max_abs_heading_rad = 1.0e11, 3600.0, 1.0e6
+    float_max = float(np.finfo(float).max)
+    fields = ("goto", "points", "sample_period_s", "start_s", "loop")
+
+    def describe(value: Any) -> str:
+        # Never repr() a container: a deeply nested one would recurse, a large one flood logs.
+        if isinstance(value, list | dict):
+            return f"a JSON {'array' if isinstance(value, list) else 'object'} of {len(value)}"
+        text = repr(value)
+        return text if len(text) <= 40 else f"{text[:37]}..."
+
+    def number(value: Any, name: str, bound: float = float_max) -> float:
+        # bool is an int to Python; NaN fails every comparison; a huge JSON integer is
+        # compared exactly here (float() of it would raise OverflowError).
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InvalidReferenceError(f"mission.{name}: must be a number, got "
+                                        f"{describe(value)}")
+        if not -bound <= value <= bound:
+            limit = "finite" if bound == float_max else f"finite and within ±{bound:g}"
+            raise InvalidReferenceError(f"mission.{name}: must be {limit}, got "
+                                        f"{describe(value)}")
+        return float(value)
+
+    def row(value: Any, name: str) -> list[float]:
+        if not isinstance(value, list) or len(value) != 4:
+            raise InvalidReferenceError(f"mission.{name}: must be [x, y, z, heading], got "
+                                        f"{describe(value)}")
+        return [*(number(v, f"{name}[{j}]") for j, v in enumerate(value[:3])),
+                number(value[3], f"{name}[3]", max_abs_heading_rad)]
+
     try:
         data = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except RecursionError:
+        raise InvalidReferenceError("mission is not JSON: nested too deeply") from None
+    except (TypeError, ValueError) as exc:  # also bad UTF-8, and integers of > 4300 digits
         raise InvalidReferenceError(f"mission is not JSON: {exc}") from None
     if not isinstance(data, dict):
-        raise InvalidReferenceError("mission must be a JSON object")
-    start = data.get("start_s", now_s)
+        raise InvalidReferenceError(f"mission must be a JSON object, got {describe(data)}")
+    unknown = sorted(k for k in data if k not in fields)
+    if unknown:  # a typo ("sample_periods") must not silently fall back to a default
+        raise InvalidReferenceError(f"mission: unknown field {describe(unknown[0])} (known: "
+                                    f"{', '.join(fields)})")
+    if ("goto" in data) == ("points" in data):
+        raise InvalidReferenceError("mission needs exactly one of 'goto' or 'points'")
+    start = number(data.get("start_s", now_s), "start_s", max_abs_time_s)
     if "goto" in data:
-        goal = data["goto"]
-        if not isinstance(goal, list) or len(goal) != 4:
-            raise InvalidReferenceError("mission.goto must be [x, y, z, heading]")
-        return Reference(np.array([start], dtype=float), np.array([goal], dtype=float))
-    if "points" in data:
-        return Reference.sampled(np.asarray(data["points"], dtype=float),
-                                 data.get("sample_period_s", 0.2), start,
-                                 loop=bool(data.get("loop", False)))
-    raise InvalidReferenceError("mission needs 'goto' or 'points'")
-
+        extra = [k for k in ("sample_period_s", "loop") if k in data]
+        if extra:
+            raise InvalidReferenceError(f"mission.{extra[0]}: only with 'points', not 'goto'")
+        goal = row(data["goto"], "goto")
+        try:
+            return Reference(np.array([start]), np.array([goal]))
+        except InvalidReferenceError as exc:
+            raise InvalidReferenceError(f"mission.goto: {exc}") from None
+    points = data["points"]
+    if not isinstance(points, list) or not points:
+        raise InvalidReferenceError("mission.points: must be a non-empty list of [x, y, z, "
+                                    f"heading], got {describe(points)}")
+    if len(points) > MAX_POINTS:
+        raise InvalidReferenceError(f"mission.points: {len(points)} points, more than the "
+                                    f"limit {MAX_POINTS}")
+    rows = [row(p, f"points[{k}]") for k, p in enumerate(points)]
+    period = number(data.get("sample_period_s", 0.2), "sample_period_s", max_period_s)
+    if period < MIN_SAMPLE_PERIOD_S:
+        raise InvalidReferenceError(f"mission.sample_period_s: must be ≥ {MIN_SAMPLE_PERIOD_S} "
+                                    f"s, got {describe(period)}")
+    loop = data.get("loop", False)
+    if not isinstance(loop, bool):
+        raise InvalidReferenceError(f"mission.loop: must be true or false, got "
+                                    f"{describe(loop)}")
+    try:
+        return Reference.sampled(np.array(rows), period, start, loop=loop)
+    except InvalidReferenceError as exc:
+        raise InvalidReferenceError(f"mission: {exc}") from None
 
 @dataclass
 class NodeStats:
@@ -487,7 +555,15 @@ class Node:
             ref, self._pending_mission = self._pending_mission, None
         if ref is not None:
             assert self.stack is not None
+            self._limit_ceiling(ref)
             self.stack.set_mission(ref)
+
+    def _limit_ceiling(self, ref: Reference) -> None:
+        """With a geofence, the avoidance climbs no higher than its ceiling over ``ref``."""
+        if self.geofence is not None and self.stack is not None \
+                and self.stack.avoidance is not None:
+            self.stack.avoidance.limit_offset(  # type: ignore[attr-defined]
+                self.geofence.offset_ceiling_m(ref.points[:, 2]))
 
     def _set_checked(self, ref: Reference) -> None:
         """:meth:`set_mission`, counting a refusal by the geofence as such."""
@@ -508,8 +584,10 @@ class Node:
         if back is not None:
             with self._lock:
                 self._pending_mission = None  # a mission that waited led out as well
-            self.stack.set_mission(Reference.goto(*back, float(heading_of(state.attitude_wxyz)),
-                                                  start_s=self.stack.tracker.time_s))
+            ref = Reference.goto(*back, float(heading_of(state.attitude_wxyz)),
+                                 start_s=self.stack.tracker.time_s)
+            self._limit_ceiling(ref)
+            self.stack.set_mission(ref)
         self.stats.geofence = {**watch.report(), "missions_refused": self._fence_refused}
 
     def _open_command(self, payload: bytes, channel: str) -> bytes:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,6 +33,9 @@ from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.comms.message import InvalidMessageError
 from uavmpc.config import ConfigError
+from uavmpc.estimation import ObserverParams
+from uavmpc.estimation.fleet import FleetEstimator
+from uavmpc.geofence import FenceWatch
 from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel
 from uavmpc.log import FlightRecorder
 from uavmpc.missions.formation import FormationFollower, formation_error
@@ -55,12 +58,15 @@ from uavmpc.plant.multirotor import Multirotor
 from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario
+from uavmpc.scenarios.faults import Faults
 from uavmpc.tracker import DynamicLimits, TrackerConfig
 from uavmpc.tracker.kernels import make_scratch
 
 COLLISION_DISTANCE_M = 1.0
 #: A UAV has reached its goal when it ends within this 3-D distance of it.
 GOAL_TOLERANCE_M = 1.0
+#: The geofence failsafe looks every this many ticks (10 Hz, the avoidance's rate).
+FENCE_CHECK_TICKS = 10
 #: Log rate of poses and status (predictions are logged at each broadcast).
 POSE_LOG_PERIOD_S = 0.05
 #: The ground vehicle's name in logs (``/ground_vehicle/state``: its deck's centre).
@@ -174,7 +180,7 @@ def broadcast_phase(i: int, n: int) -> float:
 
 @kernel
 def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d, cycles):
+               pair_d, cycles, est):
     """One 10 ms tick of every UAV, the compiled solver inline: each UAV's stack
     (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true state, then the
     plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row ``k`` of the traces
@@ -183,19 +189,26 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     target could not be flown (the tick stops there).
 
     ``cycles``: (4,) int64 to profile the tick, or (0,) not to: adds the cycle counts of the
-    stacks, the plants and the traces, and the number of UAV-ticks (:func:`cycle_count`)."""
+    stacks, the plants and the traces, and the number of UAV-ticks (:func:`cycle_count`).
+    ``est``: (N, 6) the estimated [p, v] the stacks fly on (attitude and rates stay the
+    plants' own), or (0, 6) for the true state."""
     n = plant.x.shape[0]
     sc = make_scratch(consts.horizon_s.shape[0])
     qd = np.empty(4)
     ff = np.empty(3)
     timed = cycles.shape[0] > 0
+    estimated = est.shape[0] > 0
     c0 = c1 = 0
     for i in range(n):
         x = plant.x[i]
         if timed:
             c0 = cycle_count()
-        thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, sc,
-                             qd, ff)
+        if estimated:
+            thrust = onboard_row(i, trk, refs, consts, ctl, stats, est[i, 0:3], est[i, 3:6],
+                                 x[6:10], dt, sc, qd, ff)
+        else:
+            thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt,
+                                 sc, qd, ff)
         if timed:
             c1 = cycle_count()
             cycles[0] += c1 - c0
@@ -255,12 +268,25 @@ def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
     dmin_out[k] = best
 
 
+def world_faults(faults: Faults) -> dict[str, Any]:
+    """The :class:`World` arguments of a drawn set of faults (:mod:`uavmpc.scenarios.faults`;
+    the link's burst length and the time reference go into the link and the scenario)."""
+    return {"clock_offsets_s": faults.clock_offsets_s,
+            "non_cooperative": faults.non_cooperative,
+            "silent_from_s": faults.silent_from_s,
+            "gnss": None if faults.spec.gnss == "none" else faults.spec.gnss}
+
+
 class World:
     """A scenario flown by its UAVs.
 
     Args:
         scenario: who flies where (see :mod:`uavmpc.scenarios`).
         avoidance: run collision avoidance on every UAV (else: none, flags down).
+        non_cooperative: ids of UAVs that fly without avoidance, their flags down (the
+            others yield to them), besides those the scenario says so of
+            (``avoidance = false``). A UAV is cooperative iff ``avoidance`` is on, its spec
+            says so and it is not listed here.
         seed: fixes the link's randomness and the wind.
         link: overrides the scenario's link settings.
         wind_mps: mean wind along x (each UAV its own seeded gusts, σ = 0.3 × mean).
@@ -277,6 +303,12 @@ class World:
         index: find each UAV's encounters through the spatial index (True) or compare it
             with every other UAV (False; :mod:`uavmpc.avoidance.encounters`): the same
             flight. Default: the index from 32 UAVs on.
+        gnss: fly every controller on a state observer fed with GNSS-like fixes (a preset,
+            ``"single"`` or ``"rtk"``, or :class:`~uavmpc.estimation.ObserverParams`) instead
+            of the true position and velocity (:class:`~uavmpc.estimation.fleet.
+            FleetEstimator`, seeded from ``seed``).
+        silent_from_s: UAV id → world time [s] from which its radio sends nothing; the UAV
+            flies on (its stack still plans and thinks it broadcasts).
     """
 
     def __init__(
@@ -293,9 +325,26 @@ class World:
         clock_offsets_s: Sequence[float] | None = None,
         batched: bool = True,
         index: bool | None = None,
+        non_cooperative: Iterable[str] = (),
+        gnss: str | ObserverParams | None = None,
+        silent_from_s: Mapping[str, float] | None = None,
     ) -> None:
         self.scenario = scenario
         self.avoidance = avoidance
+        if isinstance(non_cooperative, str):  # its characters would be taken for ids
+            raise ValueError(f"non_cooperative: an iterable of UAV ids, not the string "
+                             f"{non_cooperative!r}")
+        listed = set(non_cooperative)
+        unknown = sorted(str(x) for x in listed - {u.uav_id for u in scenario.uavs})
+        if unknown:
+            raise ValueError(f"non_cooperative: {', '.join(map(repr, unknown))} not UAVs of "
+                             f"the scenario {scenario.name!r}")
+        #: The ids of the UAVs flying without avoidance (all of them when ``avoidance`` is
+        #: off), in the scenario's order.
+        self.non_cooperative: tuple[str, ...] = tuple(
+            u.uav_id for u in scenario.uavs
+            if not (avoidance and u.avoidance and u.uav_id not in listed))
+        flying_alone = set(self.non_cooperative)
         self.seed = seed
         self.recorder = recorder
         self.batched = bool(batched)
@@ -350,7 +399,7 @@ class World:
             # Each UAV broadcasts at its own phase, spread over the period.
             off = float(offsets[i])
             resolver = None
-            if avoidance:
+            if spec.uav_id not in flying_alone:
                 resolver = strategy(params)
                 if formation is not None and spec.uav_id in formation.members:
                     if not hasattr(resolver, "pair_radius_m"):
@@ -387,8 +436,35 @@ class World:
             raise ValueError("the plants' substeps differ; a world steps them together")
         self._kernels: tuple[Any, Any] | None = None
         self._offsets = offsets.copy()
+        self.estimator: FleetEstimator | None = None
+        if gnss is not None:
+            if not self.onboard.inline:
+                raise ValueError("gnss: needs the compiled tracker solver (batchqp)")
+            obs = ObserverParams.preset(gnss) if isinstance(gnss, str) else gnss
+            self.estimator = FleetEstimator(obs, n, period, seed)
+        self._no_estimate = np.zeros((0, 6))
+        silent = dict(silent_from_s or {})
+        unknown = sorted(set(silent) - {u.uav_id for u in self.uavs})
+        if unknown:
+            raise ValueError(f"silent_from_s: {', '.join(map(repr, unknown))} not UAVs of "
+                             f"the scenario {scenario.name!r}")
+        if not all(math.isfinite(float(t)) for t in silent.values()):
+            raise ValueError(f"silent_from_s: times must be finite, got {silent!r}")
+        #: UAV id → when its radio goes silent [s]; and how many broadcasts it swallowed.
+        self.silent_from_s = {k: float(v) for k, v in silent.items()}
+        self.silenced = 0
         self._windy = [u.plant for u in self.uavs if u.plant.wind is not None]
         self._missions = [u for u in self.uavs if u.mission is not None]
+        #: The scenario's operational volume: each UAV's failsafe, and its avoidance's
+        #: ceiling over its mission (:mod:`uavmpc.geofence`).
+        self.geofence = scenario.geofence
+        self.fence_watches: list[FenceWatch] = []
+        if self.geofence is not None:
+            self.fence_watches = [FenceWatch(self.geofence) for _ in self.uavs]
+            for u, spec in zip(self.uavs, scenario.uavs, strict=True):
+                if u.stack.avoidance is not None and hasattr(u.stack.avoidance, "limit_offset"):
+                    u.stack.avoidance.limit_offset(
+                        self.geofence.offset_ceiling_m(spec.mission.points[:, 2]))
         # One finder for the whole world when every UAV decides from encounters (the strategy
         # has :meth:`~uavmpc.avoidance.HeightOffsetStrategy.decide`); else each UAV plans alone.
         deciders = [u.stack.avoidance for u in self.uavs if u.stack.avoidance is not None]
@@ -459,6 +535,8 @@ class World:
                 self._tick_objects(now, k, pos, zoff, dmin, pair_d)
             self.t_s = now + self.period_s
             t_log[k] = self.t_s
+            if self.fence_watches and k % FENCE_CHECK_TICKS == 0:
+                self._watch_fence()
             if members.size:
                 members_avoiding[k] = self.onboard.stats.avoiding[members].any()
             if ranged:  # the link's range check sees where the UAVs are
@@ -513,6 +591,13 @@ class World:
                 result.extra["compiled_us_per_uav_tick"] = {
                     name: round(float(c[j] / c[3] / cycles_per_s * 1e6), 3)
                     for j, name in enumerate(("stack", "plant", "trace"))}
+        if self.fence_watches:
+            result.extra["geofence"] = {u.uav_id: w.report() for u, w in
+                                        zip(self.uavs, self.fence_watches, strict=True)}
+        if self.avoidance and self.non_cooperative:
+            # Who flew without avoidance while the others avoided (with ``avoidance`` off,
+            # the summary's "avoidance": false already says everyone did).
+            result.extra["non_cooperative"] = list(self.non_cooperative)
         self._applications(result)
         return result
 
@@ -670,14 +755,16 @@ class World:
             m = trk.config.steps
             times = np.empty((due.size, m))
             own = np.empty((due.size, m, 3))
-            avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own)
+            climbed = np.empty(due.size)
+            avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
             assert self._finder is not None
             found = self._finder.find(due, times, own, plan_s, self._radius[due],
                                       [self._overrides[i] for i in due.tolist()])
             for j, i in enumerate(due.tolist()):
                 stack = self.uavs[i].stack
                 stack.apply(stack.avoidance.decide(  # type: ignore[union-attr]
-                    float(plan_s[j]), stack.uav_id, stack.priority, times[j], found[j]))
+                    float(plan_s[j]), stack.uav_id, stack.priority, times[j], found[j],
+                    climbed_m=float(climbed[j])))
                 if stack.decision is not None and stack.decision.yielding_to:
                     self._yielding.add(i)
         planning = sched.planning
@@ -760,7 +847,8 @@ class World:
         if ob.inline:
             bad = self._bound_tick(table, traces)(trk.rows, table, trk.consts, ob.control,
                                                   ob.stats, self.plants, self.n_sub,
-                                                  self.period_s, *traces, self._cycles)
+                                                  self.period_s, *traces, self._cycles,
+                                                  self._estimates())
         else:
             world_pre(trk.rows, ob.stats, self.plants)
             trk.step()
@@ -783,7 +871,7 @@ class World:
             trk = ob.tracker
             self._kernels = (table, bind(world_tick, trk.rows, table, trk.consts, ob.control,
                                          ob.stats, self.plants, self.n_sub, self.period_s,
-                                         *traces, self._cycles))
+                                         *traces, self._cycles, self._estimates(peek=True)))
         return self._kernels[1]
 
     def _tick_objects(self, now: float, k: int, pos: np.ndarray, zoff: np.ndarray,
@@ -793,16 +881,55 @@ class World:
         self._receive_and_plan(now)
         self._started = True
         self._next_round_s = self._next_emit_s = -math.inf  # if the batched path takes over
-        for u in self.uavs:
+        est = self._estimates()
+        for i, u in enumerate(self.uavs):
             # received and planned above: those phases are no-ops here
-            out = u.stack.tick(now + u.clock_offset_s, u.plant.state())
+            state = u.plant.state()
+            if est.shape[0]:
+                state = dataclasses.replace(state, position_m=est[i, 0:3].copy(),
+                                            velocity_mps=est[i, 3:6].copy())
+            out = u.stack.tick(now + u.clock_offset_s, state)
             u.plant.step(out.target, self.period_s)
             if out.outgoing is not None:
                 self._publish(u, out.outgoing, now)
         _trace(self.onboard.tracker.rows, self.plants, k, pos, zoff, dmin, pair_d)
 
     # ------------------------------------------------------------------------------ internals
+    def _watch_fence(self) -> None:
+        """The failsafe of every UAV (:class:`~uavmpc.geofence.FenceWatch`): one found outside
+        the volume flies back in and holds; its mission, if one steps beside it, stops."""
+        assert self.geofence is not None
+        pos = self.plants.x[:, 0:3]
+        margins = self.geofence.margin(pos)
+        for i in np.flatnonzero(~(margins >= 0.0) | ~np.array(
+                [w.entered for w in self.fence_watches])).tolist():
+            back = self.fence_watches[i].check(pos[i], margins[i])
+            if back is None:
+                continue
+            u = self.uavs[i]
+            if u.mission is not None:
+                self._missions = [m for m in self._missions if m is not u]
+                u.mission = None
+            ref = Reference.goto(*back, float(heading_of(self.plants.x[i, 6:10])),
+                                 start_s=self.t_s + u.clock_offset_s)
+            if u.stack.avoidance is not None and hasattr(u.stack.avoidance, "limit_offset"):
+                u.stack.avoidance.limit_offset(self.geofence.offset_ceiling_m(back[2:3]))
+            u.stack.set_mission(ref)
+
+    def _estimates(self, peek: bool = False) -> np.ndarray:
+        """What the controllers fly on this tick: (N, 6) estimated [p, v], or (0, 6) (the
+        truth). ``peek``: the array only, the sensors not advanced (to compile the tick)."""
+        if self.estimator is None:
+            return self._no_estimate
+        if peek:
+            return self.estimator.estimate
+        x = self.plants.x
+        return self.estimator.step(x[:, 0:3], x[:, 3:6])
+
     def _publish(self, u: WorldUav, data: bytes, now: float) -> None:
+        if now >= self.silent_from_s.get(u.uav_id, math.inf):
+            self.silenced += 1  # a dead radio: the UAV does not know it
+            return
         self.link.publish(data, u.uav_id, now)
         pred = u.stack.last_broadcast
         if self.recorder is not None and pred is not None:

@@ -106,3 +106,26 @@ def random_walk(n_uavs: int = 5, area_m: float = 100.0, height_m: float = 10.0,
                             mission, goal))
     return Scenario("random_walk", float(duration_s), tuple(uavs),
                     link if link is not None else LinkSettings())
+
+
+def waypoints_reached(scenario: Scenario, t_s: np.ndarray, positions_m: np.ndarray,
+                      tolerance_m: float = 1.0) -> tuple[int, int]:
+    """(reached, due): of the waypoints whose hold ended within the flight (times ``t_s``
+    (K,), positions ``positions_m`` (K, N, 3) in scenario order), how many the UAV came within
+    ``tolerance_m`` of horizontally while it was held. Horizontally: a height offset is the
+    avoidance at work, not a goal missed; a UAV kept away by a conflict, or stuck, misses."""
+    reached = due = 0
+    end = float(t_s[-1]) if len(t_s) else -math.inf
+    for i, u in enumerate(scenario.uavs):
+        times, pts = u.mission.times_s, u.mission.points
+        # Two stamps per waypoint: the start of its hold, the end (see the module docstring).
+        starts, goals = times[0::2], pts[0::2, :2]
+        ends = np.r_[times[1::2], math.inf]
+        for k in range(len(starts)):
+            if ends[k] > end:
+                break
+            due += 1
+            sel = (t_s >= starts[k]) & (t_s <= ends[k])
+            d = np.hypot(*(positions_m[sel, i, :2] - goals[k]).T)
+            reached += bool(d.size and d.min() <= tolerance_m)
+    return reached, due

@@ -1,0 +1,163 @@
+"""The dense and adversarial built-in scenarios over many seeds, with and without loss.
+
+``python benchmarks/sweep_dense.py [--seeds 10] [--loss 0,0.3] [--scenarios a,b]`` flies each
+scenario (default: antipodal_8, antipodal_12, noncooperative_crossing; ``antipodal_<N>``: any
+N, from :func:`uavmpc.scenarios.dense.antipodal`) for seeds 0..N−1 at each
+loss probability (the scenario's link otherwise: ``dataclasses.replace(link, loss=...)``),
+with avoidance, and prints one row per scenario × loss, then every collision and every missed
+goal precisely, and, last, one JSON object.
+
+Columns: runs with a collision; closest approach between any two UAVs (3-D, m) over the runs,
+min and median; UAV goals reached at the end (within 1 m); time to all goals (s: per run the
+latest UAV's time from which it stayed within 1 m of its goal, :func:`time_to_goals`) max and
+median over the runs whose goals were all reached; the largest z offset of any UAV (m; the
+ceiling is ``max_offset_m``, 30 m by default).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import re
+import statistics
+import time
+from typing import Any
+
+import numpy as np
+
+from uavmpc import scenarios
+from uavmpc.drivers.world import World, WorldResult
+from uavmpc.scenarios import Scenario
+from uavmpc.scenarios.dense import antipodal, time_to_goals
+
+DENSE = ("antipodal_8", "antipodal_12", "noncooperative_crossing")
+_ANTIPODAL = re.compile(r"^antipodal_(\d+)$")
+
+
+def load(name: str) -> Scenario:
+    """A built-in scenario, or ``antipodal_<N>`` for any N (uavmpc.scenarios.dense)."""
+    if name in scenarios.BUILTIN:
+        return scenarios.load(name)
+    m = _ANTIPODAL.match(name)
+    if m is None:
+        raise ValueError(f"{name}: neither a built-in scenario nor antipodal_<N>")
+    return antipodal(int(m.group(1)))
+
+
+def fly(name: str, seed: int, loss: float) -> dict[str, Any]:
+    """One run's numbers (JSON-serialisable)."""
+    sc = load(name)
+    result = World(sc, seed=seed, link=dataclasses.replace(sc.link, loss=loss)).run()
+    s = result.summary()
+    goals = time_to_goals(result, sc)
+    reached = {uid: bool(u["reached_goal"]) for uid, u in s["uavs"].items()}
+    missed = {uid: {"final_position_m": [round(v, 2) for v in s["uavs"][uid]["final_position_m"]],
+                    "z_offset_at_end_m": round(float(result.z_offset_m[-1, k]), 2)}
+              for k, uid in enumerate(result.uav_ids) if not reached[uid]}
+    return {
+        "seed": seed, "loss": loss,
+        "collisions": [{"t_s": round(c["t"], 2), "a": c["a"], "b": c["b"],
+                        "closest_m": round(c["distance_m"], 3)} for c in s["collisions"]],
+        "min_distance_m": s["min_distance_m"],
+        "closest": _closest(result),
+        "goals_reached": sum(reached.values()), "uavs": len(reached), "missed": missed,
+        "time_to_goal_s": goals,
+        "time_to_all_goals_s": (max(goals.values()) if all(v is not None for v in goals.values())
+                                else None),
+        "max_z_offset_m": max(u["max_z_offset_m"] for u in s["uavs"].values()),
+        "limit_violations": sum(u["limit_violations"] for u in s["uavs"].values()),
+        "tracker_fallbacks": sum(u["tracker_fallbacks"] for u in s["uavs"].values()),
+        "dropped_share": s["messages"]["dropped"] / max(1, s["messages"]["sent"]),
+        "wall_s": s["wall_s"],
+    }
+
+
+def _closest(result: WorldResult) -> dict[str, Any]:
+    """When and between whom the run's closest approach was."""
+    k = int(result.min_distance_m.argmin())
+    p = result.positions_m[k]
+    d = np.linalg.norm(p[:, None] - p[None], axis=2)
+    d[np.diag_indices_from(d)] = np.inf
+    a, b = np.unravel_index(int(d.argmin()), d.shape)
+    return {"t_s": round(float(result.t_s[k]), 2), "a": result.uav_ids[min(a, b)],
+            "b": result.uav_ids[max(a, b)], "distance_m": round(float(d[a, b]), 3)}
+
+
+def row(name: str, loss: float, runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One scenario × loss: the runs summed up."""
+    closest = [r["min_distance_m"] for r in runs]
+    done = [r["time_to_all_goals_s"] for r in runs if r["time_to_all_goals_s"] is not None]
+    return {
+        "scenario": name, "loss": loss, "runs": len(runs),
+        "duration_s": load(name).duration_s,
+        "runs_with_collision": sum(bool(r["collisions"]) for r in runs),
+        "closest_m_min": min(closest), "closest_m_median": statistics.median(closest),
+        "goals_reached": sum(r["goals_reached"] for r in runs),
+        "goals": sum(r["uavs"] for r in runs),
+        "time_to_all_goals_s_max": max(done) if done else None,
+        "time_to_all_goals_s_median": statistics.median(done) if done else None,
+        "max_z_offset_m": max(r["max_z_offset_m"] for r in runs),
+        "limit_violations": sum(r["limit_violations"] for r in runs),
+        "tracker_fallbacks": sum(r["tracker_fallbacks"] for r in runs),
+    }
+
+
+def _fmt(v: float | None, spec: str = ".1f") -> str:
+    return "—" if v is None else format(v, spec)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--loss", default="0,0.3",
+                        help="comma-separated loss probabilities in [0, 1)")
+    parser.add_argument("--scenarios", default=",".join(DENSE))
+    args = parser.parse_args()
+    if args.seeds < 1:
+        parser.error("--seeds: need at least 1")
+    try:
+        losses = [float(v) for v in args.loss.split(",")]
+    except ValueError:
+        parser.error(f"--loss: comma-separated numbers, got {args.loss!r}")
+    if not all(0.0 <= v < 1.0 for v in losses):
+        parser.error(f"--loss: each in [0, 1), got {args.loss!r}")
+    names = [v for v in args.scenarios.split(",") if v]
+    unknown = [v for v in names if v not in scenarios.BUILTIN and not _ANTIPODAL.match(v)]
+    if unknown:
+        parser.error(f"--scenarios: neither built-in nor antipodal_<N>: {', '.join(unknown)}")
+
+    wall0 = time.perf_counter()
+    rows, findings = [], []
+    print(f"{'scenario':24s} {'loss':>4s} {'coll':>5s} {'closest min/med [m]':>20s} "
+          f"{'goals':>9s} {'all goals max/med [s]':>22s} {'max dz [m]':>10s} {'dur [s]':>7s}",
+          flush=True)
+    for name in names:
+        for loss in losses:
+            runs = [fly(name, seed, loss) for seed in range(args.seeds)]
+            r = row(name, loss, runs)
+            rows.append({**r, "per_run": runs})
+            print(f"{name:24s} {loss:4.2f} {r['runs_with_collision']:>2d}/{r['runs']:<2d} "
+                  f"{r['closest_m_min']:>9.2f} / {r['closest_m_median']:<8.2f} "
+                  f"{r['goals_reached']:>4d}/{r['goals']:<4d} "
+                  f"{_fmt(r['time_to_all_goals_s_max']):>10s} / "
+                  f"{_fmt(r['time_to_all_goals_s_median']):<9s} "
+                  f"{r['max_z_offset_m']:>10.1f} {r['duration_s']:>7.0f}", flush=True)
+            for run in runs:
+                for c in run["collisions"]:
+                    findings.append(f"COLLISION {name} loss={loss:g} seed={run['seed']}: "
+                                    f"{c['a']}–{c['b']} at t={c['t_s']} s, closest "
+                                    f"{c['closest_m']} m")
+                for uid, m in run["missed"].items():
+                    findings.append(f"GOAL MISSED {name} loss={loss:g} seed={run['seed']}: {uid} "
+                                    f"ended at {m['final_position_m']}, z offset "
+                                    f"{m['z_offset_at_end_m']} m")
+    for f in findings:
+        print(f, flush=True)
+    print(f"({len(findings)} findings, {time.perf_counter() - wall0:.0f} s)", flush=True)
+    print(json.dumps({"seeds": args.seeds, "losses": losses, "rows": rows,
+                      "findings": findings}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,150 @@
+"""Dense and adversarial scenarios: the antipodal circle for any N, and when goals are reached.
+
+``antipodal(n)``: N UAVs evenly on a circle, all at one height, each flying a straight path to
+the point diametrically opposite its start, all at the same speed from the same time, so that
+every path crosses every other above the centre at once: the densest meeting N UAVs can be
+asked for. The built-ins ``antipodal_8`` and ``antipodal_12`` (``scenarios.load``) are
+``antipodal(8)`` and ``antipodal(12, duration_s=150)`` written out by :func:`antipodal_toml`;
+any other N: ``antipodal(n)``, e.g. ``World(antipodal(10)).run()``.
+
+Above one point, N UAVs need N layers: the reference parameters (``dz_m`` = 3 m under the
+ceiling ``max_offset_m`` = 30 m) give 11. Measured (benchmarks/sweep_dense.py): up to 11 fly
+clear; with 12, two end up in one layer and collide.
+
+Reaching a goal. The world's :class:`~uavmpc.drivers.world.UavOutcome` says whether a UAV
+*ended* within :data:`~uavmpc.drivers.world.GOAL_TOLERANCE_M` (3-D) of its goal.
+:func:`time_to_goals` says *when*, from the position traces: by default the time from which it
+stayed within the tolerance until the end (a UAV crossing its goal on the way, or hovering at
+it before being pushed off, has not reached it yet), else the first time it came within.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from uavmpc.config import ConfigError, positive
+from uavmpc.reference import Reference
+from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
+
+#: Same tolerance as the world's ``reached_goal`` (uavmpc.drivers.world.GOAL_TOLERANCE_M; not
+#: imported from there: the drivers import the scenarios; a test checks they agree).
+GOAL_TOLERANCE_M = 1.0
+#: Decimals the built-in TOML files carry (far below any physical scale of a flight).
+_DECIMALS = 12
+#: The antipodal circles' cruise: one speed for all, so that all meet above the centre at
+#: once (a goto would not do: the limits are per axis, so a UAV flying diagonally would be
+#: √2 faster and pass first). 6 m/s leaves the tracker 2.3 m/s below its 8.3 m/s limit to
+#: catch up with the path after the avoidance slowed it.
+SPEED_MPS = 6.0
+#: Everyone departs at once, after 2 s: each has broadcast a few predictions by then, so no one
+#: leaves unheard (as uavmpc.scenarios.traffic's departures).
+START_S = 2.0
+DURATION_S = 90.0
+
+
+def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
+              speed_mps: float = SPEED_MPS, start_s: float = START_S,
+              duration_s: float = DURATION_S, *, link: LinkSettings | None = None) -> Scenario:
+    """N UAVs on a circle of ``radius_m`` [m] around the origin at ``height_m`` [m], UAV i
+    (``uav{i+1}``, priority i + 1) at the angle 2πi/N, heading the way it will fly; each flies
+    a straight path to the opposite point at ``speed_mps`` [m/s] from ``start_s`` [s].
+    ``duration_s`` [s] is the run's length."""
+    if isinstance(n_uavs, bool) or not isinstance(n_uavs, int) or not 2 <= n_uavs <= 1000:
+        raise ConfigError(f"uavs: must be an integer in [2, 1000], got {n_uavs!r}")
+    radius = positive(radius_m, "radius_m", upper=1e4)
+    height = positive(height_m, "height_m", upper=1e4)
+    speed = positive(speed_mps, "speed_mps", upper=100.0)
+    start = positive(start_s, "start_s", upper=3600.0, allow_zero=True)
+    duration = positive(duration_s, "duration_s", upper=7 * 24 * 3600.0)
+    # Neighbours closer than a collision at the start are a set-up error, not a conflict.
+    gap = 2.0 * radius * math.sin(math.pi / n_uavs)
+    if gap < 2.0:
+        raise ConfigError(f"radius_m: {n_uavs} UAVs on a {radius:g} m circle start "
+                          f"{gap:.2f} m apart, need ≥ 2 m")
+    uavs = []
+    for i in range(n_uavs):
+        a = 2.0 * math.pi * i / n_uavs
+        x = round(radius * math.cos(a), _DECIMALS) + 0.0  # + 0.0: no −0.0 in the files
+        y = round(radius * math.sin(a), _DECIMALS) + 0.0
+        heading = round(math.atan2(-y, -x), _DECIMALS) + 0.0
+        here, there = (x, y, height), (-x + 0.0, -y + 0.0, height)
+        # As the scenario loader builds a [uavs.path]: the built-in files fly the same.
+        mission = Reference.along_path(np.array([here, there]), speed, start)
+        goal = tuple(float(v) for v in mission.points[-1, :3])
+        uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550", here, heading, mission,
+                            (goal[0], goal[1], goal[2])))
+    return Scenario(f"antipodal_{n_uavs}", duration, tuple(uavs),
+                    link if link is not None else LinkSettings())
+
+
+def antipodal_toml(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
+                   speed_mps: float = SPEED_MPS, start_s: float = START_S,
+                   duration_s: float = DURATION_S) -> str:
+    """:func:`antipodal`'s scenario as a scenario file's text (how the built-ins were
+    written: ``antipodal_toml(8)``)."""
+    sc = antipodal(n_uavs, radius_m, height_m, speed_mps, start_s, duration_s)
+
+    def num(v: float) -> str:
+        return repr(float(v))
+
+    gap = 2.0 * radius_m * math.sin(math.pi / n_uavs)
+    lines = [f"# {n_uavs} UAVs evenly on a circle of radius {radius_m:g} m at {height_m:g} m "
+             f"(neighbours {gap:.1f} m apart), each",
+             f"# flying straight to the diametrically opposite point at {speed_mps:g} m/s, all "
+             f"from t = {start_s:g} s: every",
+             "# path crosses every other above the origin at the same time, in one layer.",
+             f"# Written by uavmpc.scenarios.dense.antipodal_toml({n_uavs}).",
+             f'name = "{sc.name}"', f"duration_s = {num(sc.duration_s)}", "",
+             "[link]", f"latency_s = {num(sc.link.latency_s)}",
+             f"jitter_s = {num(sc.link.jitter_s)}", f"loss = {num(sc.link.loss)}"]
+    for u in sc.uavs:
+        here = ", ".join(num(v) for v in u.start_m)
+        x, y, z = u.start_m
+        there = ", ".join(num(v) for v in (-x + 0.0, -y + 0.0, z))
+        lines += ["", "[[uavs]]", f'id = "{u.uav_id}"', f"priority = {u.priority}",
+                  f'airframe = "{u.airframe}"', f"start = [{here}]",
+                  f"heading_rad = {num(u.heading_rad)}", "[uavs.path]",
+                  f"waypoints = [[{here}], [{there}]]",
+                  f"speed_mps = {num(speed_mps)}", f"start_s = {num(start_s)}"]
+    return "\n".join(lines) + "\n"
+
+
+def time_to_goals(result: Any, scenario: Scenario, *, settled: bool = True,
+                  tolerance_m: float = GOAL_TOLERANCE_M) -> dict[str, float | None]:
+    """Per UAV id, when it reached its goal [s, the world's clock], from
+    ``result.positions_m`` (K, N, 3) and ``result.t_s`` (K,) of a
+    :class:`~uavmpc.drivers.world.WorldResult` (any object with those two arrays).
+
+    ``settled`` (default): the first sample from which it stayed within ``tolerance_m`` [m]
+    (3-D) of its goal to the end; None if it ended outside. Else: the first sample within; None
+    if never. None too for a UAV whose mission sets its way (a lander, a formation's
+    follower: its ``reached_goal`` is None)."""
+    tol = positive(tolerance_m, "tolerance_m", upper=1e4)
+    t, pos, ids, per_uav = result.t_s, result.positions_m, result.uav_ids, result.per_uav
+    goals = {u.uav_id: np.asarray(u.goal_m) for u in scenario.uavs}
+    if set(ids) != set(goals):
+        raise ValueError(f"the result's UAVs {sorted(ids)} are not the scenario's "
+                         f"{sorted(goals)}")
+    out: dict[str, float | None] = {}
+    for i, uid in enumerate(ids):
+        if per_uav[uid].reached_goal is None:
+            out[uid] = None
+            continue
+        within = np.linalg.norm(pos[:, i] - goals[uid], axis=1) < tol
+        if settled:
+            if not within[-1]:
+                out[uid] = None
+                continue
+            outside = np.flatnonzero(~within)
+            k = int(outside[-1]) + 1 if outside.size else 0
+        else:
+            hits = np.flatnonzero(within)
+            if not hits.size:
+                out[uid] = None
+                continue
+            k = int(hits[0])
+        out[uid] = float(t[k])
+    return out

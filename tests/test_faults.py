@@ -1,0 +1,120 @@
+"""Faults in the world and the campaign: seeded draws, silent radios, GNSS estimates."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from uavmpc.apps.campaign import run_campaign
+from uavmpc.apps.cli import main
+from uavmpc.config import ConfigError
+from uavmpc.drivers.world import World, world_faults
+from uavmpc.scenarios.faults import FaultSpec, draw_faults
+from uavmpc.scenarios.random_walk import random_walk, waypoints_reached
+
+IDS = [f"uav{i}" for i in range(1, 6)]
+
+
+def test_draws_are_seeded_separate_and_within_their_bounds() -> None:
+    spec = FaultSpec(clock_offset_s=0.5, non_cooperative=1, silent=2)
+    a = draw_faults(spec, IDS, 600.0, 0.0, seed=11)
+    assert a == draw_faults(spec, IDS, 600.0, 0.0, seed=11)
+    assert a != draw_faults(spec, IDS, 600.0, 0.0, seed=12)
+    assert a.clock_offsets_s is not None and all(abs(o) <= 0.5 for o in a.clock_offsets_s)
+    assert len(a.non_cooperative) == 1 and len(a.silent_from_s) == 2
+    assert not set(a.non_cooperative) & set(a.silent_from_s)  # a UAV has one fault of these
+    assert all(0.0 <= t <= 600.0 for t in a.silent_from_s.values())
+    assert draw_faults(FaultSpec(), IDS, 600.0, 0.0, 11).summary() == {}
+    world = World(random_walk(5, duration_s=10.0, seed=1), **world_faults(a))
+    assert world.non_cooperative == a.non_cooperative
+    assert world.silent_from_s == a.silent_from_s
+    assert [u.clock_offset_s for u in world.uavs] == list(a.clock_offsets_s)
+
+
+@pytest.mark.parametrize(("kw", "needle"), [
+    ({"clock_offset_s": -1.0}, "clock_offset_s"), ({"clock_offset_s": float("nan")}, "clock"),
+    ({"gnss": "dgps"}, "gnss"), ({"burst_len": 0.5}, "burst_len"),
+    ({"time_reference": "gps"}, "time_reference"), ({"silent": -1}, "silent"),
+    ({"non_cooperative": 1.5}, "non_cooperative"),
+])
+def test_bad_fault_specs_name_the_field(kw, needle) -> None:
+    with pytest.raises(ConfigError, match=needle):
+        FaultSpec(**kw)
+    with pytest.raises(ConfigError, match="leaves none cooperative"):
+        FaultSpec(non_cooperative=5).check_uavs(5)
+
+
+def test_a_silent_radio_sends_nothing_from_its_time_on_and_its_uav_flies_on() -> None:
+    sc = random_walk(3, duration_s=20.0, seed=4)
+    world = World(sc, seed=1, silent_from_s={"uav2": 8.0})
+    res = world.run(20.0)
+    assert world.silenced == pytest.approx(24, abs=1)  # 2 Hz for the last 12 s
+    heard = world.uavs[0].stack.inbox.latest["uav2"]
+    assert 7.0 < heard.stamp_s < 8.0  # the last prediction before the radio died
+    clean = World(sc, seed=1).run(20.0)
+    # uav2 itself flies its mission (its own stack never knew); at first the same flight.
+    k = np.searchsorted(res.t_s, 8.0)
+    assert np.array_equal(res.positions_m[:k], clean.positions_m[:k])
+    assert np.linalg.norm(res.positions_m[-1, 1] - clean.positions_m[-1, 1]) < 3.0
+    with pytest.raises(ValueError, match="'uav9' not UAVs"):
+        World(sc, silent_from_s={"uav9": 1.0})
+
+
+def test_gnss_estimates_are_flown_the_same_batched_or_uav_by_uav() -> None:
+    sc = random_walk(3, duration_s=15.0, seed=5)
+    a = World(sc, seed=2, gnss="rtk")
+    ra = a.run(15.0)
+    rb = World(sc, seed=2, gnss="rtk", batched=False).run(15.0)
+    assert np.array_equal(ra.positions_m, rb.positions_m)
+    true = a.plants.x[:, 0:3]
+    err = np.linalg.norm(a.estimator.estimate[:, 0:3] - true, axis=1)
+    assert np.all(err < 0.1)  # RTK: centimetres
+    s = World(sc, seed=2, gnss="single")
+    s.run(15.0)
+    err = np.linalg.norm(s.estimator.estimate[:, 0:3] - s.plants.x[:, 0:3], axis=1)
+    assert np.all(err < 10.0) and np.any(err > 0.2)  # metres, and not the truth
+    assert not np.array_equal(ra.positions_m, World(sc, seed=2).run(15.0).positions_m)
+
+
+def test_waypoints_reached_counts_misses() -> None:
+    sc = random_walk(2, duration_s=60.0, seed=3)
+    res = World(sc, seed=1).run(60.0)
+    reached, due = waypoints_reached(sc, res.t_s, res.positions_m)
+    assert due >= 4 and reached == due
+    # A UAV that never moves reaches only the waypoint it starts at, if any.
+    still = np.repeat(res.positions_m[:1], len(res.t_s), axis=0)
+    assert waypoints_reached(sc, res.t_s, still)[0] < due
+
+
+def test_a_campaign_with_faults_records_them_and_counts_goals(tmp_path) -> None:
+    spec = FaultSpec(clock_offset_s=0.5, time_reference="receive", burst_len=3.0,
+                     non_cooperative=1, silent=1)
+    r = run_campaign(tmp_path / "c", trials=2, workers=1, trial_s=20.0, loss=0.3, faults=spec,
+                     progress=False)
+    assert r["parameters"]["faults"] == spec.active()
+    assert r["waypoints_due"] > 0 and 0 <= r["waypoints_reached"] <= r["waypoints_due"]
+    trials = [json.loads(line) for line in (tmp_path / "c" / "trials.jsonl").read_text()
+              .splitlines()]
+    assert len({t["faults"]["non_cooperative_uavs"][0] for t in trials}) >= 1
+    assert all(len(t["faults"]["clock_offsets_s"]) == 5 for t in trials)
+    assert "faults" in (tmp_path / "c" / "report.md").read_text()
+    # The same campaign with 2 workers: the same records (but wall times).
+    r2 = run_campaign(tmp_path / "c2", trials=2, workers=2, trial_s=20.0, loss=0.3,
+                      faults=spec, progress=False)
+    assert r2["min_distance_m"] == r["min_distance_m"]
+    assert r2["waypoints_reached"] == r["waypoints_reached"]
+    with pytest.raises(ConfigError, match="burst loss needs a loss rate"):
+        run_campaign(tmp_path / "c3", trials=1, faults=FaultSpec(burst_len=3.0),
+                     progress=False)
+
+
+def test_the_fault_flags_reach_a_run(tmp_path, capsys) -> None:
+    out = tmp_path / "run"
+    assert main(["run", "swap_through_static", "--out", str(out), "--duration", "10",
+                 "--gnss", "rtk", "--clock-offset", "0.2", "--silent", "1"]) == 0
+    faults = json.loads((out / "summary.json").read_text())["faults"]
+    assert faults["gnss"] == "rtk" and len(faults["silent_from_s"]) == 1
+    assert main(["run", "swap_through_static", "--out", str(out), "--burst-loss", "3"]) == 2
+    assert "--burst-loss needs a loss rate" in capsys.readouterr().err
