@@ -481,3 +481,18 @@ def test_a_climb_raised_again_mid_climb_starts_from_where_the_uav_is() -> None:
         decisions[climbed] = s.decide(100.0, "me", 5, 100.0 + times, known, climbed_m=climbed)
     assert decisions[3.0].z_offset_m == 6.0 and not decisions[3.0].waiting_for
     assert decisions[0.0].z_offset_m == 3.0 and decisions[0.0].waiting_for == ("b",)
+
+
+def test_a_geofence_ceiling_caps_the_offset_and_says_so() -> None:
+    a, b = head_on()
+    t = NOW + REL
+    lo = HeightOffsetStrategy()
+    lo.limit_offset(2.0)  # less than one layer (dz 3 m) under the volume's ceiling
+    d = lo.update(NOW, "b", 2, t, b, {"a": msg("a", 1, a)})
+    assert d.z_offset_m == 0.0 and d.ceiling_hit and d.unresolved == ("a",)
+    lo = HeightOffsetStrategy()
+    lo.limit_offset(3.0)  # exactly one layer: it fits
+    d = lo.update(NOW, "b", 2, t, b, {"a": msg("a", 1, a)})
+    assert d.z_offset_m == 3.0 and not d.ceiling_hit
+    with pytest.raises(ValueError, match="ceiling_m"):
+        lo.limit_offset(float("nan"))
