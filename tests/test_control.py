@@ -15,7 +15,8 @@ from oracles import AttitudeController, Mixer, Se3Oracle
 
 from uavmpc.config import ConfigError
 from uavmpc.control import ControlRows, Se3Controller, se3_row
-from uavmpc.plant import G_MPS2, Airframe, GnssNoise, VehicleState, Wind
+from uavmpc.estimation.receiver import GnssNoise
+from uavmpc.plant import G_MPS2, Airframe, VehicleState, Wind
 from uavmpc.plant.attitude import attitude_kernel, mix, mixer_matrices, pack_attitude_gains
 from uavmpc.plant.interface import quat_to_rot, rot_to_quat, yaw_quat
 from uavmpc.plant.multirotor import Multirotor

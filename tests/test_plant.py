@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from oracles import MultirotorOracle
 
+from uavmpc.estimation.receiver import GnssNoise
 from uavmpc.plant import (
     G_MPS2,
     Airframe,
     AttitudeTarget,
-    GnssNoise,
     Plant,
     PlantRows,
     VehicleState,

@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from uavmpc.estimation.receiver import GnssNoise
 from uavmpc.onboard import OnboardStack
-from uavmpc.plant import Airframe, GnssNoise, Wind
+from uavmpc.plant import Airframe, Wind
 from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import Reference

@@ -12,7 +12,13 @@ the caller, compiled kernels (``*_step``, ``observer_*``) over all rows and thei
 versions (``*_row``) for a caller's own compiled loop. Random numbers are drawn by the caller
 from its seeded generator and passed in, so the kernels are pure functions of their arguments.
 
-The package depends on nothing of uavmpc but its configuration helpers and :mod:`uavmpc.jit`.
+- :mod:`~uavmpc.estimation.fleet`: :class:`FleetEstimator`, the sensors and observers of a
+  world's UAVs, one call per tick (``World(gnss=...)``);
+- :mod:`~uavmpc.estimation.receiver`: :class:`GnssNoise`, one receiver on one vehicle (a
+  one-row view of the GNSS law, for single-UAV flights).
+
+The laws depend on nothing of uavmpc but its configuration helpers and :mod:`uavmpc.jit`; the
+receiver view reads a vehicle's state (:class:`~uavmpc.plant.VehicleState`).
 """
 
 from __future__ import annotations

@@ -23,7 +23,6 @@ from uavmpc.plant.kernels import (
 )
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.plant.rows import PlantRows, copy_row
-from uavmpc.plant.sensors import GnssNoise
 from uavmpc.plant.wind import Wind
 
 __all__ = [
@@ -32,7 +31,6 @@ __all__ = [
     "Airframe",
     "AttitudeGains",
     "AttitudeTarget",
-    "GnssNoise",
     "Multirotor",
     "Plant",
     "PlantRows",
