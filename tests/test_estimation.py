@@ -299,6 +299,10 @@ def test_observer_beats_raw_gnss_and_is_consistent(preset: str) -> None:
     imu = ImuModel()
     n = 200
     got = fly(gnss, imu, ObserverParams(gnss, imu), n, 300.0, seed=1)
+    # The figures of docs/faults.md (pytest -s shows them).
+    print(f"\n{preset}: position RMS raw {np.round(got.raw_p, 4)} m, estimate "
+          f"{np.round(got.est_p, 4)} m; velocity RMS estimate {np.round(got.est_v, 4)} m/s; "
+          f"time-averaged NEES {np.mean(got.nees_rows):.2f} (6 expected)")
     pos_ratio, vh, vv, jump_ratio, jump_v = BOUNDS[preset]
     assert np.all(got.est_p < pos_ratio * got.raw_p), (got.est_p, got.raw_p)
     assert np.all(got.est_v[:2] < vh) and got.est_v[2] < vv, got.est_v
