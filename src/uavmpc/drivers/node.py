@@ -75,12 +75,17 @@ def parse_mission(payload: bytes, now_s: float) -> Reference:
             field. The payload comes from the network: it reaches numpy only once every value
             is known to be a finite number, so nothing else is ever raised from inside.
     """
-    from uavmpc.reference import MAX_POINTS, MIN_SAMPLE_PERIOD_S
+    from uavmpc.reference import (
+        MAX_ABS_HEADING_RAD,
+        MAX_ABS_TIME_S,
+        MAX_POINTS,
+        MIN_SAMPLE_PERIOD_S,
+    )
 
-    # Bounds that keep every stamp (and a looping reference's closing knot, one period after
-    # the last) finite: Unix time up to about the year 5000, at most one point an hour, and
-    # headings whose differences cannot overflow when they are unwrapped (≈ 160 000 turns).
-    max_abs_time_s, max_period_s, max_abs_heading_rad = 1.0e11, 3600.0, 1.0e6
+    # The reference's own bounds on stamps and headings (checked here first, to name the
+    # mission's field), and at most one point an hour.
+    max_abs_time_s, max_abs_heading_rad = MAX_ABS_TIME_S, MAX_ABS_HEADING_RAD
+    max_period_s = 3600.0
     float_max = float(np.finfo(float).max)
     fields = ("goto", "points", "sample_period_s", "start_s", "loop")
 
