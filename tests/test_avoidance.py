@@ -210,13 +210,18 @@ def test_uav_with_its_flag_down_is_yielded_to_whatever_its_priority() -> None:
     assert d.z_offset_m == 0.0 and d.conflicts == ("x",) and d.yielding_to == ()
 
 
-def test_stale_and_own_messages_are_ignored() -> None:
+def test_own_messages_and_those_too_old_or_from_the_future_are_ignored() -> None:
     a, b = head_on()
     t = NOW + REL
     s = HeightOffsetStrategy()
-    old = msg("a", 1, b, stamp=NOW - 1.05)
-    assert s.update(NOW, "b", 2, t, a, {"a": old}).conflicts == ()
+    gone = msg("a", 1, b, stamp=NOW - P.silent_hold_s - 0.05)
+    assert s.update(NOW, "b", 2, t, a, {"a": gone}).conflicts == ()
+    ahead = msg("a", 1, b, stamp=NOW + 1.05, times=t)
+    assert s.update(NOW, "b", 2, t, a, {"a": ahead}).conflicts == ()
     assert s.update(NOW, "b", 2, t, a, {"b": msg("b", 1, b)}).conflicts == ()
+    # Stale but recent (silent): its last plan still counts.
+    silent = msg("a", 1, b, stamp=NOW - 1.05)
+    assert HeightOffsetStrategy().update(NOW, "b", 2, t, a, {"a": silent}).conflicts == ("a",)
     fresh = msg("a", 1, b, stamp=NOW - 0.95)
     assert s.update(NOW, "b", 2, t, a, {"a": fresh}).conflicts == ("a",)
 
@@ -451,6 +456,57 @@ def test_a_new_offset_must_be_clear_of_silent_uavs_too() -> None:
     gone = msg("u2", 2, hover((2.0, 0.0, 13.0)), stamp=NOW - 11.0)
     d = HeightOffsetStrategy().update(NOW, "o", 5, NOW + REL, own, {"h": h, "u2": gone})
     assert d.z_offset_m == 3.0 and d.silent == ()
+
+
+def test_a_silent_uav_counts_where_it_can_have_gone_since_its_last_plan() -> None:
+    """Found in the 24 h campaign with burst loss (trial 25): uav5 hovered at a waypoint 9 m
+    beside uav3's announced path; neither heard the other for 5 s, uav5 set off for its next
+    waypoint across that path, and they met head-on. Stale for 3 s (4 s old, the timeout 1 s),
+    uav5 may be anywhere within 2 · a · t² (capped by twice the speed) of its last plan:
+    uav3's path is within reach, so the UAV that must yield climbs, and the other slows
+    down. Just stale (1.1 s old), the plan counts as announced."""
+    path = line(NOW + REL, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0))  # uav3, still heard
+    beside = hover((0.0, 9.0, 10.0))  # uav5's last plan, 9 m off the path
+    t = NOW + REL
+    # Fresh, uav5's plan is clear of the path (9 m > R_p) ...
+    d = HeightOffsetStrategy().update(NOW, "uav5", 5, t, beside, {"uav3": msg("uav3", 3, path)})
+    assert d.conflicts == () and d.z_offset_m == 0.0
+    # ... but when uav5 has not heard uav3 for 4 s, it cannot know uav3 kept to it.
+    old_path = line(NOW - 4.0 + REL, (-40.0, 0.0, 10.0), (5.0, 0.0, 0.0), t0=NOW - 4.0)
+    d = HeightOffsetStrategy().update(NOW, "uav5", 5, t, beside,
+                                      {"uav3": msg("uav3", 3, old_path, stamp=NOW - 4.0)})
+    assert d.silent == ("uav3",) and d.yielding_to == ("uav3",) and d.z_offset_m == 3.0
+    # uav3 has not heard uav5 for 4 s either: it keeps its height and slows down.
+    silent_beside = hover((0.0, 9.0, 10.0))
+    d = HeightOffsetStrategy().update(NOW, "uav3", 3, t, path,
+                                      {"uav5": msg("uav5", 5, silent_beside, stamp=NOW - 4.0)})
+    assert d.conflicts == ("uav5",) and d.z_offset_m == 0.0
+    assert d.horizontal_scale == P.horizontal_scale
+    just = HeightOffsetStrategy().update(NOW, "uav3", 3, t, path,
+                                         {"uav5": msg("uav5", 5, silent_beside, stamp=NOW - 1.1)})
+    assert just.silent == ("uav5",) and just.conflicts == ()
+    # Without the widening (the limits 0), the silent plan is taken as it was announced.
+    still = HeightOffsetStrategy(replace(P, silent_speed_mps=0.0))
+    d = still.update(NOW, "uav5", 5, t, beside,
+                     {"uav3": msg("uav3", 3, old_path, stamp=NOW - 4.0)})
+    assert d.conflicts == () and d.z_offset_m == 0.0
+
+
+def test_a_climb_ends_clear_of_everyone_when_it_can() -> None:
+    """Found in the 24 h campaign with burst loss (trial 24): uav3, yielding to uav2, took the
+    lowest layer clear of uav2, which was uav4's; uav4 (the lower priority, which should have
+    made way) had not heard uav3 for 3 s and flew on into it. A layer clear of everyone is
+    taken when there is one; the lower one only when there is none."""
+    t = NOW + REL
+    own = line(t, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0))
+    h = msg("h", 1, hover((5.0, 0.0, 10.0)))  # we must yield: conflict 4–6 s ahead
+    low = msg("l", 4, line(t, (40.0, 0.0, 13.0), (-5.0, 0.0, 0.0)))  # +3 m, meets us at 5.5 s
+    d = HeightOffsetStrategy().update(NOW, "o", 3, t, own, {"h": h, "l": low})
+    assert d.yielding_to == ("h",) and d.z_offset_m == 6.0
+    # Without l, +3 m; with l the only way under the ceiling, +3 m too.
+    assert HeightOffsetStrategy().update(NOW, "o", 3, t, own, {"h": h}).z_offset_m == 3.0
+    capped = HeightOffsetStrategy(replace(P, max_offset_m=5.0))
+    assert capped.update(NOW, "o", 3, t, own, {"h": h, "l": low}).z_offset_m == 3.0
 
 
 def test_a_climb_raised_again_mid_climb_starts_from_where_the_uav_is() -> None:

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
-from uavmpc.avoidance.encounters import EncounterFinder
+from uavmpc.avoidance.encounters import EncounterFinder, silent_reach_m
 from uavmpc.avoidance.proximity import align
 from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.message import InvalidMessageError, PredictionMessage, encode
@@ -50,10 +50,16 @@ def _world_table(seed: int, n: int, area_m: float, receive: bool):
     return table, own_t, own_p, np.full(n, now), ids
 
 
+#: The silent senders' limits (their cylinders widen with their messages' ages).
+SILENT_SPEED_MPS, SILENT_ACCEL_MPS2 = 8.3, 2.5
+
+
 def _find(table, own_t, own_p, now, radius, overrides, use_index: bool):
     finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0,
                              use_received=table.time_reference == "receive",
-                             use_index=use_index, cell_m=None)
+                             silent_speed_mps=SILENT_SPEED_MPS,
+                             silent_accel_mps2=SILENT_ACCEL_MPS2, use_index=use_index,
+                             cell_m=None)
     due = np.arange(own_t.shape[0])
     return finder.find(due, own_t, own_p, now, radius, overrides)
 
@@ -87,13 +93,14 @@ def test_the_index_finds_exactly_the_encounters_of_the_all_pairs_comparison(
 @given(seed=st.integers(0, 10_000), n=st.integers(2, 30), area=st.floats(10.0, 300.0))
 def test_the_box_test_prunes_only_senders_that_never_come_near(seed, n, area) -> None:
     """Against the alignment of every held message (no box, no index): a sender is an
-    encounter exactly when some aligned point is horizontally within the radius."""
+    encounter exactly when some aligned point is horizontally within the radius, widened for a
+    silent one by how far it can have gone since (silent ones first, then the fresh ones)."""
     table, own_t, own_p, now, ids = _world_table(seed, n, area, False)
     radius = 5.0
     found = _find(table, own_t, own_p, now, np.full(n, radius), None, True)
     st_ = table.store
     for r in range(n):
-        expect = []
+        silent, fresh = [], []
         for col in range(len(ids)):
             slot = table.rows.held_slot[r, col]
             if slot < 0:
@@ -101,13 +108,31 @@ def test_the_box_test_prunes_only_senders_that_never_come_near(seed, n, area) ->
             age = now[r] - st_.stamp_s[slot]
             if abs(age) > 1.0 and not 0.0 < age <= 10.0:
                 continue
+            widen = 0.0 if abs(age) <= 1.0 else silent_reach_m(age - 1.0, SILENT_SPEED_MPS,
+                                                                 SILENT_ACCEL_MPS2)
             k = st_.points[slot]
             aligned, known = align(st_.times_s[slot, :k], st_.positions_m[slot, :k], own_t[r],
                                    1.0)
             d2 = ((aligned[:, :2] - own_p[r, :, :2]) ** 2).sum(axis=1)
-            if np.any(known & (d2 <= radius**2)):
-                expect.append(ids[col])
-        assert list(found[r].ids) == expect
+            if np.any(known & (d2 <= (radius + widen) ** 2)):
+                (fresh if abs(age) <= 1.0 else silent).append(ids[col])
+        assert list(found[r].ids) == silent + fresh
+        assert list(found[r].silent_row) == [True] * len(silent) + [False] * len(fresh)
+
+
+def test_a_silent_plan_widens_by_how_far_its_uav_can_have_left_it() -> None:
+    """Plan and path part at twice the acceleration, then at twice the speed (one accelerates
+    where the other brakes); nothing before the message's age is known to have passed."""
+    v, a = 8.3, 2.5
+    assert silent_reach_m(0.0, v, a) == 0.0
+    assert silent_reach_m(-1.0, v, a) == 0.0
+    assert silent_reach_m(2.0, v, a) == pytest.approx(2 * 0.5 * a * 2.0**2)
+    t_a = v / a
+    assert silent_reach_m(t_a + 1.0, v, a) == pytest.approx(v**2 / a + 2 * v)
+    ages = np.linspace(0.0, 12.0, 200)
+    reach = np.array([silent_reach_m(t, v, a) for t in ages])
+    assert np.all(np.diff(reach) > 0)  # it only grows
+    assert silent_reach_m(5.0, 0.0, a) == 0.0 == silent_reach_m(5.0, v, 0.0)  # turned off
 
 
 def test_update_from_messages_and_decide_from_a_table_agree() -> None:

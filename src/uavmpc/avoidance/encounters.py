@@ -195,9 +195,60 @@ def grid_candidates(rows: InboxRows, store: Store, r: int, box: np.ndarray, cell
 
 
 @kernel
+def silent_reach_m(age_s: float, speed_mps: float, accel_mps2: float) -> float:
+    """How far a UAV can have left the plan it announced ``age_s`` ago [m], flying within
+    horizontal limits ``speed_mps`` and ``accel_mps2``: its path and its plan start from the
+    same state, so they part at most at twice the acceleration, up to twice the speed (one
+    accelerates where the other brakes). 0 when either limit is 0."""
+    if age_s <= 0.0 or speed_mps <= 0.0 or accel_mps2 <= 0.0:
+        return 0.0
+    t_a = speed_mps / accel_mps2
+    if age_s <= t_a:
+        return accel_mps2 * age_s * age_s
+    return accel_mps2 * t_a * t_a + 2.0 * speed_mps * (age_s - t_a)
+
+
+@kernel
+def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
+               radius: float, extrapolate_s: float, box_own: np.ndarray, own_times: np.ndarray,
+               own_pos: np.ndarray, box: np.ndarray, shifted: np.ndarray, near: np.ndarray,
+               dz: np.ndarray, ne: int, e_col: np.ndarray, e_silent: np.ndarray,
+               e_near: np.ndarray, e_dz: np.ndarray) -> int:
+    """Row ``r``'s message from ``col`` against our plan (box test, then the cylinder's
+    horizontal test at ``radius``); written as encounter row ``ne`` when it comes near (and
+    fits the outputs). Returns the new row count."""
+    slot = rows.held_slot[r, col]
+    _inflated_box(store, slot, extrapolate_s, box)
+    reach = radius + BOX_MARGIN_M
+    if (box[0] - reach > box_own[1] or box[1] + reach < box_own[0]
+            or box[2] - reach > box_own[3] or box[3] + reach < box_own[2]):
+        return ne
+    n = store.points[slot]
+    stamp = rows.held_stamp_s[r, col]
+    # With the receive-time fallback the prediction is moved onto our clock: its stamp is
+    # taken to be the moment we received it (error: the link latency).
+    for k in range(n):
+        shifted[k] = store.times_s[slot, k] + (ref - stamp)
+    near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s, own_pos,
+                radius, near, dz)
+    hit = False
+    for k in range(near.shape[0]):
+        hit = hit or near[k]
+    if not hit:
+        return ne
+    if ne < e_col.shape[0]:
+        e_col[ne] = col
+        e_silent[ne] = silent
+        e_near[ne] = near
+        e_dz[ne] = dz
+    return ne + 1
+
+
+@kernel
 def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np.ndarray,
                    own_pos: np.ndarray, now_s: np.ndarray, timeout_s: float,
-                   silent_hold_s: float, use_received: bool, radius_m: np.ndarray,
+                   silent_hold_s: float, use_received: bool, silent_speed_mps: float,
+                   silent_accel_mps2: float, radius_m: np.ndarray,
                    ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
                    use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
                    e_silent: np.ndarray, e_near: np.ndarray, e_dz: np.ndarray,
@@ -207,16 +258,21 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
     (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``).
 
-    Per receiver, as :class:`Encounters` rows in column order: ``e_col``, ``e_silent``,
-    ``e_near`` (·, m), ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``; and every
-    silent column in ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time
-    reference (stamp, or its receive time with ``use_received``) is within ``timeout_s`` of
-    now; a stale one is "silent" when it is at most ``silent_hold_s`` old, else ignored.
-    Returns (encounter rows, silent entries); when either exceeds its output's capacity,
-    nothing is written past it and the caller retries with larger outputs."""
+    Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
+    ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders first, then
+    the fresh ones, each in column order; and every silent column in
+    ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
+    its receive time with ``use_received``) is within ``timeout_s`` of now; a stale one is
+    "silent" when it is at most ``silent_hold_s`` old, else ignored. A silent sender's
+    cylinder is widened by :func:`silent_reach_m` of the time since its message went stale
+    (its age minus ``timeout_s``; at ``silent_speed_mps``, ``silent_accel_mps2``): it may have
+    left that plan since, and nobody has heard where to. (Within ``timeout_s`` a plan is
+    taken as it is: the next one is due.) Returns (encounter rows, silent entries); when
+    either exceeds its output's capacity, nothing is written past it and the caller retries
+    with larger outputs."""
     m = own_times.shape[1]
     n_cols = rows.held_slot.shape[1]
-    cap_e, cap_s = e_col.shape[0], s_col.shape[0]
+    cap_s = s_col.shape[0]
     ne = 0
     ns = 0
     box_own = np.empty(4)
@@ -235,20 +291,31 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
         now = now_s[j]
         e_start[j] = ne
         s_start[j] = ns
+        _own_box(own_pos[j], box_own)
         # Silence is a property of the sender's last message, near or not (the release waits
-        # for every silent UAV heard from recently).
+        # for every silent UAV heard from recently). Silent senders are looked at here, all of
+        # them: their widened cylinders reach beyond the index's boxes.
         for col in range(n_cols):
-            slot = rows.held_slot[r, col]
-            if slot < 0:
+            if rows.held_slot[r, col] < 0:
                 continue
-            if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) == _SILENT:
-                if ns < cap_s:
-                    s_col[ns] = col
-                ns += 1
+            if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) != _SILENT:
+                continue
+            if ns < cap_s:
+                s_col[ns] = col
+            ns += 1
+            radius = radius_m[j]
+            for o in range(ov_start[j], ov_start[j + 1]):
+                if ov_col[o] == col:
+                    radius = ov_radius[o]
+            ref = _reference_s(rows, r, col, use_received)
+            radius += silent_reach_m(now - ref - timeout_s, silent_speed_mps,
+                                     silent_accel_mps2)
+            ne = _encounter(rows, store, r, col, True, ref, radius, timeout_s, box_own,
+                            own_times[j], own_pos[j], box, shifted, near, dz, ne, e_col,
+                            e_silent, e_near, e_dz)
         r_max = radius_m[j]
         for o in range(ov_start[j], ov_start[j + 1]):
             r_max = max(r_max, ov_radius[o])
-        _own_box(own_pos[j], box_own)
         if use_index:
             for a in range(4):
                 box[a] = box_own[a] + (r_max + BOX_MARGIN_M) * (1.0 if a % 2 else -1.0)
@@ -262,40 +329,15 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                     n_cand += 1
         for c in range(n_cand):
             col = cand[c]
-            slot = rows.held_slot[r, col]
-            standing = _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s)
-            if standing == _IGNORED:
+            if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) != _FRESH:
                 continue
-            silent = standing == _SILENT
-            stamp = rows.held_stamp_s[r, col]
-            ref = _reference_s(rows, r, col, use_received)
             radius = radius_m[j]
             for o in range(ov_start[j], ov_start[j + 1]):
                 if ov_col[o] == col:
                     radius = ov_radius[o]
-            _inflated_box(store, slot, timeout_s, box)
-            reach = radius + BOX_MARGIN_M
-            if (box[0] - reach > box_own[1] or box[1] + reach < box_own[0]
-                    or box[2] - reach > box_own[3] or box[3] + reach < box_own[2]):
-                continue
-            n = store.points[slot]
-            # With the receive-time fallback the prediction is moved onto our clock: its stamp
-            # is taken to be the moment we received it (error: the link latency).
-            for k in range(n):
-                shifted[k] = store.times_s[slot, k] + (ref - stamp)
-            near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times[j], timeout_s,
-                        own_pos[j], radius, near, dz)
-            hit = False
-            for k in range(m):
-                hit = hit or near[k]
-            if not hit:
-                continue
-            if ne < cap_e:
-                e_col[ne] = col
-                e_silent[ne] = silent
-                e_near[ne] = near
-                e_dz[ne] = dz
-            ne += 1
+            ne = _encounter(rows, store, r, col, False, _reference_s(rows, r, col, use_received),
+                            radius, timeout_s, box_own, own_times[j], own_pos[j], box, shifted,
+                            near, dz, ne, e_col, e_silent, e_near, e_dz)
     e_start[due.shape[0]] = ne
     s_start[due.shape[0]] = ns
     return ne, ns
@@ -329,20 +371,24 @@ class EncounterFinder:
 
     Args:
         table: the receivers' inboxes.
-        timeout_s, silent_hold_s, use_received: the strategy's parameters (``timeout_s``,
-            ``silent_hold_s``, ``time_reference == "receive"``).
+        timeout_s, silent_hold_s, use_received, silent_speed_mps, silent_accel_mps2: the
+            strategy's parameters (``timeout_s``, ``silent_hold_s``,
+            ``time_reference == "receive"``, ``silent_speed_mps``, ``silent_accel_mps2``).
         use_index: find candidates with the grid (True), look at every sender (False), or
             choose by the number of senders (None, default: :data:`AUTO_INDEX_SENDERS`).
         cell_m: the grid's cell size (default: 2 × the largest radius, at least 16 m).
     """
 
     def __init__(self, table: InboxTable, *, timeout_s: float, silent_hold_s: float,
-                 use_received: bool, use_index: bool | None = None,
+                 use_received: bool, silent_speed_mps: float = 0.0,
+                 silent_accel_mps2: float = 0.0, use_index: bool | None = None,
                  cell_m: float | None = None) -> None:
         self.table = table
         self.timeout_s = float(timeout_s)
         self.silent_hold_s = float(silent_hold_s)
         self.use_received = bool(use_received)
+        self.silent_speed_mps = float(silent_speed_mps)
+        self.silent_accel_mps2 = float(silent_accel_mps2)
         self.use_index = None if use_index is None else bool(use_index)
         self.cell_m = cell_m
         self._cap_e = 16
@@ -378,8 +424,8 @@ class EncounterFinder:
                          else len(t.ids) >= AUTO_INDEX_SENDERS)
             ne, ns = encounter_rows(t.rows, t.store, due, own_times, own_pos, now_s,
                                     self.timeout_s, self.silent_hold_s, self.use_received,
-                                    radius_m, ov_start, ov_col, ov_radius, use_index,
-                                    cell, *out)
+                                    self.silent_speed_mps, self.silent_accel_mps2, radius_m,
+                                    ov_start, ov_col, ov_radius, use_index, cell, *out)
             if ne <= self._cap_e and ns <= self._cap_s:
                 break
             self._cap_e = max(self._cap_e, 2 * ne)

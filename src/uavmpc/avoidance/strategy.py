@@ -66,7 +66,14 @@ class AvoidanceParams:
             link latency).
         silent_hold_s: an offset is not released while a UAV heard from within this time has
             gone silent (its latest prediction older than ``timeout_s``): silence on a lossy
-            link is not absence (0 turns the rule off).
+            link is not absence (0 turns the rule off). Until then its last plan counts as a
+            conflict like a fresh one, widened as below.
+        silent_speed_mps, silent_accel_mps2: the horizontal limits a silent UAV is taken to
+            fly within: its last plan's cylinder is widened by how far it can have left that
+            plan since the plan went stale (:func:`~uavmpc.avoidance.encounters.
+            silent_reach_m` of its age minus ``timeout_s``; 0 turns the widening off).
+            Found in the 24 h campaign with burst loss: two UAVs that had not heard each
+            other for 5 s, one of them off to a new waypoint, met head-on.
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -86,6 +93,8 @@ class AvoidanceParams:
     time_reference: str = "stamp"
     climb_lag_s: float = 1.0
     silent_hold_s: float = 10.0
+    silent_speed_mps: float = 8.3
+    silent_accel_mps2: float = 2.5
 
     def __post_init__(self) -> None:
         p = "avoidance"
@@ -100,6 +109,10 @@ class AvoidanceParams:
         positive(self.horizontal_scale, f"{p}.horizontal_scale", upper=1.0)
         positive(self.climb_lag_s, f"{p}.climb_lag_s", upper=MAX_TIME_S, allow_zero=True)
         positive(self.silent_hold_s, f"{p}.silent_hold_s", upper=MAX_TIME_S, allow_zero=True)
+        positive(self.silent_speed_mps, f"{p}.silent_speed_mps", upper=MAX_SPEED_MPS,
+                 allow_zero=True)
+        positive(self.silent_accel_mps2, f"{p}.silent_accel_mps2", upper=MAX_ACCEL_MPS2,
+                 allow_zero=True)
         for f in fields(self):
             if f.name != "time_reference":
                 object.__setattr__(self, f.name, float(getattr(self, f.name)))
@@ -281,12 +294,14 @@ class HeightOffsetStrategy:
                                       [self.overrides(table)])[0]
         return self.decide(now_s, own_id, own_priority, times, enc)
 
-    def finder(self, table: InboxTable, *, use_index: bool = True) -> EncounterFinder:
-        """How this strategy finds its encounters in ``table`` (with its parameters)."""
+    def finder(self, table: InboxTable, *, use_index: bool | None = True) -> EncounterFinder:
+        """How this strategy finds its encounters in ``table`` (with its parameters;
+        ``use_index`` as :class:`~uavmpc.avoidance.encounters.EncounterFinder` takes it)."""
         prm = self.params
         return EncounterFinder(table, timeout_s=prm.timeout_s, silent_hold_s=prm.silent_hold_s,
                                use_received=prm.time_reference == "receive",
-                               use_index=use_index)
+                               silent_speed_mps=prm.silent_speed_mps,
+                               silent_accel_mps2=prm.silent_accel_mps2, use_index=use_index)
 
     def overrides(self, table: InboxTable) -> dict[int, float]:
         """The per-pair radii by the table's columns."""
@@ -315,10 +330,10 @@ class HeightOffsetStrategy:
                 climb_speed_mps=prm.climb_speed_mps if recent else None,
                 climb_accel_mps2=prm.climb_accel_mps2 if recent else None,
                 silent=known.silent)
-        must_yield_known = known.must_yield(own_id, own_priority)
-        fresh_rows = ~known.silent_row
-        enc = known if fresh_rows.all() else _subset(known, fresh_rows)
-        must_yield = must_yield_known[fresh_rows]
+        # Silent UAVs count at their last plans (widened by how far they can have left them):
+        # a pair that cannot hear each other still resolves its conflict.
+        enc = known
+        must_yield = known.must_yield(own_id, own_priority)
 
         c_start = _conflicts(enc, self.z_offset_m, half_h)  # (k, m)
         hit_start = c_start.any(axis=1)
@@ -329,7 +344,7 @@ class HeightOffsetStrategy:
             # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
             # another climbed into its layer. A new offset must be clear of the silent ones too.
             self.z_offset_m, ceiling_hit, waiting_for = self._climb(
-                known, must_yield_known, half_h, times - now_s,
+                enc, must_yield, half_h, times - now_s,
                 self.z_offset_m if climbed_m is None else min(climbed_m, self.z_offset_m))
         c_end = _conflicts(enc, self.z_offset_m, half_h)
         unresolved = c_end.any(axis=1) & must_yield
@@ -367,7 +382,8 @@ class HeightOffsetStrategy:
     def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
                ahead_s: np.ndarray, climbed: float) -> tuple[float, bool, tuple[str, ...]]:
         """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without
-        crossing anyone; returns (offset, ceiling hit, the UAVs in the way).
+        crossing anyone, and clear of everyone else near too when such an offset exists;
+        returns (offset, ceiling hit, the UAVs in the way).
 
         The way up is checked against every known UAV, not only those we yield to: at each
         predicted point (``ahead_s`` (m,) seconds from now) the climb is somewhere between the
@@ -412,7 +428,13 @@ class HeightOffsetStrategy:
 
         good = np.flatnonzero(~blocked_end & clear_way)
         if good.size:
-            return float(candidates[good[0]]), False, ()
+            # Preferred: a layer clear of everyone, not only of those we yield to. Ending in
+            # the layer of a UAV that yields to us counts on it hearing us; found in the 24 h
+            # campaign with burst loss (trial 24): uav3 climbed into uav4's layer while uav4,
+            # which had not heard it for 3 s, flew on into it.
+            clear_all = ~_conflicts(enc, candidates, half_h).any(axis=(1, 2))
+            best = np.flatnonzero(~blocked_end & clear_way & clear_all)
+            return float(candidates[best[0] if best.size else good[0]]), False, ()
         clear_end = np.flatnonzero(~blocked_end)
         if clear_end.size:  # reachable later: hold until the way is clear
             return z, False, in_the_way(clear_end[0])

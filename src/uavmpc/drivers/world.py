@@ -28,7 +28,6 @@ from typing import Any
 import numpy as np
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy, ResolutionStrategy
-from uavmpc.avoidance.encounters import EncounterFinder
 from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.comms.message import InvalidMessageError
@@ -470,9 +469,8 @@ class World:
         deciders = [u.stack.avoidance for u in self.uavs if u.stack.avoidance is not None]
         self._finder = None
         if deciders and all(hasattr(d, "decide") for d in deciders):
-            self._finder = EncounterFinder(
-                self.inboxes, timeout_s=params.timeout_s, silent_hold_s=params.silent_hold_s,
-                use_received=params.time_reference == "receive", use_index=index)
+            # Every stack flies the world's parameters: the first one's finder is everyone's.
+            self._finder = deciders[0].finder(self.inboxes, use_index=index)
         self._overrides = [u.stack.avoidance.overrides(self.inboxes)  # type: ignore[union-attr]
                            if self._finder is not None and u.stack.avoidance is not None
                            else {} for u in self.uavs]
