@@ -82,6 +82,8 @@ class TrialJob:
     duration_s: float
     #: The active fields of a :class:`~uavmpc.scenarios.faults.FaultSpec` (none: a clean run).
     faults: dict[str, Any] = field(default_factory=dict)
+    #: :class:`~uavmpc.avoidance.AvoidanceParams` fields that differ from the defaults.
+    avoidance_params: dict[str, Any] = field(default_factory=dict)
 
 
 def trial_seeds(seed: int, index: int) -> tuple[int, int]:
@@ -104,9 +106,11 @@ def run_trial(job: TrialJob) -> dict[str, Any]:
                         burst_len=spec.burst_len)
     sc = random_walk(job.uavs, job.area_m, job.height_m, job.duration_s, job.scenario_seed,
                      link=link)
+    table = dict(job.avoidance_params)
     if spec.time_reference is not None:
-        sc = dataclasses.replace(sc, avoidance={**sc.avoidance,
-                                                "time_reference": spec.time_reference})
+        table["time_reference"] = spec.time_reference
+    if table:
+        sc = dataclasses.replace(sc, avoidance={**sc.avoidance, **table})
     faults = draw_faults(spec, [u.uav_id for u in sc.uavs], job.duration_s, 0.0,
                          job.world_seed)
     world = World(sc, avoidance=job.avoidance, seed=job.world_seed, link=link,
@@ -507,6 +511,10 @@ def markdown_table(*reports: dict[str, Any]) -> str:
     if any(r["parameters"].get("faults") for r in reports):
         rows.append(("faults", lambda r: ", ".join(
             f"{k} {v}" for k, v in r["parameters"].get("faults", {}).items()) or "none"))
+    if any(r["parameters"].get("avoidance_params") for r in reports):
+        rows.append(("avoidance parameters", lambda r: ", ".join(
+            f"{k} {v}" for k, v in r["parameters"].get("avoidance_params", {}).items())
+            or "defaults"))
     lines = ["| random_walk | without avoidance | with avoidance |", "|---|---|---|"]
     lines += [f"| {name} | {cell(False, f)} | {cell(True, f)} |" for name, f in rows]
     return "\n".join(lines) + "\n"
@@ -590,11 +598,14 @@ def run_campaign(
     ray_address: str | None = None,
     progress: bool = True,
     faults: FaultSpec | None = None,
+    avoidance_params: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
 
     ``faults``: what goes wrong in every trial, drawn per trial from its world seed
-    (:mod:`uavmpc.scenarios.faults`).
+    (:mod:`uavmpc.scenarios.faults`). ``avoidance_params``: fields of
+    :class:`~uavmpc.avoidance.AvoidanceParams` to fly instead of the defaults (e.g. a larger
+    cylinder for a coarser position estimate).
 
     Stops after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest
     prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
@@ -625,6 +636,15 @@ def run_campaign(
         faults.check_uavs(uavs)
         if faults.burst_len and not link.loss:
             raise CampaignError("burst loss needs a loss rate: give --loss P with --burst-loss")
+    avoidance_table = dict(avoidance_params or {})
+    if avoidance_table:
+        from uavmpc.avoidance import AvoidanceParams
+
+        AvoidanceParams.from_dict(avoidance_table)  # a bad field fails here, not in a worker
+        if faults is not None and faults.time_reference is not None \
+                and "time_reference" in avoidance_table:
+            raise CampaignError("time_reference: give it once, in the avoidance file or as "
+                                "--time-reference")
     if workers is None:
         workers = os.cpu_count() or 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -641,6 +661,8 @@ def run_campaign(
     params["trial_s" if avoidance else "cap_s"] = length
     if fault_fields:  # a clean campaign's parameters stay what they were
         params["faults"] = fault_fields
+    if avoidance_table:
+        params["avoidance_params"] = avoidance_table
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _check_parameters(out, params)
@@ -650,7 +672,7 @@ def run_campaign(
         s, w = trial_seeds(seed, i)
         return TrialJob(i, s, w, uavs, float(area_m), float(height_m), bool(avoidance),
                         link.loss, link.latency_s, link.jitter_s, float(wind), length,
-                        dict(fault_fields))
+                        dict(fault_fields), dict(avoidance_table))
 
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
@@ -729,6 +751,9 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--cap-s", type=float, default=600.0,
                    help="without avoidance: stop a trial without collision after this")
     p.add_argument("--area", type=float, default=100.0, help="side of the square area [m]")
+    p.add_argument("--avoidance-file", default=None, metavar="TOML",
+                   help="random-walk: fly the [avoidance] table of this file (any "
+                        "AvoidanceParams field) instead of the defaults")
     p.add_argument("--ray", default=None, metavar="ADDRESS",
                    help="run on Ray ('auto', 'local' or ray://host:port); "
                         "pip install 'uavmpc[cluster]'")
@@ -769,7 +794,20 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
                         loss=args.loss, latency=args.latency, wind=args.wind,
                         trial_s=args.trial_s, cap_s=args.cap_s, area_m=args.area,
                         ray_address=args.ray, progress=not args.no_progress,
-                        faults=fault_spec(args))
+                        faults=fault_spec(args),
+                        avoidance_params=avoidance_file(args.avoidance_file))
+
+
+def avoidance_file(path: str | None) -> dict[str, Any]:
+    """The ``[avoidance]`` table of a TOML file (none: {}); a file without one is an error."""
+    if path is None:
+        return {}
+    from uavmpc.config import read_toml
+
+    table = read_toml(path).get("avoidance")
+    if not isinstance(table, dict):
+        raise CampaignError(f"{path}: needs an [avoidance] table (AvoidanceParams fields)")
+    return table
 
 
 def _landing_command(args: argparse.Namespace) -> int:
