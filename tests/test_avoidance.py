@@ -462,7 +462,7 @@ def test_a_silent_uav_counts_where_it_can_have_gone_since_its_last_plan() -> Non
     """Found in the 24 h campaign with burst loss (trial 25): uav5 hovered at a waypoint 9 m
     beside uav3's announced path; neither heard the other for 5 s, uav5 set off for its next
     waypoint across that path, and they met head-on. Stale for 3 s (4 s old, the timeout 1 s),
-    uav5 may be anywhere within 2 · a · t² (capped by twice the speed) of its last plan:
+    uav5 may be anywhere within ½ · a · t² (capped by the speed) of its last plan:
     uav3's path is within reach, so the UAV that must yield climbs, and the other slows
     down. Just stale (1.1 s old), the plan counts as announced."""
     path = line(NOW + REL, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0))  # uav3, still heard

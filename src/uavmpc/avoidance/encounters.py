@@ -196,16 +196,16 @@ def grid_candidates(rows: InboxRows, store: Store, r: int, box: np.ndarray, cell
 
 @kernel
 def silent_reach_m(age_s: float, speed_mps: float, accel_mps2: float) -> float:
-    """How far a UAV can have left the plan it announced ``age_s`` ago [m], flying within
-    horizontal limits ``speed_mps`` and ``accel_mps2``: its path and its plan start from the
-    same state, so they part at most at twice the acceleration, up to twice the speed (one
-    accelerates where the other brakes). 0 when either limit is 0."""
+    """How far a UAV flying within horizontal limits ``speed_mps`` and ``accel_mps2`` gets in
+    ``age_s`` from rest [m]: how far a silent UAV can be from its last plan had it set off on
+    a new leg the moment that plan went stale (a UAV braking against its plan could part
+    from it twice as fast; the cylinder's margin covers that). 0 when either limit is 0."""
     if age_s <= 0.0 or speed_mps <= 0.0 or accel_mps2 <= 0.0:
         return 0.0
     t_a = speed_mps / accel_mps2
     if age_s <= t_a:
-        return accel_mps2 * age_s * age_s
-    return accel_mps2 * t_a * t_a + 2.0 * speed_mps * (age_s - t_a)
+        return 0.5 * accel_mps2 * age_s * age_s
+    return 0.5 * speed_mps * t_a + speed_mps * (age_s - t_a)
 
 
 @kernel

@@ -64,16 +64,17 @@ class AvoidanceParams:
         time_reference: "stamp" (synchronised clocks) or "receive" (the message's
             ``received_s`` replaces its stamp: fallback for unsynchronised clocks, off by the
             link latency).
-        silent_hold_s: an offset is not released while a UAV heard from within this time has
-            gone silent (its latest prediction older than ``timeout_s``): silence on a lossy
-            link is not absence (0 turns the rule off). Until then its last plan counts as a
-            conflict like a fresh one, widened as below.
+        silent_hold_s: a UAV heard from within this time whose latest prediction is older
+            than ``timeout_s`` is silent, not absent (silence on a lossy link is not absence;
+            0 turns the rule off): its last plan still counts, for conflicts, climbs and the
+            way down, widened as below.
         silent_speed_mps, silent_accel_mps2: the horizontal limits a silent UAV is taken to
             fly within: its last plan's cylinder is widened by how far it can have left that
             plan since the plan went stale (:func:`~uavmpc.avoidance.encounters.
-            silent_reach_m` of its age minus ``timeout_s``; 0 turns the widening off).
-            Found in the 24 h campaign with burst loss: two UAVs that had not heard each
-            other for 5 s, one of them off to a new waypoint, met head-on.
+            silent_reach_m` of its age minus ``timeout_s``: from rest at these limits; 0
+            turns the widening off). Found in the 24 h campaign with burst loss: two UAVs
+            that had not heard each other for 5 s, one of them off to a new waypoint, met
+            head-on.
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -153,8 +154,8 @@ class AvoidanceDecision:
         ceiling_hit: the offset could not be raised as needed because of ``max_offset_m``.
         waiting_for: UAVs in the way of the climb this decision needs (the offset is held
             until they have passed).
-        silent: UAVs heard from recently whose latest prediction is stale: while there are
-            any, the offset is not released (see ``AvoidanceParams.silent_hold_s``).
+        silent: UAVs heard from recently whose latest prediction is stale (see
+            ``AvoidanceParams.silent_hold_s``); those near are among the conflicts.
     """
 
     z_offset_m: float = 0.0
@@ -319,8 +320,7 @@ class HeightOffsetStrategy:
         times = own_prediction_times
         if not known.ids:
             # Nobody near: no conflict now, none on the way down; only the release runs.
-            if not known.silent:
-                self._release(now_s)
+            self._release(now_s)
             self._last_update_s = now_s
             recent = (self._last_conflict_s is not None
                       and now_s - self._last_conflict_s < prm.release_hysteresis_s)
@@ -354,9 +354,11 @@ class HeightOffsetStrategy:
         # released on top of it and re-raised as soon as the conflict reappeared.
         if hit_start.any() or c_end.any() or _below(enc, self.z_offset_m, half_h).any():
             self._last_conflict_s = now_s
-        elif not enc.silent:
+        else:
             # Found in the 24 h campaign with 30 % loss: a UAV that had not heard from another
-            # for 5 s (ten lost messages in a row) released its offset onto it.
+            # for 5 s (ten lost messages in a row) released its offset onto it. Silent UAVs
+            # are among the encounters, at their widened last plans: the way down is clear
+            # of them too (until their plans end, with ``silent_hold_s``).
             self._release(now_s)
         self._last_update_s = now_s
 
