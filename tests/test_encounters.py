@@ -50,13 +50,14 @@ def _world_table(seed: int, n: int, area_m: float, receive: bool):
     return table, own_t, own_p, np.full(n, now), ids
 
 
-#: The silent senders' limits (their cylinders widen with their messages' ages).
-SILENT_SPEED_MPS, SILENT_ACCEL_MPS2 = 8.3, 2.5
+#: The silent senders' protected radius and limits (it widens with their messages' ages).
+SILENT_RADIUS_M, SILENT_SPEED_MPS, SILENT_ACCEL_MPS2 = 3.0, 8.3, 2.5
 
 
 def _find(table, own_t, own_p, now, radius, overrides, use_index: bool):
     finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0,
                              use_received=table.time_reference == "receive",
+                             silent_radius_m=SILENT_RADIUS_M,
                              silent_speed_mps=SILENT_SPEED_MPS,
                              silent_accel_mps2=SILENT_ACCEL_MPS2, use_index=use_index,
                              cell_m=None)
@@ -93,8 +94,9 @@ def test_the_index_finds_exactly_the_encounters_of_the_all_pairs_comparison(
 @given(seed=st.integers(0, 10_000), n=st.integers(2, 30), area=st.floats(10.0, 300.0))
 def test_the_box_test_prunes_only_senders_that_never_come_near(seed, n, area) -> None:
     """Against the alignment of every held message (no box, no index): a sender is an
-    encounter exactly when some aligned point is horizontally within the radius, widened for a
-    silent one by how far it can have gone since (silent ones first, then the fresh ones)."""
+    encounter exactly when some aligned point is horizontally within the radius, or for a
+    silent one within its protected radius widened by how far it can have gone since (silent
+    ones first, then the fresh ones)."""
     table, own_t, own_p, now, ids = _world_table(seed, n, area, False)
     radius = 5.0
     found = _find(table, own_t, own_p, now, np.full(n, radius), None, True)
@@ -108,13 +110,13 @@ def test_the_box_test_prunes_only_senders_that_never_come_near(seed, n, area) ->
             age = now[r] - st_.stamp_s[slot]
             if abs(age) > 1.0 and not 0.0 < age <= 10.0:
                 continue
-            widen = 0.0 if abs(age) <= 1.0 else silent_reach_m(age - 1.0, SILENT_SPEED_MPS,
-                                                                 SILENT_ACCEL_MPS2)
+            reach = radius if abs(age) <= 1.0 else max(radius, SILENT_RADIUS_M + silent_reach_m(
+                age - 1.0, SILENT_SPEED_MPS, SILENT_ACCEL_MPS2))
             k = st_.points[slot]
             aligned, known = align(st_.times_s[slot, :k], st_.positions_m[slot, :k], own_t[r],
                                    1.0)
             d2 = ((aligned[:, :2] - own_p[r, :, :2]) ** 2).sum(axis=1)
-            if np.any(known & (d2 <= (radius + widen) ** 2)):
+            if np.any(known & (d2 <= reach**2)):
                 (fresh if abs(age) <= 1.0 else silent).append(ids[col])
         assert list(found[r].ids) == silent + fresh
         assert list(found[r].silent_row) == [True] * len(silent) + [False] * len(fresh)

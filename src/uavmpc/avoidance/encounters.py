@@ -247,8 +247,8 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
 @kernel
 def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np.ndarray,
                    own_pos: np.ndarray, now_s: np.ndarray, timeout_s: float,
-                   silent_hold_s: float, use_received: bool, silent_speed_mps: float,
-                   silent_accel_mps2: float, radius_m: np.ndarray,
+                   silent_hold_s: float, use_received: bool, silent_radius_m: float,
+                   silent_speed_mps: float, silent_accel_mps2: float, radius_m: np.ndarray,
                    ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
                    use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
                    e_silent: np.ndarray, e_near: np.ndarray, e_dz: np.ndarray,
@@ -263,13 +263,15 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     the fresh ones, each in column order; and every silent column in
     ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
     its receive time with ``use_received``) is within ``timeout_s`` of now; a stale one is
-    "silent" when it is at most ``silent_hold_s`` old, else ignored. A silent sender's
-    cylinder is widened by :func:`silent_reach_m` of the time since its message went stale
-    (its age minus ``timeout_s``; at ``silent_speed_mps``, ``silent_accel_mps2``): it may have
-    left that plan since, and nobody has heard where to. (Within ``timeout_s`` a plan is
-    taken as it is: the next one is due.) Returns (encounter rows, silent entries); when
-    either exceeds its output's capacity, nothing is written past it and the caller retries
-    with larger outputs."""
+    "silent" when it is at most ``silent_hold_s`` old, else ignored. A silent sender comes
+    near when its last plan comes within its radius, as a fresh one, or when it could have
+    come within ``silent_radius_m``: that radius widened by :func:`silent_reach_m` of the time
+    since its message went stale (its age minus ``timeout_s``; at ``silent_speed_mps``,
+    ``silent_accel_mps2``), as it may have left that plan since and nobody has heard where
+    to. (Within ``timeout_s`` a plan is taken as it is: the next one is due.)
+
+    Returns (encounter rows, silent entries); when either exceeds its output's capacity,
+    nothing is written past it and the caller retries with larger outputs."""
     m = own_times.shape[1]
     n_cols = rows.held_slot.shape[1]
     cap_s = s_col.shape[0]
@@ -308,8 +310,8 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                 if ov_col[o] == col:
                     radius = ov_radius[o]
             ref = _reference_s(rows, r, col, use_received)
-            radius += silent_reach_m(now - ref - timeout_s, silent_speed_mps,
-                                     silent_accel_mps2)
+            radius = max(radius, silent_radius_m + silent_reach_m(
+                now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
             ne = _encounter(rows, store, r, col, True, ref, radius, timeout_s, box_own,
                             own_times[j], own_pos[j], box, shifted, near, dz, ne, e_col,
                             e_silent, e_near, e_dz)
@@ -371,22 +373,25 @@ class EncounterFinder:
 
     Args:
         table: the receivers' inboxes.
-        timeout_s, silent_hold_s, use_received, silent_speed_mps, silent_accel_mps2: the
-            strategy's parameters (``timeout_s``, ``silent_hold_s``,
-            ``time_reference == "receive"``, ``silent_speed_mps``, ``silent_accel_mps2``).
+        timeout_s, silent_hold_s, use_received, silent_radius_m, silent_speed_mps,
+            silent_accel_mps2: the strategy's parameters (``timeout_s``, ``silent_hold_s``,
+            ``time_reference == "receive"``, ``silent_radius_m``, ``silent_speed_mps``,
+            ``silent_accel_mps2``).
         use_index: find candidates with the grid (True), look at every sender (False), or
             choose by the number of senders (None, default: :data:`AUTO_INDEX_SENDERS`).
         cell_m: the grid's cell size (default: 2 × the largest radius, at least 16 m).
     """
 
     def __init__(self, table: InboxTable, *, timeout_s: float, silent_hold_s: float,
-                 use_received: bool, silent_speed_mps: float = 0.0,
-                 silent_accel_mps2: float = 0.0, use_index: bool | None = None,
+                 use_received: bool, silent_radius_m: float = 0.0,
+                 silent_speed_mps: float = 0.0, silent_accel_mps2: float = 0.0,
+                 use_index: bool | None = None,
                  cell_m: float | None = None) -> None:
         self.table = table
         self.timeout_s = float(timeout_s)
         self.silent_hold_s = float(silent_hold_s)
         self.use_received = bool(use_received)
+        self.silent_radius_m = float(silent_radius_m)
         self.silent_speed_mps = float(silent_speed_mps)
         self.silent_accel_mps2 = float(silent_accel_mps2)
         self.use_index = None if use_index is None else bool(use_index)
@@ -424,7 +429,8 @@ class EncounterFinder:
                          else len(t.ids) >= AUTO_INDEX_SENDERS)
             ne, ns = encounter_rows(t.rows, t.store, due, own_times, own_pos, now_s,
                                     self.timeout_s, self.silent_hold_s, self.use_received,
-                                    self.silent_speed_mps, self.silent_accel_mps2, radius_m,
+                                    self.silent_radius_m, self.silent_speed_mps,
+                                    self.silent_accel_mps2, radius_m,
                                     ov_start, ov_col, ov_radius, use_index, cell, *out)
             if ne <= self._cap_e and ns <= self._cap_s:
                 break

@@ -68,13 +68,16 @@ class AvoidanceParams:
             than ``timeout_s`` is silent, not absent (silence on a lossy link is not absence;
             0 turns the rule off): its last plan still counts, for conflicts, climbs and the
             way down, widened as below.
-        silent_speed_mps, silent_accel_mps2: the horizontal limits a silent UAV is taken to
-            fly within: its last plan's cylinder is widened by how far it can have left that
-            plan since the plan went stale (:func:`~uavmpc.avoidance.encounters.
-            silent_reach_m` of its age minus ``timeout_s``: from rest at these limits; 0
-            turns the widening off). Found in the 24 h campaign with burst loss: two UAVs
-            that had not heard each other for 5 s, one of them off to a new waypoint, met
-            head-on.
+        silent_radius_m, silent_speed_mps, silent_accel_mps2: a silent UAV also comes near
+            when it could have come within ``silent_radius_m`` of us: that radius widened by
+            how far it can have left its last plan since the plan went stale
+            (:func:`~uavmpc.avoidance.encounters.silent_reach_m` of its age minus
+            ``timeout_s``: from rest at the horizontal limits ``silent_speed_mps`` and
+            ``silent_accel_mps2``; a limit 0 turns this off). Smaller than ``radius_m``: the
+            cylinder's margin is for plans we know, this one for where a UAV nobody hears
+            could be; a hovering neighbour 6.4 m away is in the way after 2.6 s of silence,
+            not after 1.9 s. Found in the 24 h campaign with burst loss: two UAVs that had
+            not heard each other for 5 s, one of them off to a new waypoint, met head-on.
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -94,6 +97,7 @@ class AvoidanceParams:
     time_reference: str = "stamp"
     climb_lag_s: float = 1.0
     silent_hold_s: float = 10.0
+    silent_radius_m: float = 3.0
     silent_speed_mps: float = 8.3
     silent_accel_mps2: float = 2.5
 
@@ -110,6 +114,8 @@ class AvoidanceParams:
         positive(self.horizontal_scale, f"{p}.horizontal_scale", upper=1.0)
         positive(self.climb_lag_s, f"{p}.climb_lag_s", upper=MAX_TIME_S, allow_zero=True)
         positive(self.silent_hold_s, f"{p}.silent_hold_s", upper=MAX_TIME_S, allow_zero=True)
+        positive(self.silent_radius_m, f"{p}.silent_radius_m", upper=MAX_DISTANCE_M,
+                 allow_zero=True)
         positive(self.silent_speed_mps, f"{p}.silent_speed_mps", upper=MAX_SPEED_MPS,
                  allow_zero=True)
         positive(self.silent_accel_mps2, f"{p}.silent_accel_mps2", upper=MAX_ACCEL_MPS2,
@@ -301,6 +307,7 @@ class HeightOffsetStrategy:
         prm = self.params
         return EncounterFinder(table, timeout_s=prm.timeout_s, silent_hold_s=prm.silent_hold_s,
                                use_received=prm.time_reference == "receive",
+                               silent_radius_m=prm.silent_radius_m,
                                silent_speed_mps=prm.silent_speed_mps,
                                silent_accel_mps2=prm.silent_accel_mps2, use_index=use_index)
 
