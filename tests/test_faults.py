@@ -150,3 +150,21 @@ def test_a_campaign_flies_the_avoidance_file_it_is_given(tmp_path, capsys) -> No
     bad.write_text("radius_m = 9.0\n")
     assert main([*args, "--out", str(tmp_path / "bad"), "--avoidance-file", str(bad)]) == 2
     assert "needs an [avoidance] table" in capsys.readouterr().err
+
+
+def test_the_shipped_single_band_geometry_covers_twice_the_estimates_error() -> None:
+    """configs/avoidance_single_band_gnss.toml: valid, and its margins are at least twice the
+    RMS difference of two single-band estimates (1.3 m / 2.0 m RMS each, measured by
+    tests/test_estimation.py)."""
+    from pathlib import Path
+
+    from uavmpc.apps.campaign import avoidance_file
+    from uavmpc.avoidance import AvoidanceParams
+
+    path = Path(__file__).parents[1] / "configs" / "avoidance_single_band_gnss.toml"
+    wide = AvoidanceParams.from_dict(avoidance_file(str(path)))
+    base = AvoidanceParams()
+    rel_h, rel_v = np.sqrt(2.0) * 1.3, np.sqrt(2.0) * 2.0
+    assert wide.radius_m >= base.radius_m + 2 * rel_h - 0.01
+    assert wide.height_m / 2 >= base.height_m / 2 + 2 * rel_v - 0.01
+    assert wide.max_offset_m >= 4 * wide.dz_m - 1e-9
