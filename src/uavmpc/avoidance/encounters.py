@@ -209,6 +209,16 @@ def silent_reach_m(age_s: float, speed_mps: float, accel_mps2: float) -> float:
 
 
 @kernel
+def _pair_radius(radius: float, ov_start: np.ndarray, ov_col: np.ndarray,
+                 ov_radius: np.ndarray, j: int, col: int) -> float:
+    """Receiver j's cylinder radius against column ``col``: its override, else ``radius``."""
+    for o in range(ov_start[j], ov_start[j + 1]):
+        if ov_col[o] == col:
+            return ov_radius[o]
+    return radius
+
+
+@kernel
 def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
                radius: float, extrapolate_s: float, box_own: np.ndarray, own_times: np.ndarray,
                own_pos: np.ndarray, box: np.ndarray, shifted: np.ndarray, near: np.ndarray,
@@ -305,10 +315,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             if ns < cap_s:
                 s_col[ns] = col
             ns += 1
-            radius = radius_m[j]
-            for o in range(ov_start[j], ov_start[j + 1]):
-                if ov_col[o] == col:
-                    radius = ov_radius[o]
+            radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
             ref = _reference_s(rows, r, col, use_received)
             radius = max(radius, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
@@ -333,10 +340,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             col = cand[c]
             if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) != _FRESH:
                 continue
-            radius = radius_m[j]
-            for o in range(ov_start[j], ov_start[j + 1]):
-                if ov_col[o] == col:
-                    radius = ov_radius[o]
+            radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
             ne = _encounter(rows, store, r, col, False, _reference_s(rows, r, col, use_received),
                             radius, timeout_s, box_own, own_times[j], own_pos[j], box, shifted,
                             near, dz, ne, e_col, e_silent, e_near, e_dz)
