@@ -539,6 +539,40 @@ def test_a_climb_raised_again_mid_climb_starts_from_where_the_uav_is() -> None:
     assert decisions[0.0].z_offset_m == 3.0 and decisions[0.0].waiting_for == ("b",)
 
 
+def test_a_climb_does_not_close_in_on_a_uav_above_it() -> None:
+    """Found in the 24 h campaign with burst loss (trial 12): at +3 m, a UAV we yield to is
+    1.5 m above us 1–2 s ahead, still climbing to its layer. Its +6 m layer is not clear at
+    the end, +9 m is; the way there passes through it while it is near, so we hold at +3 m
+    and say whom we wait for. The same UAV met only 6 s ahead (our climb done by then), or
+    below us, does not hold the climb."""
+    from uavmpc.avoidance.encounters import Encounters
+
+    prm = AvoidanceParams()
+    times = np.r_[0.01, 0.01 + 0.2 * np.arange(1, 40)]
+
+    def decide(near: np.ndarray, dz_plus_offset: float) -> object:
+        known = Encounters(
+            ids=("a",), priority=np.array([1]), avoiding=np.array([True]),
+            silent_row=np.array([False]), near_xy=near[None],
+            dz_m=np.full((1, times.size), dz_plus_offset - 3.0))
+        s = HeightOffsetStrategy(prm)
+        s.z_offset_m = 3.0
+        return s.decide(100.0, "me", 5, 100.0 + times, known)
+
+    soon = (times > 1.0) & (times < 2.0)
+    held = decide(soon, -1.5)  # a 1.5 m above us, soon
+    assert held.yielding_to == ("a",) and held.z_offset_m == 3.0
+    assert held.waiting_for == ("a",) and held.unresolved == ("a",)
+    later = decide((times > 6.0) & (times < 7.0), -1.5)
+    assert later.z_offset_m == 9.0 and not later.waiting_for
+    below = decide(soon, 1.5)  # a 1.5 m below us: climbing parts us
+    assert below.z_offset_m == 6.0 and not below.waiting_for
+    # Level within the collision distance (campaign trial 33: plans 2 cm apart): climbing is
+    # the way out, holding would wait level with it.
+    level = decide(soon, -0.5)
+    assert level.z_offset_m == 9.0 and not level.waiting_for
+
+
 def test_a_geofence_ceiling_caps_the_offset_and_says_so() -> None:
     a, b = head_on()
     t = NOW + REL

@@ -38,6 +38,9 @@ MAX_DISTANCE_M = 1000.0
 MAX_TIME_S = 600.0
 MAX_SPEED_MPS = 100.0
 MAX_ACCEL_MPS2 = 100.0
+#: Two plans closer in height than this count as level for a climb's way check (rule 6): the
+#: collision distance of the campaigns, so "above us" means above by more than a collision.
+LEVEL_M = 1.0
 #: Relative slack for "offset is a multiple of Δz that fits under the ceiling" (round-off).
 _EPS = 1e-9
 
@@ -409,6 +412,14 @@ class HeightOffsetStrategy:
         higher); the band holds every height the UAV can be at. Without this the slow edge was
         too high, and a UAV passing while the climb was still under way went unseen (the gap
         noted in docs/campaign.md).
+
+        A point already in conflict at ``z`` does not block the climb when we are level with
+        (within :data:`LEVEL_M`) or above the other there (climbing parts us), but it does
+        when the other is higher (climbing closes in on it). Found in the 24 h campaign with
+        burst loss (trial 12): uav5, at +3 m, heard uav3 again after 5 s of silence, 1.2 s
+        before they met, uav3 still climbing to its +6 m layer in its plan; the climb to
+        +9 m that uav5 took to escape went through uav3 (0.39 m). It now holds at +3 m while
+        uav3 climbs away.
         """
         prm = self.params
         z = self.z_offset_m
@@ -424,10 +435,14 @@ class HeightOffsetStrategy:
         lo = np.minimum(slow[None, :], candidates[:, None])[:, None, :]
         # While still climbing (lo < o; once there, the check at the end applies):
         # |dz + o'| ≤ h for some o' in [lo, hi]  ⇔  dz + hi ≥ −h and dz + lo ≤ h
-        # A point already in conflict at the offset in force is not made worse by climbing
-        # (it is what the climb escapes from); only new conflicts on the way up block it.
+        # A point already in conflict at the offset in force, with us level or above, is not
+        # made worse by climbing (it is what the climb escapes from). With them above us it
+        # is: the climb would close in on them (rule 6). "Level" is within the collision
+        # distance: two plans at one height differ by centimetres, and holding there is
+        # worse than climbing (found in the same campaign, trial 33).
         climbing = lo < candidates[:, None, None]
-        in_way = (enc.near_xy & climbing & ~_conflicts(enc, z, half_h)
+        escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z >= -LEVEL_M)
+        in_way = (enc.near_xy & climbing & ~escaping
                   & (enc.dz_m + hi >= -half_h) & (enc.dz_m + lo <= half_h))
         blocked_way = in_way.any(axis=2)  # (c, k)
         clear_way = ~blocked_way.any(axis=1)
