@@ -169,3 +169,53 @@ def test_the_shipped_single_band_geometry_covers_twice_the_estimates_error() -> 
     assert wide.radius_m >= base.radius_m + 2 * rel_h - 0.01
     assert wide.height_m / 2 >= base.height_m / 2 + 2 * rel_v - 0.01
     assert wide.max_offset_m >= 4 * wide.dz_m - 1e-9
+
+
+def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> None:
+    """Found in the 24 h campaign with burst loss (trial 118): two UAVs 8 m apart set off
+    towards each other before one had heard the other. With the launch check each hovers at
+    its start until its inbox holds a prediction from every other UAV, or until the longest
+    wait; a radio silent from the start is waited for that long, and named."""
+    sc = random_walk(3, duration_s=30.0, seed=4)
+    res = World(sc, seed=1, launch_check_s=5.0).run(30.0)
+    launch = res.extra["launch"]
+    assert launch["max_wait_s"] == 5.0
+    # A clean link: everyone heard within a broadcast period and the latency.
+    assert all(0.0 < launch[u.uav_id]["launched_s"] < 1.0 and launch[u.uav_id]["not_heard"]
+               == [] for u in sc.uavs)
+    # uav2's radio is silent from the start: the others wait the full 5 s for it, uav2
+    # itself (which hears them) sets off at once; everyone still flies its mission.
+    world = World(sc, seed=1, launch_check_s=5.0, silent_from_s={"uav2": 0.0})
+    res = world.run(30.0)
+    launch = res.extra["launch"]
+    assert launch["uav2"]["launched_s"] < 1.0 and launch["uav2"]["not_heard"] == []
+    for i in (0, 2):
+        uid = sc.uavs[i].uav_id
+        assert launch[uid]["not_heard"] == ["uav2"]
+        assert launch[uid]["launched_s"] == pytest.approx(5.0, abs=0.02)
+        before = res.t_s < 5.0
+        drift = np.linalg.norm(res.positions_m[before, i] - np.array(sc.uavs[i].start_m), axis=1)
+        assert drift.max() < 0.05  # hovering where it started
+        assert np.linalg.norm(res.positions_m[~before, i, :2]
+                              - np.array(sc.uavs[i].start_m[:2]), axis=1).max() > 5.0
+    # Batched or UAV by UAV: the same flight, the same launches.
+    objects = World(sc, seed=1, launch_check_s=5.0, silent_from_s={"uav2": 0.0},
+                    batched=False).run(30.0)
+    assert np.array_equal(objects.positions_m, res.positions_m)
+    assert objects.extra["launch"] == launch
+    assert "launch" not in World(sc, seed=1).run(1.0).extra
+    with pytest.raises(ValueError, match="launch_check_s"):
+        World(sc, launch_check_s=-1.0)
+
+
+def test_a_campaign_records_its_launch_check(tmp_path, capsys) -> None:
+    args = ["campaign", "random-walk", "--trials", "1", "--trial-s", "20", "--workers", "1",
+            "--no-progress", "--uavs", "3"]
+    assert main([*args, "--out", str(tmp_path / "c"), "--launch-check", "4"]) == 0
+    report = json.loads((tmp_path / "c" / "report.json").read_text())
+    assert report["parameters"]["launch_check_s"] == 4.0
+    assert "launch check" in (tmp_path / "c" / "report.md").read_text()
+    # Resuming with another value (or none) is refused; a bad one is named.
+    assert main([*args, "--out", str(tmp_path / "c")]) == 2
+    assert main([*args, "--out", str(tmp_path / "d"), "--launch-check", "-1"]) == 2
+    assert "launch check" in capsys.readouterr().err

@@ -84,6 +84,8 @@ class TrialJob:
     faults: dict[str, Any] = field(default_factory=dict)
     #: :class:`~uavmpc.avoidance.AvoidanceParams` fields that differ from the defaults.
     avoidance_params: dict[str, Any] = field(default_factory=dict)
+    #: The world's launch check (longest wait at the start [s]; None: set off at once).
+    launch_check_s: float | None = None
 
 
 def trial_seeds(seed: int, index: int) -> tuple[int, int]:
@@ -114,7 +116,8 @@ def run_trial(job: TrialJob) -> dict[str, Any]:
     faults = draw_faults(spec, [u.uav_id for u in sc.uavs], job.duration_s, 0.0,
                          job.world_seed)
     world = World(sc, avoidance=job.avoidance, seed=job.world_seed, link=link,
-                  wind_mps=job.wind_mps, **world_faults(faults))
+                  wind_mps=job.wind_mps, launch_check_s=job.launch_check_s,
+                  **world_faults(faults))
     if job.avoidance:
         res = world.run(job.duration_s)
         collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
@@ -511,6 +514,10 @@ def markdown_table(*reports: dict[str, Any]) -> str:
     if any(r["parameters"].get("faults") for r in reports):
         rows.append(("faults", lambda r: ", ".join(
             f"{k} {v}" for k, v in r["parameters"].get("faults", {}).items()) or "none"))
+    if any(r["parameters"].get("launch_check_s") is not None for r in reports):
+        rows.append(("launch check", lambda r: (
+            f"up to {r['parameters']['launch_check_s']:g} s"
+            if r["parameters"].get("launch_check_s") is not None else "none")))
     if any(r["parameters"].get("avoidance_params") for r in reports):
         rows.append(("avoidance parameters", lambda r: ", ".join(
             f"{k} {v}" for k, v in r["parameters"].get("avoidance_params", {}).items())
@@ -599,13 +606,16 @@ def run_campaign(
     progress: bool = True,
     faults: FaultSpec | None = None,
     avoidance_params: dict[str, Any] | None = None,
+    launch_check_s: float | None = None,
 ) -> dict[str, Any]:
     """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
 
     ``faults``: what goes wrong in every trial, drawn per trial from its world seed
     (:mod:`uavmpc.scenarios.faults`). ``avoidance_params``: fields of
     :class:`~uavmpc.avoidance.AvoidanceParams` to fly instead of the defaults (e.g. a larger
-    cylinder for a coarser position estimate).
+    cylinder for a coarser position estimate). ``launch_check_s``: every UAV holds at its
+    start until it has heard every other one, at most this long
+    (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``).
 
     Stops after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest
     prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
@@ -645,6 +655,10 @@ def run_campaign(
                 and "time_reference" in avoidance_table:
             raise CampaignError("time_reference: give it once, in the avoidance file or as "
                                 "--time-reference")
+    if launch_check_s is not None and not (math.isfinite(launch_check_s)
+                                           and 0.0 <= launch_check_s <= trial_s):
+        raise CampaignError(f"launch check: must be a time in [0, trial_s] [s], got "
+                            f"{launch_check_s!r}")
     if workers is None:
         workers = os.cpu_count() or 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -663,6 +677,8 @@ def run_campaign(
         params["faults"] = fault_fields
     if avoidance_table:
         params["avoidance_params"] = avoidance_table
+    if launch_check_s is not None:
+        params["launch_check_s"] = float(launch_check_s)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _check_parameters(out, params)
@@ -672,7 +688,8 @@ def run_campaign(
         s, w = trial_seeds(seed, i)
         return TrialJob(i, s, w, uavs, float(area_m), float(height_m), bool(avoidance),
                         link.loss, link.latency_s, link.jitter_s, float(wind), length,
-                        dict(fault_fields), dict(avoidance_table))
+                        dict(fault_fields), dict(avoidance_table),
+                        None if launch_check_s is None else float(launch_check_s))
 
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
@@ -778,6 +795,10 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> None:
                    help="K of the UAVs fly without avoidance (flag down)")
     g.add_argument("--silent", type=int, default=0, metavar="K",
                    help="K of the UAVs' radios go silent at a random time; they fly on")
+    s = p.add_argument_group("start-up")
+    s.add_argument("--launch-check", type=float, default=None, metavar="S",
+                   help="each UAV holds at its start until it has heard every other UAV, at "
+                        "most S seconds (default: all set off at once)")
 
 
 def fault_spec(args: argparse.Namespace) -> FaultSpec:
@@ -795,7 +816,8 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
                         trial_s=args.trial_s, cap_s=args.cap_s, area_m=args.area,
                         ray_address=args.ray, progress=not args.no_progress,
                         faults=fault_spec(args),
-                        avoidance_params=avoidance_file(args.avoidance_file))
+                        avoidance_params=avoidance_file(args.avoidance_file),
+                        launch_check_s=args.launch_check)
 
 
 def avoidance_file(path: str | None) -> dict[str, Any]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -20,7 +21,7 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   wind: float = 0.0, ros2: str | None = None,
                   realtime: float | None = None, uavs: int | None = None,
                   cruise_heights: tuple[float, ...] | None = None,
-                  faults: Any = None) -> dict:
+                  faults: Any = None, launch_check: float | None = None) -> dict:
     import contextlib
     import dataclasses
 
@@ -72,7 +73,8 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
           if logged else contextlib.nullcontext()) as rec:
         world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
-                      recorder=rec, **(world_faults(drawn) if drawn is not None else {}))
+                      recorder=rec, launch_check_s=launch_check,
+                      **(world_faults(drawn) if drawn is not None else {}))
         if ros2 is None:
             result = world.run(duration, realtime=realtime)
         else:
@@ -195,6 +197,11 @@ def _run(args: argparse.Namespace) -> int:
     if args.realtime is not None and not args.realtime > 0:
         print("uavmpc run: --realtime must be > 0", file=sys.stderr)
         return 2
+    if args.launch_check is not None and not (math.isfinite(args.launch_check)
+                                              and args.launch_check >= 0.0):
+        print(f"uavmpc run: --launch-check must be a time ≥ 0 [s], got {args.launch_check}",
+              file=sys.stderr)
+        return 2
     if args.uavs is not None and args.scenario != "traffic":
         print(f"uavmpc run: --uavs is for the generated scenario 'traffic', not "
               f"{args.scenario!r} (its UAVs are in its file)", file=sys.stderr)
@@ -219,7 +226,7 @@ def _run(args: argparse.Namespace) -> int:
                           duration=args.duration, loss=args.loss, latency=args.latency,
                           wind=args.wind, ros2=args.ros2, realtime=args.realtime,
                           uavs=args.uavs, cruise_heights=heights,
-                          faults=fault_spec(args))
+                          faults=fault_spec(args), launch_check=args.launch_check)
     except (OSError, ValueError) as exc:
         if args.ros2 is None:
             raise

@@ -124,6 +124,20 @@ def _standing(rows: InboxRows, r: int, col: int, now_s: float, use_received: boo
 
 
 @kernel
+def heard_from_all(rows: InboxRows, r: int, cols: np.ndarray, now_s: float,
+                   use_received: bool, timeout_s: float, silent_hold_s: float) -> bool:
+    """Row ``r`` holds a prediction from every column of ``cols`` (K,) that its encounters
+    take into account: fresh, or silent at most ``silent_hold_s`` old (:func:`encounter_rows`
+    with the same parameters)."""
+    for c in cols:
+        if rows.held_slot[r, c] < 0:
+            return False
+        if _standing(rows, r, c, now_s, use_received, timeout_s, silent_hold_s) == _IGNORED:
+            return False
+    return True
+
+
+@kernel
 def build_grid(store: Store, extrapolate_s: float, cell_m: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """A hashed grid of cells ``cell_m`` wide over the inflated boxes of the held slots
