@@ -133,7 +133,10 @@ def test_fuzzed_messages_never_crash_or_move_a_flying_node() -> None:
         sent.append(len(data))
         f.other.publish(data, "intruder", 0.0)
 
-    with _Flight(duration_s=30.0) as f:
+    # The flight lasts until the context stops it: 10 000 messages take ~10 s on a free
+    # machine and more than 30 s on a loaded one (a node that had simply finished its run
+    # would read as a crash).
+    with _Flight(duration_s=300.0) as f:
         f.node.set_mission(Reference.goto(10.0, 0.0, 5.0, 0.0, start_s=time.time()))
         blast()
         time.sleep(8.0)
