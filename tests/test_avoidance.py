@@ -573,6 +573,34 @@ def test_a_climb_does_not_close_in_on_a_uav_above_it() -> None:
     assert level.z_offset_m == 9.0 and not level.waiting_for
 
 
+def test_a_silent_uavs_widening_does_not_hold_a_climb_from_a_known_conflict() -> None:
+    """Found in the 24 h campaign with burst loss (trial 18): yielding to a from 8 s ahead,
+    the climb waited 7.6 s for s, silent and so possibly anywhere within a radius growing with
+    its silence, and started 0.1 s before a passed (1.22 m). The way up is checked along the
+    plans as announced; s's announced plan in the way still holds it, and the end layer is
+    still chosen clear of the widened plan."""
+    from uavmpc.avoidance.encounters import Encounters
+
+    prm = AvoidanceParams()
+    times = np.r_[0.01, 0.01 + 0.2 * np.arange(1, 40)]
+    a_near = (times > 7.0) & (times < 8.5)  # level with us: we yield and climb
+    s_widened = (times > 0.5) & (times < 2.5)  # s 1.5 m above the +3 m layer, on the way
+
+    def decide(s_announced: np.ndarray) -> object:
+        known = Encounters(
+            ids=("s", "a"), priority=np.array([9, 1]), avoiding=np.array([True, True]),
+            silent_row=np.array([True, False]), near_xy=np.vstack([s_widened, a_near]),
+            dz_m=np.vstack([np.full(times.size, -4.5), np.zeros(times.size)]),
+            silent=("s",), announced_xy=np.vstack([s_announced, a_near]))
+        return HeightOffsetStrategy(prm).decide(100.0, "me", 5, 100.0 + times, known)
+
+    free = decide(np.zeros(times.size, dtype=bool))  # s's plan as announced is elsewhere
+    assert free.yielding_to == ("a",) and not free.waiting_for
+    assert free.z_offset_m == 9.0  # +3 m and +6 m are within 3 m of s's (widened) plan
+    held = decide(s_widened)  # s announced right there
+    assert held.z_offset_m == 0.0 and held.waiting_for == ("s",)
+
+
 def test_a_geofence_ceiling_caps_the_offset_and_says_so() -> None:
     a, b = head_on()
     t = NOW + REL

@@ -70,6 +70,7 @@ def _same(a, b) -> None:
     assert a.silent == b.silent
     assert np.array_equal(a.silent_row, b.silent_row)
     assert np.array_equal(a.near_xy, b.near_xy)
+    assert np.array_equal(a.announced_xy, b.announced_xy)
     assert np.array_equal(a.dz_m, b.dz_m)
     assert np.array_equal(a.priority, b.priority)
 
@@ -103,6 +104,7 @@ def test_the_box_test_prunes_only_senders_that_never_come_near(seed, n, area) ->
     st_ = table.store
     for r in range(n):
         silent, fresh = [], []
+        announced = {}
         for col in range(len(ids)):
             slot = table.rows.held_slot[r, col]
             if slot < 0:
@@ -118,8 +120,19 @@ def test_the_box_test_prunes_only_senders_that_never_come_near(seed, n, area) ->
             d2 = ((aligned[:, :2] - own_p[r, :, :2]) ** 2).sum(axis=1)
             if np.any(known & (d2 <= reach**2)):
                 (fresh if abs(age) <= 1.0 else silent).append(ids[col])
+                announced[ids[col]] = (known & (d2 <= radius**2),
+                                       np.abs(np.sqrt(d2) - radius) > 1e-9)
         assert list(found[r].ids) == silent + fresh
         assert list(found[r].silent_row) == [True] * len(silent) + [False] * len(fresh)
+        # The way up is checked along the plans as announced: a silent row's widening is
+        # not in announced_xy (a fresh row's are the same points).
+        for k, uid in enumerate(found[r].ids):
+            expected, clear_of_edge = announced[uid]
+            got = found[r].announced_xy[k]
+            assert np.array_equal(got[clear_of_edge], expected[clear_of_edge])
+            assert not np.any(got & ~found[r].near_xy[k])
+            if not found[r].silent_row[k]:
+                assert np.array_equal(got, found[r].near_xy[k])
 
 
 def test_a_silent_plan_widens_by_how_far_its_uav_can_have_left_it() -> None:

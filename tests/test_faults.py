@@ -204,6 +204,9 @@ def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> Non
     assert np.array_equal(objects.positions_m, res.positions_m)
     assert objects.extra["launch"] == launch
     assert "launch" not in World(sc, seed=1).run(1.0).extra
+    # A UAV flying without avoidance ignores the others: it is not held.
+    alone = World(sc, seed=1, launch_check_s=5.0, non_cooperative=["uav1"]).run(1.0)
+    assert "uav1" not in alone.extra["launch"] and "uav2" in alone.extra["launch"]
     with pytest.raises(ValueError, match="launch_check_s"):
         World(sc, launch_check_s=-1.0)
 

@@ -48,10 +48,15 @@ class Encounters:
     Attributes:
         ids: (k,) sender ids; priority: (k,) int64; avoiding: (k,) bool (their flags).
         silent_row: (k,) bool the row is a silent UAV's last known plan.
-        near_xy: (k, m) bool known and horizontally within the pair's radius.
+        near_xy: (k, m) bool known and horizontally within the pair's radius (for a silent
+            UAV: widened by how far it can have left its plan).
         dz_m: (k, m) our z (without offset) minus theirs.
         silent: every sender heard from recently whose newest prediction is stale now (near
             or not), in column order.
+        announced_xy: (k, m) bool near along the plan as announced, within the pair's radius
+            without a silent UAV's widening (default: ``near_xy``). The way up is checked
+            against this: a guess where a silent UAV may be does not hold a climb away from
+            a known conflict.
     """
 
     ids: tuple[str, ...]
@@ -61,6 +66,11 @@ class Encounters:
     near_xy: np.ndarray
     dz_m: np.ndarray
     silent: tuple[str, ...] = ()
+    announced_xy: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.announced_xy is None:
+            object.__setattr__(self, "announced_xy", self.near_xy)
 
     def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
         """(k,) we yield to them: their flag is down, or a higher priority (lower number;
@@ -234,13 +244,16 @@ def _pair_radius(radius: float, ov_start: np.ndarray, ov_col: np.ndarray,
 
 @kernel
 def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
-               radius: float, extrapolate_s: float, box_own: np.ndarray, own_times: np.ndarray,
-               own_pos: np.ndarray, box: np.ndarray, shifted: np.ndarray, near: np.ndarray,
-               dz: np.ndarray, ne: int, e_col: np.ndarray, e_silent: np.ndarray,
-               e_near: np.ndarray, e_dz: np.ndarray) -> int:
+               radius: float, known_radius: float, extrapolate_s: float, box_own: np.ndarray,
+               own_times: np.ndarray, own_pos: np.ndarray, box: np.ndarray,
+               shifted: np.ndarray, near: np.ndarray, near_known: np.ndarray, dz: np.ndarray,
+               ne: int, e_col: np.ndarray, e_silent: np.ndarray, e_near: np.ndarray,
+               e_known: np.ndarray, e_dz: np.ndarray) -> int:
     """Row ``r``'s message from ``col`` against our plan (box test, then the cylinder's
     horizontal test at ``radius``); written as encounter row ``ne`` when it comes near (and
-    fits the outputs). Returns the new row count."""
+    fits the outputs), with the points near at ``known_radius`` ≤ ``radius`` (the plan as
+    announced, without a silent sender's widening) in ``e_known``. Returns the new row
+    count."""
     slot = rows.held_slot[r, col]
     _inflated_box(store, slot, extrapolate_s, box)
     reach = radius + BOX_MARGIN_M
@@ -265,6 +278,12 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
         e_silent[ne] = silent
         e_near[ne] = near
         e_dz[ne] = dz
+        if known_radius < radius:
+            near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s,
+                        own_pos, known_radius, near_known, dz)
+            e_known[ne] = near_known
+        else:
+            e_known[ne] = near
     return ne + 1
 
 
@@ -275,16 +294,18 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                    silent_speed_mps: float, silent_accel_mps2: float, radius_m: np.ndarray,
                    ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
                    use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
-                   e_silent: np.ndarray, e_near: np.ndarray, e_dz: np.ndarray,
-                   s_start: np.ndarray, s_col: np.ndarray) -> tuple[int, int]:
+                   e_silent: np.ndarray, e_near: np.ndarray, e_known: np.ndarray,
+                   e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
+                   ) -> tuple[int, int]:
     """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
     ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
     offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
     (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``).
 
     Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
-    ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders first, then
-    the fresh ones, each in column order; and every silent column in
+    ``e_known`` (·, m: near along the plan as announced, without a silent sender's
+    widening), ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
+    first, then the fresh ones, each in column order; and every silent column in
     ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
     its receive time with ``use_received``) is within ``timeout_s`` of now; a stale one is
     "silent" when it is at most ``silent_hold_s`` old, else ignored. A silent sender comes
@@ -305,6 +326,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     box = np.empty(4)
     shifted = np.empty(store.times_s.shape[1])
     near = np.empty(m, dtype=np.bool_)
+    near_known = np.empty(m, dtype=np.bool_)
     dz = np.empty(m)
     cand = np.empty(n_cols, dtype=np.int64)
     mark = np.full(n_cols, -1, dtype=np.int64)
@@ -329,13 +351,13 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             if ns < cap_s:
                 s_col[ns] = col
             ns += 1
-            radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
+            known = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
             ref = _reference_s(rows, r, col, use_received)
-            radius = max(radius, silent_radius_m + silent_reach_m(
+            radius = max(known, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
-            ne = _encounter(rows, store, r, col, True, ref, radius, timeout_s, box_own,
-                            own_times[j], own_pos[j], box, shifted, near, dz, ne, e_col,
-                            e_silent, e_near, e_dz)
+            ne = _encounter(rows, store, r, col, True, ref, radius, known, timeout_s, box_own,
+                            own_times[j], own_pos[j], box, shifted, near, near_known, dz, ne,
+                            e_col, e_silent, e_near, e_known, e_dz)
         r_max = radius_m[j]
         for o in range(ov_start[j], ov_start[j + 1]):
             r_max = max(r_max, ov_radius[o])
@@ -356,8 +378,9 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                 continue
             radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
             ne = _encounter(rows, store, r, col, False, _reference_s(rows, r, col, use_received),
-                            radius, timeout_s, box_own, own_times[j], own_pos[j], box, shifted,
-                            near, dz, ne, e_col, e_silent, e_near, e_dz)
+                            radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
+                            shifted, near, near_known, dz, ne, e_col, e_silent, e_near,
+                            e_known, e_dz)
     e_start[due.shape[0]] = ne
     s_start[due.shape[0]] = ns
     return ne, ns
@@ -381,7 +404,7 @@ def _nobody(m: int, silent: tuple[str, ...]) -> Encounters:
         _NOBODY[m] = enc
     if silent:
         return Encounters(enc.ids, enc.priority, enc.avoiding, enc.silent_row, enc.near_xy,
-                          enc.dz_m, silent)
+                          enc.dz_m, silent, enc.announced_xy)
     return enc
 
 
@@ -455,7 +478,7 @@ class EncounterFinder:
             self._cap_e = max(self._cap_e, 2 * ne)
             self._cap_s = max(self._cap_s, 2 * ns)
             self._out = None
-        e_start, e_col, e_silent, e_near, e_dz, s_start, s_col = out
+        e_start, e_col, e_silent, e_near, e_known, e_dz, s_start, s_col = out
         ids, st, rows = t.ids, t.store, t.rows
         result = []
         starts = e_start[:r_count + 1].tolist()
@@ -472,7 +495,7 @@ class EncounterFinder:
             result.append(Encounters(
                 tuple(ids[c] for c in cols_j.tolist()), st.priority[slots].copy(),
                 st.avoiding[slots].copy(), e_silent[a:b].copy(), e_near[a:b].copy(),
-                e_dz[a:b].copy(), silent))
+                e_dz[a:b].copy(), silent, e_known[a:b].copy()))
         return result
 
     def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:
@@ -481,9 +504,9 @@ class EncounterFinder:
             ce, cs = self._cap_e, self._cap_s
             out = (np.zeros(r_count + 1, dtype=np.int64), np.zeros(ce, dtype=np.int64),
                    np.zeros(ce, dtype=np.bool_), np.zeros((ce, m), dtype=np.bool_),
-                   np.zeros((ce, m)), np.zeros(r_count + 1, dtype=np.int64),
-                   np.zeros(cs, dtype=np.int64))
+                   np.zeros((ce, m), dtype=np.bool_), np.zeros((ce, m)),
+                   np.zeros(r_count + 1, dtype=np.int64), np.zeros(cs, dtype=np.int64))
             self._out = out
         if out[0].shape[0] != r_count + 1:
-            return (out[0][:r_count + 1], *out[1:5], out[5][:r_count + 1], out[6])
+            return (out[0][:r_count + 1], *out[1:6], out[6][:r_count + 1], out[7])
         return out

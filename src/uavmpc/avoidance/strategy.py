@@ -221,7 +221,8 @@ def _below(enc: Encounters, offset_m: float, half_height_m: float) -> np.ndarray
 def _subset(enc: Encounters, keep: np.ndarray) -> Encounters:
     return Encounters(tuple(i for i, k in zip(enc.ids, keep, strict=True) if k),
                       enc.priority[keep], enc.avoiding[keep], enc.silent_row[keep],
-                      enc.near_xy[keep], enc.dz_m[keep], enc.silent)
+                      enc.near_xy[keep], enc.dz_m[keep], enc.silent,
+                      enc.announced_xy[keep])
 
 
 class HeightOffsetStrategy:
@@ -420,6 +421,13 @@ class HeightOffsetStrategy:
         before they met, uav3 still climbing to its +6 m layer in its plan; the climb to
         +9 m that uav5 took to escape went through uav3 (0.39 m). It now holds at +3 m while
         uav3 climbs away.
+
+        The way is checked against the plans as announced (``announced_xy``), not against a
+        silent UAV's widening (rule 7). Found in the same campaign (trial 18): uav3, yielding
+        to uav1 from 8 s ahead, waited 7.6 s for the way up to clear of uav4, silent and so
+        possibly anywhere within a radius growing with its silence, and climbed only 0.1 s
+        before uav1 passed (1.22 m). The end layer is still chosen clear of the widened
+        plans.
         """
         prm = self.params
         z = self.z_offset_m
@@ -442,7 +450,9 @@ class HeightOffsetStrategy:
         # worse than climbing (found in the same campaign, trial 33).
         climbing = lo < candidates[:, None, None]
         escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z >= -LEVEL_M)
-        in_way = (enc.near_xy & climbing & ~escaping
+        # Along the plans as announced: where a silent UAV could have gone since does not
+        # hold a climb away from a conflict we know of (rule 7).
+        in_way = (enc.announced_xy & climbing & ~escaping
                   & (enc.dz_m + hi >= -half_h) & (enc.dz_m + lo <= half_h))
         blocked_way = in_way.any(axis=2)  # (c, k)
         clear_way = ~blocked_way.any(axis=1)

@@ -311,10 +311,11 @@ class World:
             flies on (its stack still plans and thinks it broadcasts).
         launch_check_s: hold each UAV at its start until its inbox holds a prediction from
             every other UAV of the scenario that its avoidance counts (fresh, or silent at
-            most ``silent_hold_s`` old), at most this long [s]; then it
-            flies its mission (``extra["launch"]`` says when, and who was not heard). A
-            mission stepped beside the stack (a lander, a follower) starts at once. Default
-            None: every UAV sets off at once.
+            most ``silent_hold_s`` old), at most this long [s]; then it flies its mission
+            (``extra["launch"]`` says when, and who was not heard). A UAV flying without
+            avoidance ignores the others, and a mission stepped beside the stack (a lander, a
+            follower) starts its own way: both set off at once. Default None: every UAV sets
+            off at once.
     """
 
     def __init__(
@@ -431,7 +432,8 @@ class World:
             if off:
                 reference = Reference(reference.times_s + off, reference.points, reference.loop)
             u = WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, off)
-            held = (launch_check_s is not None and n > 1 and scenario.landing is None
+            held = (launch_check_s is not None and n > 1 and resolver is not None
+                    and scenario.landing is None
                     and not (formation is not None and spec.uav_id in formation.followers))
             if held:
                 # Hover where it starts; the mission waits for the link (:meth:`_launch`).
