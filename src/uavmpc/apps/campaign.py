@@ -781,7 +781,8 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def add_fault_arguments(p: argparse.ArgumentParser) -> None:
-    """The fault flags (:mod:`uavmpc.scenarios.faults`), shared by ``run`` and ``campaign``."""
+    """The fault flags (:mod:`uavmpc.scenarios.faults`) and the launch check, shared by ``run``
+    and ``campaign``."""
     g = p.add_argument_group("faults (each drawn per flight from its seed)")
     g.add_argument("--clock-offset", type=float, default=0.0, metavar="S",
                    help="every UAV's clock off by up to ±S seconds")
