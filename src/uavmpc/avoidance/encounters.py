@@ -244,15 +244,15 @@ def _pair_radius(radius: float, ov_start: np.ndarray, ov_col: np.ndarray,
 
 @kernel
 def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
-               radius: float, known_radius: float, extrapolate_s: float, box_own: np.ndarray,
+               radius: float, announced_radius: float, extrapolate_s: float, box_own: np.ndarray,
                own_times: np.ndarray, own_pos: np.ndarray, box: np.ndarray,
-               shifted: np.ndarray, near: np.ndarray, near_known: np.ndarray, dz: np.ndarray,
+               shifted: np.ndarray, near: np.ndarray, near_announced: np.ndarray, dz: np.ndarray,
                ne: int, e_col: np.ndarray, e_silent: np.ndarray, e_near: np.ndarray,
-               e_known: np.ndarray, e_dz: np.ndarray) -> int:
+               e_announced: np.ndarray, e_dz: np.ndarray) -> int:
     """Row ``r``'s message from ``col`` against our plan (box test, then the cylinder's
     horizontal test at ``radius``); written as encounter row ``ne`` when it comes near (and
-    fits the outputs), with the points near at ``known_radius`` ≤ ``radius`` (the plan as
-    announced, without a silent sender's widening) in ``e_known``. Returns the new row
+    fits the outputs), with the points near at ``announced_radius`` ≤ ``radius`` (the plan as
+    announced, without a silent sender's widening) in ``e_announced``. Returns the new row
     count."""
     slot = rows.held_slot[r, col]
     _inflated_box(store, slot, extrapolate_s, box)
@@ -278,12 +278,12 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
         e_silent[ne] = silent
         e_near[ne] = near
         e_dz[ne] = dz
-        if known_radius < radius:
+        if announced_radius < radius:
             near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s,
-                        own_pos, known_radius, near_known, dz)
-            e_known[ne] = near_known
+                        own_pos, announced_radius, near_announced, dz)
+            e_announced[ne] = near_announced
         else:
-            e_known[ne] = near
+            e_announced[ne] = near
     return ne + 1
 
 
@@ -294,7 +294,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                    silent_speed_mps: float, silent_accel_mps2: float, radius_m: np.ndarray,
                    ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
                    use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
-                   e_silent: np.ndarray, e_near: np.ndarray, e_known: np.ndarray,
+                   e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
                    e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
                    ) -> tuple[int, int]:
     """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
@@ -303,7 +303,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``).
 
     Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
-    ``e_known`` (·, m: near along the plan as announced, without a silent sender's
+    ``e_announced`` (·, m: near along the plan as announced, without a silent sender's
     widening), ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
     first, then the fresh ones, each in column order; and every silent column in
     ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
@@ -326,7 +326,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     box = np.empty(4)
     shifted = np.empty(store.times_s.shape[1])
     near = np.empty(m, dtype=np.bool_)
-    near_known = np.empty(m, dtype=np.bool_)
+    near_announced = np.empty(m, dtype=np.bool_)
     dz = np.empty(m)
     cand = np.empty(n_cols, dtype=np.int64)
     mark = np.full(n_cols, -1, dtype=np.int64)
@@ -351,13 +351,13 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             if ns < cap_s:
                 s_col[ns] = col
             ns += 1
-            known = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
+            announced = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
             ref = _reference_s(rows, r, col, use_received)
-            radius = max(known, silent_radius_m + silent_reach_m(
+            radius = max(announced, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
-            ne = _encounter(rows, store, r, col, True, ref, radius, known, timeout_s, box_own,
-                            own_times[j], own_pos[j], box, shifted, near, near_known, dz, ne,
-                            e_col, e_silent, e_near, e_known, e_dz)
+            ne = _encounter(rows, store, r, col, True, ref, radius, announced, timeout_s, box_own,
+                            own_times[j], own_pos[j], box, shifted, near, near_announced, dz, ne,
+                            e_col, e_silent, e_near, e_announced, e_dz)
         r_max = radius_m[j]
         for o in range(ov_start[j], ov_start[j + 1]):
             r_max = max(r_max, ov_radius[o])
@@ -379,8 +379,8 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
             ne = _encounter(rows, store, r, col, False, _reference_s(rows, r, col, use_received),
                             radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
-                            shifted, near, near_known, dz, ne, e_col, e_silent, e_near,
-                            e_known, e_dz)
+                            shifted, near, near_announced, dz, ne, e_col, e_silent, e_near,
+                            e_announced, e_dz)
     e_start[due.shape[0]] = ne
     s_start[due.shape[0]] = ns
     return ne, ns
@@ -478,7 +478,7 @@ class EncounterFinder:
             self._cap_e = max(self._cap_e, 2 * ne)
             self._cap_s = max(self._cap_s, 2 * ns)
             self._out = None
-        e_start, e_col, e_silent, e_near, e_known, e_dz, s_start, s_col = out
+        e_start, e_col, e_silent, e_near, e_announced, e_dz, s_start, s_col = out
         ids, st, rows = t.ids, t.store, t.rows
         result = []
         starts = e_start[:r_count + 1].tolist()
@@ -495,7 +495,7 @@ class EncounterFinder:
             result.append(Encounters(
                 tuple(ids[c] for c in cols_j.tolist()), st.priority[slots].copy(),
                 st.avoiding[slots].copy(), e_silent[a:b].copy(), e_near[a:b].copy(),
-                e_dz[a:b].copy(), silent, e_known[a:b].copy()))
+                e_dz[a:b].copy(), silent, e_announced[a:b].copy()))
         return result
 
     def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:
