@@ -99,6 +99,9 @@ def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_pa
     # 2 m/s: back down by about 16.5 s
     assert uav2["last_state"]["z_offset"] == 0.0 and not uav2["last_state"]["avoiding"]
     assert uav2["reached_goal"]
+    # the killed node printed no report: the summary says how it ended instead
+    assert s["uavs"]["uav1"]["node"]["exit_code"] == -9
+    assert isinstance(s["uavs"]["uav1"]["node"]["stderr_tail"], list)
 
 
 def test_forged_or_unsigned_predictions_are_ignored_with_a_key() -> None:

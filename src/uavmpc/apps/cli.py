@@ -399,7 +399,7 @@ def _swarm(args: argparse.Namespace) -> int:
         per = ", ".join(f"{k} {v['rms']:.2f}/{v['max']:.2f}" for k, v in fe["per_follower"].items())
         print(f"  formation error (from {s['formation']['measured_from_s']:g} s): rms "
               f"{fe['rms']:.2f} m, max {fe['max']:.2f} m (rms/max: {per})")
-    print(f"wrote {out}/summary.json, flight.mcap, min_distance.png")
+    print(f"wrote {out}/summary.json, flight.mcap, min_distance.png, <id>.node.log")
     return 0
 
 

@@ -266,12 +266,24 @@ class SimulatedVehicle:
 
 def warm_up(airframe: Airframe) -> None:
     """Compile (or load from the cache) the kernels one UAV's tick needs, before a real-time
-    clock starts: the first tick of a flight must not take the seconds a compilation does."""
-    plant = Multirotor(airframe, position_m=(0.0, 0.0, 5.0))
-    stack = OnboardStack(airframe, position_m=(0.0, 0.0, 5.0),
-                         avoidance=HeightOffsetStrategy())
-    out = stack.tick(0.0, plant.state(), ())
-    plant.step(out.target, stack.period_s)
+    clock starts: the first tick of a flight must not take the seconds a compilation does.
+
+    Two stacks head-on, each hearing the other, so that the encounter and strategy kernels
+    compile too: cold, the first received prediction would otherwise stall a flying node's
+    tick for tens of seconds on a small machine."""
+    starts = ((0.0, 0.0, 5.0), (20.0, 0.0, 5.0))
+    plants = [Multirotor(airframe, position_m=p) for p in starts]
+    stacks = [OnboardStack(airframe, position_m=p, uav_id=f"warm{i}", priority=i,
+                           avoidance=HeightOffsetStrategy()) for i, p in enumerate(starts)]
+    for stack, goal in zip(stacks, reversed(starts), strict=True):
+        stack.set_mission(Reference.goto(*goal))
+    inboxes: list[list[bytes]] = [[], []]
+    for k in range(50):  # half a second: both have sent, heard and decided
+        outs = [s.tick(k * s.period_s, pl.state(), box)
+                for s, pl, box in zip(stacks, plants, inboxes, strict=True)]
+        inboxes = [[o.outgoing] if o.outgoing else [] for o in reversed(outs)]
+        for s, pl, o in zip(stacks, plants, outs, strict=True):
+            pl.step(o.target, s.period_s)
 
 
 class Node:

@@ -124,16 +124,26 @@ def _formation_summary(spec: Any, tracks: dict[str, list[tuple[float, np.ndarray
                           "measured_from_s": FORMATION_SETTLE_S}}
 
 
-def _last_json_line(p: subprocess.Popen[str]) -> dict[str, Any]:
-    """The report a child process printed last (one JSON line), after it ended (killed if it
-    does not within 15 s); its exit code if it printed none."""
+def _last_json_line(p: subprocess.Popen[str], log: Path | None = None) -> dict[str, Any]:
+    """The report a child process printed last (one JSON line), after it ended (asked twice,
+    then killed if it does not within 15 s); if it printed none, its exit code and the end of
+    its error output (``log``) say why."""
     try:
-        stdout, _ = p.communicate(timeout=15)
-    except subprocess.TimeoutExpired:
-        p.kill()
-        stdout, _ = p.communicate()
+        stdout, _ = p.communicate(timeout=5)
+    except subprocess.TimeoutExpired:  # still landing: a second request ends it at once
+        p.send_signal(signal.SIGINT)
+        try:
+            stdout, _ = p.communicate(timeout=15)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            stdout, _ = p.communicate()
     lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
-    return json.loads(lines[-1]) if lines else {"exit_code": p.returncode}
+    if lines:
+        return json.loads(lines[-1])
+    report: dict[str, Any] = {"exit_code": p.returncode}
+    if log is not None and log.exists():
+        report["stderr_tail"] = log.read_text(errors="replace").splitlines()[-20:]
+    return report
 
 
 def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
@@ -149,7 +159,8 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     gets the closest pairwise distance over time at the end (the CLI draws it). ``mavlink``:
     every node flies its own stand-in PX4 over MAVLink/UDP (``setpoints``: the message it
     sends); goals are judged where the UAVs are when the mission ends, before they land.
-    ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it."""
+    ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it. Each
+    node's error output goes to ``out/<id>.node.log``."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
     if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
@@ -196,6 +207,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
         formation_file = Path(tmp.name) / "formation.json"
         formation_file.write_text(json.dumps(formation_table(formation, epoch)))
     tracks: dict[str, list[tuple[float, np.ndarray]]] = {u: [] for u in ids}
+    logs = {u: out / f"{u}.node.log" for u in ids}  # each node's error output
     try:
         for i, spec in enumerate(scenario.uavs):
             mission = Path(tmp.name) / f"{spec.uav_id}.json"
@@ -218,7 +230,9 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                                duration_s=duration + (epoch - time.time()) + 1.0,
                                key_file=key_file, mavlink=address, setpoints=setpoints,
                                ros2=ros2, formation_file=formation_file if member else None)
-            procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+            with open(logs[spec.uav_id], "w") as err:  # the child keeps its own copy
+                procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err,
+                                                      text=True)
         meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
                 "vehicle": "PX4 stand-in over MAVLink" if mavlink else "simulated plant"}
         with FlightRecorder(out / "flight.mcap", ids, meta) as rec:
@@ -285,7 +299,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
         for p in procs.values():
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
-        node_stats = {uav: _last_json_line(p) for uav, p in procs.items()}
+        node_stats = {uav: _last_json_line(p, logs[uav]) for uav, p in procs.items()}
         for p in sitls.values():  # the stand-ins end after their nodes
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
