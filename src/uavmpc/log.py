@@ -9,12 +9,21 @@ Topics per UAV ``<id>``:
 - ``/<id>/status``: ``uavmpc.UavStatus`` (velocity, z offset, avoidance flag, conflicts, limit
   excess of the virtual UAV), at ``pose_rate_hz``.
 - ``/link``: ``uavmpc.LinkEvent`` for every message sent, delivered, dropped or rejected.
+
+And for the whole flight:
+
+- ``/scene``: ``foxglove.SceneUpdate``, the 3-D scene (:mod:`uavmpc.view.scene`: bodies,
+  plans, desired trajectories, avoidance cylinders coloured by state, ground, geofence, car).
+- ``/metrics``: ``uavmpc.Metrics``, plot-ready numbers (closest pair, and per UAV its z offset,
+  limit excess, tracker fallbacks).
+
+The Foxglove messages are declared with Foxglove's published JSON schemas, unchanged
+(``uavmpc/data/foxglove``); the ``uavmpc.*`` ones with their own.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -22,30 +31,9 @@ from typing import Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-_POSE_SCHEMA = {
-    "title": "foxglove.PoseInFrame",
-    "type": "object",
-    "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
-                                                        "nsec": {"type": "integer"}}},
-        "frame_id": {"type": "string"},
-        "pose": {"type": "object", "properties": {
-            "position": {"type": "object", "properties": {
-                "x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}},
-            "orientation": {"type": "object", "properties": {
-                "x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"},
-                "w": {"type": "number"}}}}},
-    },
-}
-_POSES_SCHEMA = {
-    "title": "foxglove.PosesInFrame",
-    "type": "object",
-    "properties": {
-        "timestamp": _POSE_SCHEMA["properties"]["timestamp"],
-        "frame_id": {"type": "string"},
-        "poses": {"type": "array", "items": _POSE_SCHEMA["properties"]["pose"]},
-    },
-}
+from uavmpc.view.scene import METRICS_SCHEMA, SCENE_SCHEMA, published_schema, stamp
+from uavmpc.view.scene import pose as _pose
+
 _STATUS_SCHEMA = {
     "title": "uavmpc.UavStatus",
     "type": "object",
@@ -74,18 +62,6 @@ _LINK_SCHEMA = {
 }
 
 
-def _stamp(t_s: float) -> dict[str, int]:
-    ns = max(0, round(t_s * 1e9))
-    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
-
-
-def _pose(p: Iterable[float], heading_rad: float) -> dict[str, Any]:
-    x, y, z = (float(v) for v in p)
-    half = 0.5 * float(heading_rad)
-    return {"position": {"x": x, "y": y, "z": z},
-            "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)}}
-
-
 class FlightRecorder:
     """Writes one run to an MCAP file. Use as a context manager, or call :meth:`close`."""
 
@@ -100,7 +76,10 @@ class FlightRecorder:
         self._w.start(profile="", library="uavmpc")
         schemas = {s["title"]: self._w.register_schema(s["title"], "jsonschema",
                                                        json.dumps(s).encode())
-                   for s in (_POSE_SCHEMA, _POSES_SCHEMA, _STATUS_SCHEMA, _LINK_SCHEMA)}
+                   for s in (_STATUS_SCHEMA, METRICS_SCHEMA, _LINK_SCHEMA)}
+        for name in ("foxglove.PoseInFrame", "foxglove.PosesInFrame", SCENE_SCHEMA):
+            schemas[name] = self._w.register_schema(name, "jsonschema",
+                                                    published_schema(name).encode())
         self._ch: dict[str, int] = {}
         for uav in uav_ids:
             for topic, schema in (("state", "foxglove.PoseInFrame"),
@@ -114,6 +93,9 @@ class FlightRecorder:
             self._ch[f"/{name}/state"] = self._w.register_channel(
                 f"/{name}/state", "json", schemas["foxglove.PoseInFrame"])
         self._ch["/link"] = self._w.register_channel("/link", "json", schemas["uavmpc.LinkEvent"])
+        self._ch["/scene"] = self._w.register_channel("/scene", "json", schemas[SCENE_SCHEMA])
+        self._ch["/metrics"] = self._w.register_channel("/metrics", "json",
+                                                        schemas["uavmpc.Metrics"])
         self._w.add_metadata("run", {k: str(v) for k, v in metadata.items()})
         self._seq = 0
 
@@ -125,14 +107,22 @@ class FlightRecorder:
                             sequence=self._seq)
 
     def pose(self, uav: str, topic: str, t_s: float, position: np.ndarray, heading: float) -> None:
-        self._add(f"/{uav}/{topic}", t_s, {"timestamp": _stamp(t_s), "frame_id": "world",
+        self._add(f"/{uav}/{topic}", t_s, {"timestamp": stamp(t_s), "frame_id": "world",
                                            "pose": _pose(position, heading)})
 
     def prediction(self, uav: str, t_s: float, positions: np.ndarray,
                    headings: np.ndarray) -> None:
         poses = [_pose(p, h) for p, h in zip(positions.tolist(), headings.tolist(), strict=True)]
         self._add(f"/{uav}/prediction", t_s,
-                  {"timestamp": _stamp(t_s), "frame_id": "world", "poses": poses})
+                  {"timestamp": stamp(t_s), "frame_id": "world", "poses": poses})
+
+    def scene(self, t_s: float, update: dict[str, Any]) -> None:
+        """A ``foxglove.SceneUpdate`` (:func:`uavmpc.view.scene.scene_update`)."""
+        self._add("/scene", t_s, update)
+
+    def metrics(self, t_s: float, numbers: dict[str, Any]) -> None:
+        """The plot-ready numbers of now (``uavmpc.Metrics``)."""
+        self._add("/metrics", t_s, numbers)
 
     def status(self, uav: str, t_s: float, **fields: Any) -> None:
         self._add(f"/{uav}/status", t_s, {"t_s": t_s, **fields})

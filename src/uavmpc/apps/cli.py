@@ -21,7 +21,8 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   wind: float = 0.0, ros2: str | None = None,
                   realtime: float | None = None, uavs: int | None = None,
                   cruise_heights: tuple[float, ...] | None = None,
-                  faults: Any = None, launch_check: float | None = None) -> dict:
+                  faults: Any = None, launch_check: float | None = None,
+                  live_port: int | None = None) -> dict:
     import contextlib
     import dataclasses
 
@@ -75,16 +76,23 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
         world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
                       recorder=rec, launch_check_s=launch_check,
                       **(world_faults(drawn) if drawn is not None else {}))
-        if ros2 is None:
-            result = world.run(duration, realtime=realtime)
-        else:
-            from uavmpc.comms.ros2 import Ros2Graph
-            from uavmpc.drivers.ros2 import WorldOnRos2
+        with contextlib.ExitStack() as around:
+            mirror = live = None
+            if ros2 is not None:
+                from uavmpc.comms.ros2 import Ros2Graph
+                from uavmpc.drivers.ros2 import WorldOnRos2
 
-            with Ros2Graph(ros2, node_name="uavmpc_world") as graph:
+                graph = around.enter_context(Ros2Graph(ros2, node_name="uavmpc_world"))
                 mirror = WorldOnRos2(graph, [u.uav_id for u in sc.uavs])
-                result = world.run(duration, realtime=1.0 if realtime is None else realtime,
-                                   on_log=mirror)
+            if live_port is not None:
+                from uavmpc.view.live import LiveView
+
+                live = around.enter_context(LiveView(port=live_port))
+                print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
+            if (mirror is not None or live is not None) and realtime is None:
+                realtime = 1.0  # watched: at the pace of the wall clock
+            result = world.run(duration, realtime=realtime, on_log=mirror,
+                               on_scene=live.publish if live is not None else None)
     summary = result.summary()
     summary["link"] = dataclasses.asdict(link)
     summary["flight_log"] = "flight.mcap" if logged else None
@@ -226,11 +234,13 @@ def _run(args: argparse.Namespace) -> int:
                           duration=args.duration, loss=args.loss, latency=args.latency,
                           wind=args.wind, ros2=args.ros2, realtime=args.realtime,
                           uavs=args.uavs, cruise_heights=heights,
-                          faults=fault_spec(args), launch_check=args.launch_check)
+                          faults=fault_spec(args), launch_check=args.launch_check,
+                          live_port=args.live)
     except (OSError, ValueError) as exc:
-        if args.ros2 is None:
+        if args.ros2 is None and args.live is None:
             raise
-        print(f"uavmpc run: --ros2: {exc}", file=sys.stderr)
+        print(f"uavmpc run: {'--ros2' if args.live is None else '--ros2/--live'}: {exc}",
+              file=sys.stderr)
         return 2
     _print_world_summary(s, out)
     return 0
@@ -661,7 +671,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "Zenoh router (rmw_zenohd, e.g. tcp/localhost:7447); goals and "
                           "trajectories from ROS 2 are flown")
     run.add_argument("--realtime", type=float, default=None, metavar="FACTOR",
-                     help="pace the simulation at FACTOR × real time (--ros2: default 1)")
+                     help="pace the simulation at FACTOR × real time (--ros2, --live: "
+                          "default 1)")
+    run.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                     help="serve the 3-D scene and metrics to Foxglove on ws://127.0.0.1:PORT "
+                          "while it flies (default port 8765; pip install 'uavmpc[viz]')")
     from uavmpc.apps.campaign import add_fault_arguments
 
     add_fault_arguments(run)

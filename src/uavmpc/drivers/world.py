@@ -61,6 +61,14 @@ from uavmpc.scenarios import LinkSettings, Scenario
 from uavmpc.scenarios.faults import Faults
 from uavmpc.tracker import DynamicLimits, TrackerConfig
 from uavmpc.tracker.kernels import make_scratch
+from uavmpc.view.scene import (
+    ObjectView,
+    UavView,
+    ground_entity,
+    scene_update,
+    stamp,
+    state_of,
+)
 
 COLLISION_DISTANCE_M = 1.0
 #: A UAV has reached its goal when it ends within this 3-D distance of it.
@@ -69,6 +77,8 @@ GOAL_TOLERANCE_M = 1.0
 FENCE_CHECK_TICKS = 10
 #: Log rate of poses and status (predictions are logged at each broadcast).
 POSE_LOG_PERIOD_S = 0.05
+#: Period of the 3-D scene and the metrics in logs and live views [s].
+SCENE_PERIOD_S = 0.1
 #: The ground vehicle's name in logs (``/ground_vehicle/state``: its deck's centre).
 GROUND_VEHICLE_ID = "ground_vehicle"
 #: The formation error is measured from this time on (the followers' first plans arrive and
@@ -475,6 +485,8 @@ class World:
             raise ValueError(f"silent_from_s: times must be finite, got {silent!r}")
         #: UAV id → when its radio goes silent [s]; and how many broadcasts it swallowed.
         self.silent_from_s = {k: float(v) for k, v in silent.items()}
+        self._ground: dict[str, Any] | None = None  # the scene's ground, made once
+        self._next_scene_s = -math.inf
         self.silenced = 0
         self._windy = [u.plant for u in self.uavs if u.plant.wind is not None]
         self._missions = [u for u in self.uavs if u.mission is not None]
@@ -510,12 +522,17 @@ class World:
         self._cycles = np.zeros(4 if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
 
     def run(self, duration_s: float | None = None, *, realtime: float | None = None,
-            on_log: Callable[[World], None] | None = None) -> WorldResult:
+            on_log: Callable[[World], None] | None = None,
+            on_scene: Callable[[float, dict[str, Any], dict[str, Any]], None] | None = None,
+            ) -> WorldResult:
         """Fly for ``duration_s`` (default: the scenario's) and return the result.
 
         ``realtime``: pace the simulated clock at this many times the wall clock (1.0: real
         time; default: as fast as it goes). ``on_log(world)`` is called at the log rate
-        (every :data:`POSE_LOG_PERIOD_S`), e.g. to mirror the UAVs on a live view."""
+        (every :data:`POSE_LOG_PERIOD_S`), e.g. to mirror the UAVs on ROS 2;
+        ``on_scene(t_s, scene, metrics)`` every :data:`SCENE_PERIOD_S` with the 3-D scene
+        (:meth:`scene`) and the metrics (:meth:`metrics`) the log also gets, e.g. to serve
+        them live (:class:`uavmpc.view.live.LiveView`)."""
         duration = self.scenario.duration_s if duration_s is None else float(duration_s)
         if not (math.isfinite(duration) and duration > 0):
             raise ValueError(f"duration_s must be > 0, got {duration_s}")
@@ -573,6 +590,16 @@ class World:
                     self._log()
                 if on_log is not None:
                     on_log(self)
+            if (self.recorder is not None or on_scene is not None) \
+                    and self.t_s >= self._next_scene_s - 1e-9:
+                self._next_scene_s = self.t_s + SCENE_PERIOD_S
+                scene = self.scene()
+                metrics = self.metrics(float(dmin[k]) if n > 1 else None)
+                if self.recorder is not None:
+                    self.recorder.scene(self.t_s, scene)
+                    self.recorder.metrics(self.t_s, metrics)
+                if on_scene is not None:
+                    on_scene(self.t_s, scene, metrics)
             if realtime is not None:
                 ahead = (k + 1) * self.period_s / realtime - (time.perf_counter() - wall0)
                 if ahead > 0.0:
@@ -1012,6 +1039,74 @@ class World:
                 c.distance_m = min(c.distance_m, float(d[j]))
             else:
                 contact.pop(key, None)
+
+    def views(self) -> list[UavView]:
+        """Every flying UAV as the 3-D scene shows it now (:mod:`uavmpc.view.scene`)."""
+        out = []
+        for u in self.uavs:
+            stack = u.stack
+            if stack.last_output is None:
+                continue
+            s = u.plant.state()
+            d = stack.decision
+            plan = stack.last_broadcast
+            desired = np.zeros((0, 3))
+            ref = stack.tracker.reference
+            if plan is not None and ref is not None:
+                desired = ref.sample(plan.times_s)[:, :3]
+            silent = self.t_s >= self.silent_from_s.get(u.uav_id, math.inf)
+            state = state_of(silent=silent, waiting_for=d.waiting_for if d else (),
+                             yielding_to=d.yielding_to if d else (),
+                             z_offset_m=stack.tracker.z_offset_m,
+                             avoiding=bool(d is not None and d.avoiding))
+            detail = ""
+            if d is not None and d.yielding_to:
+                detail = "yielding to " + ", ".join(d.yielding_to)
+            elif d is not None and d.waiting_for:
+                detail = "waiting for " + ", ".join(d.waiting_for)
+            out.append(UavView(
+                u.uav_id, s.position_m, float(heading_of(s.attitude_wxyz)),
+                plan.position_m if plan is not None else np.zeros((0, 3)), desired,
+                stack.tracker.z_offset_m, state, stack.params.radius_m, stack.params.height_m,
+                detail))
+        return out
+
+    def scene(self) -> dict[str, Any]:
+        """The ``foxglove.SceneUpdate`` of now: the UAVs (:meth:`views`), the ground, the
+        geofence, the car and its deck."""
+        if self._ground is None:
+            pts = np.array([p for sp in self.scenario.uavs
+                            for p in (sp.start_m, *sp.mission.points[:, :3])], dtype=float)
+            lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+            self._ground = ground_entity(0.0, 0.5 * (lo + hi),
+                                         0.5 * float((hi - lo).max()) + 20.0)
+        objects = []
+        if self.ground_vehicle is not None:
+            car = self.ground_vehicle.state(self.t_s)
+            deck = self.ground_vehicle.deck_size_m
+            x, y, deck_z = (float(v) for v in car.position_m)
+            objects = [  # the car's body under its deck
+                ObjectView("car", np.array([x, y, 0.5 * deck_z]), car.heading_rad,
+                           (2.0 * deck, deck, deck_z), (0.2, 0.2, 0.25, 1.0)),
+                ObjectView("deck", car.position_m, car.heading_rad, (deck, deck, 0.05),
+                           (0.95, 0.85, 0.2, 1.0))]
+        fence = None
+        if self.geofence is not None:
+            g = self.geofence
+            fence = (g.polygon_xy_m, g.min_altitude_m, g.max_altitude_m)
+        return scene_update(self.t_s, self.views(), fence=fence, objects=objects,
+                            ground=dict(self._ground, timestamp=stamp(self.t_s)))
+
+    def metrics(self, min_distance_m: float | None) -> dict[str, Any]:
+        """The plot-ready numbers of now: the closest pair's distance and, per UAV, its z
+        offset, how far its virtual UAV is outside the limits, its tracker fallbacks."""
+        return {"t_s": self.t_s, "min_distance_m": min_distance_m,
+                "uavs": {u.uav_id: {"z_offset_m": u.stack.tracker.z_offset_m,
+                                    "limit_excess": u.stack.tracker.limit_excess(),
+                                    "tracker_fallbacks": u.stack.tracker.fallback_count,
+                                    "avoiding": bool(u.stack.decision is not None
+                                                     and u.stack.decision.avoiding)}
+                         for u in self.uavs}}
 
     def _log(self) -> None:
         rec = self.recorder

@@ -1,0 +1,114 @@
+"""The live view, seen by an independent client: a WebSocket client of our own speaking
+Foxglove's protocol (subprotocol ``foxglove.sdk.v1``: JSON ``advertise``/``subscribe``, binary
+message data) on loopback, while a simulated world flies."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+import subprocess
+import sys
+import time
+
+import jsonschema
+import numpy as np
+import pytest
+import websockets
+
+from uavmpc import scenarios
+from uavmpc.drivers.swarm import free_ports
+from uavmpc.drivers.world import World
+from uavmpc.view.live import LiveView
+
+SUBPROTOCOL = "foxglove.sdk.v1"
+MESSAGE_DATA = 0x01  # binary opcode: u32 subscription id, u64 log time [ns], payload
+
+
+async def _watch(url: str, seconds: float, *, leave_abruptly: bool = False) -> dict:
+    """Connect, subscribe to every advertised channel, and decode what arrives."""
+    got: dict[str, list[tuple[int, dict]]] = {}
+    async with websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None) as ws:
+        assert ws.subprotocol == SUBPROTOCOL
+        channels: dict[int, dict] = {}
+        while {c["topic"] for c in channels.values()} < {"/scene", "/metrics"}:
+            msg = json.loads(await asyncio.wait_for(ws.recv(), 10.0))
+            if msg["op"] == "advertise":
+                channels.update({c["id"]: c for c in msg["channels"]})
+        subs = {i + 1: c for i, c in enumerate(channels.values())}
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+            {"id": sid, "channelId": c["id"]} for sid, c in subs.items()]}))
+        validators = {sid: jsonschema.Draft202012Validator(json.loads(c["schema"]))
+                      for sid, c in subs.items()}
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), max(0.01, end - time.monotonic()))
+            except TimeoutError:
+                break
+            if isinstance(frame, str) or frame[0] != MESSAGE_DATA:
+                continue
+            sid, log_ns = struct.unpack_from("<IQ", frame, 1)
+            payload = json.loads(frame[13:])
+            validators[sid].validate(payload)
+            got.setdefault(subs[sid]["topic"], []).append((log_ns, payload))
+        if leave_abruptly:  # no close handshake: the socket just goes away
+            ws.transport.abort()
+    return got
+
+
+def test_a_client_receives_the_scene_while_a_run_flies_and_clients_do_not_disturb_it(
+        tmp_path) -> None:
+    port = free_ports(1)[0]
+    run = subprocess.Popen([sys.executable, "-m", "uavmpc.apps.cli", "run",
+                            "swap_through_static", "--duration", "12", "--realtime", "2",
+                            "--out", str(tmp_path), "--live", str(port)],
+                           stdout=subprocess.PIPE, text=True)
+    try:
+        assert run.stdout is not None
+        first = run.stdout.readline()
+        assert f"live view on ws://127.0.0.1:{port}" in first, first
+        time.sleep(1.0)  # a client that connects late…
+        got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 2.0))
+        # …one that leaves without a word, and one more after it
+        asyncio.run(_watch(f"ws://127.0.0.1:{port}", 0.5, leave_abruptly=True))
+        late = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 0.5))
+        assert run.wait(120) == 0
+    finally:
+        run.kill()
+    scenes = got["/scene"]
+    # 2 s of a flight at twice real time: 40 updates at 10 Hz of its clock (half of them at
+    # least on a loaded machine), consecutive, each decoded and valid
+    assert len(scenes) >= 20 and len(got["/metrics"]) >= 20
+    t = np.array([ns for ns, _ in scenes]) * 1e-9
+    assert np.all(np.diff(t) > 0) and np.median(np.diff(t)) == pytest.approx(0.1, abs=1e-6)
+    ids = {e["id"] for e in scenes[-1][1]["entities"]}
+    assert {"ground", "uav1/body", "uav2/plan", "uav3/cylinder", "uav3/desired"} <= ids
+    assert late["/scene"]
+    # The flight is the one flown without anyone watching.
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    reference = World(scenarios.load("swap_through_static"), seed=0).run(12.0).summary()
+    assert summary["min_distance_m"] == reference["min_distance_m"]
+    assert summary["uavs"] == reference["uavs"]
+
+
+def test_a_busy_port_and_a_missing_extra_are_one_line_errors(tmp_path) -> None:
+    with LiveView(port=0) as live:
+        with pytest.raises(OSError, match=f"cannot serve on 127.0.0.1:{live.port}"):
+            LiveView(port=live.port)
+        # the CLI says the same in one line, before flying
+        run = subprocess.run([sys.executable, "-m", "uavmpc.apps.cli", "run",
+                              "swap_through_static", "--duration", "1", "--out",
+                              str(tmp_path), "--live", str(live.port)],
+                             capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert f"cannot serve on 127.0.0.1:{live.port}" in run.stderr
+    with pytest.raises(ValueError, match="port: must be an integer"):
+        LiveView(port=70000)
+    # without the extra: the import fails with what to install
+    code = ("import sys; sys.modules['foxglove'] = None\n"
+            "from uavmpc.view.live import LiveView\n"
+            "try:\n    LiveView(port=0)\nexcept ImportError as e:\n    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60)
+    assert "pip install 'uavmpc[viz]'" in out.stdout
