@@ -112,3 +112,26 @@ def test_a_busy_port_and_a_missing_extra_are_one_line_errors(tmp_path) -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=60)
     assert "pip install 'uavmpc[viz]'" in out.stdout
+
+
+def test_a_swarm_of_node_processes_is_watched_live_as_its_monitor_hears_it(tmp_path) -> None:
+    port = free_ports(1)[0]
+    swarm = subprocess.Popen([sys.executable, "-m", "uavmpc.apps.cli", "swarm",
+                              "swap_through_static", "--duration", "14", "--out", str(tmp_path),
+                              "--live", str(port)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert swarm.stdout is not None
+        assert f"ws://127.0.0.1:{port}" in swarm.stdout.readline()
+        time.sleep(8.0)  # the nodes start and meet (4 s start-up, conflicts from ~2 s on)
+        got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 4.0))
+        assert swarm.wait(120) == 0
+    finally:
+        swarm.kill()
+    scenes = [m for _, m in got["/scene"]]
+    assert len(scenes) >= 20  # 10 Hz of the wall clock, half of it at least on a busy machine
+    cylinders = [{e["id"]: e["metadata"][0]["value"] for e in s["entities"] if e["cylinders"]}
+                 for s in scenes]
+    assert set(cylinders[-1]) == {"uav1/cylinder", "uav2/cylinder", "uav3/cylinder"}
+    assert any(c["uav3/cylinder"] == "yielding" for c in cylinders)  # it climbs over both
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert not summary["collisions"]

@@ -365,6 +365,8 @@ def _sitl(args: argparse.Namespace) -> int:
 
 
 def _swarm(args: argparse.Namespace) -> int:
+    import contextlib
+
     from uavmpc import scenarios
     from uavmpc.drivers.swarm import run_swarm
     from uavmpc.drivers.world import COLLISION_DISTANCE_M
@@ -383,9 +385,21 @@ def _swarm(args: argparse.Namespace) -> int:
         from uavmpc.comms.ros2 import Ros2Codec
 
         Ros2Codec()  # fail early, in one line, if the ros2 extra is missing
-    s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
-                  duration_s=args.duration, key_file=args.key_file, on_trace=draw,
-                  mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2)
+    with contextlib.ExitStack() as around:
+        live = None
+        if args.live is not None:
+            from uavmpc.view.live import LiveView
+
+            try:
+                live = around.enter_context(LiveView(port=args.live))
+            except (OSError, ValueError) as exc:
+                print(f"uavmpc swarm: --live: {exc}", file=sys.stderr)
+                return 2
+            print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
+        s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
+                      duration_s=args.duration, key_file=args.key_file, on_trace=draw,
+                      mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2,
+                      live=live)
     verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
     closest = s["min_distance_m"]
     via = " each flying a PX4 stand-in over MAVLink" if args.mavlink else ""
@@ -754,6 +768,10 @@ def build_parser() -> argparse.ArgumentParser:
     swarm.add_argument("--ros2", metavar="ROUTER",
                        help="every node also appears on a ROS 2 graph through this Zenoh router "
                             "(rmw_zenohd, e.g. tcp/localhost:7447)")
+    swarm.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                       help="serve the 3-D scene and metrics to Foxglove on "
+                            "ws://127.0.0.1:PORT while it flies (default port 8765; pip "
+                            "install 'uavmpc[viz]')")
     swarm.set_defaults(func=_swarm)
     shape = sub.add_parser("formation-shape",
                            help="tell a formation's followers (node processes) to change shape")

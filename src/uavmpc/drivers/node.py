@@ -636,6 +636,7 @@ class Node:
             "avoiding": bool(decision is not None and decision.avoiding),
             "conflicts": list(decision.conflicts) if decision is not None else [],
             "yielding_to": list(decision.yielding_to) if decision is not None else [],
+            "waiting_for": list(decision.waiting_for) if decision is not None else [],
         }, separators=(",", ":")).encode())
 
 

@@ -29,19 +29,26 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
+from uavmpc.avoidance import AvoidanceParams
 from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
 from uavmpc.config import ConfigError
 from uavmpc.drivers.node import warm_up
-from uavmpc.drivers.world import COLLISION_DISTANCE_M, FORMATION_SETTLE_S, GOAL_TOLERANCE_M
+from uavmpc.drivers.world import (
+    COLLISION_DISTANCE_M,
+    FORMATION_SETTLE_S,
+    GOAL_TOLERANCE_M,
+    SCENE_PERIOD_S,
+)
 from uavmpc.log import FlightRecorder
 from uavmpc.missions.formation import formation_error, formation_table
 from uavmpc.plant import Airframe
 from uavmpc.scenarios import Scenario
+from uavmpc.view.scene import UavView, ground_around, scene_update, stamp, state_of
 
 #: Seconds from launch to the common mission start (discovery takes ≈ 1 s; numba loads ≈ 1 s).
 STARTUP_S = 4.0
@@ -124,6 +131,38 @@ def _formation_summary(spec: Any, tracks: dict[str, list[tuple[float, np.ndarray
                           "measured_from_s": FORMATION_SETTLE_S}}
 
 
+class LiveSink(Protocol):
+    """Where a swarm's scene goes while it flies (:class:`uavmpc.view.live.LiveView`)."""
+
+    def publish(self, t_s: float, scene: dict[str, Any], metrics: dict[str, Any]) -> None: ...
+
+
+def _scene(t_s: float, states: dict[str, dict[str, Any]],
+           plans: dict[str, tuple[float, np.ndarray]], now: float, prm: AvoidanceParams,
+           ground: dict[str, Any], min_distance_m: float | None
+           ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The scene and the metrics as the monitor hears the nodes: each UAV at its last state,
+    its last plan heard (the desired path drawn as that plan without the offset: nodes do not
+    send it), silent when no plan came within ``prm.timeout_s``."""
+    views = []
+    for uav, s in states.items():
+        heard, plan = plans.get(uav, (-math.inf, np.zeros((0, 3))))
+        z_off = float(s.get("z_offset", 0.0))
+        views.append(UavView(
+            uav, np.array(s["p"], dtype=float), float(s.get("heading", 0.0)), plan,
+            plan - np.array([0.0, 0.0, z_off]), z_off,
+            state_of(silent=now - heard > prm.timeout_s,
+                     waiting_for=s.get("waiting_for", []),
+                     yielding_to=s.get("yielding_to", []), z_offset_m=z_off,
+                     avoiding=bool(s.get("avoiding", False))),
+            prm.radius_m, prm.height_m))
+    metrics = {"t_s": t_s, "min_distance_m": min_distance_m,
+               "uavs": {v.uav_id: {"z_offset_m": v.z_offset_m,
+                                   "avoiding": bool(states[v.uav_id].get("avoiding", False))}
+                        for v in views}}
+    return scene_update(t_s, views, ground=dict(ground, timestamp=stamp(t_s))), metrics
+
+
 def _last_json_line(p: subprocess.Popen[str], log: Path | None = None) -> dict[str, Any]:
     """The report a child process printed last (one JSON line), after it ended (asked twice,
     then killed if it does not within 15 s); if it printed none, its exit code and the end of
@@ -151,7 +190,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               kill_at_s: dict[str, float] | None = None,
               on_trace: Callable[[list[float], list[float]], None] | None = None,
               mavlink: bool = False, setpoints: str = "attitude",
-              ros2: str | None = None) -> dict[str, Any]:
+              ros2: str | None = None, live: LiveSink | None = None) -> dict[str, Any]:
     """Fly ``scenario`` as separate node processes; returns the summary (also written).
 
     ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
@@ -160,7 +199,9 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     every node flies its own stand-in PX4 over MAVLink/UDP (``setpoints``: the message it
     sends); goals are judged where the UAVs are when the mission ends, before they land.
     ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it. Each
-    node's error output goes to ``out/<id>.node.log``."""
+    node's error output goes to ``out/<id>.node.log``. ``live``: gets the 3-D scene and the
+    metrics every :data:`~uavmpc.drivers.world.SCENE_PERIOD_S` of the wall clock, as the
+    monitor hears the nodes (e.g. :class:`uavmpc.view.live.LiveView`)."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
     if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
@@ -207,6 +248,10 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
         formation_file = Path(tmp.name) / "formation.json"
         formation_file.write_text(json.dumps(formation_table(formation, epoch)))
     tracks: dict[str, list[tuple[float, np.ndarray]]] = {u: [] for u in ids}
+    plans: dict[str, tuple[float, np.ndarray]] = {}  # id → (wall time heard, its plan)
+    prm = AvoidanceParams.from_dict(dict(scenario.avoidance))
+    ground = ground_around(scenario.points_m())
+    next_scene = -math.inf
     logs = {u: out / f"{u}.node.log" for u in ids}  # each node's error output
     try:
         for i, spec in enumerate(scenario.uavs):
@@ -269,6 +314,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                         continue
                     rec.prediction(msg.uav_id, msg.stamp_s, msg.positions_m,
                                    np.zeros(msg.positions_m.shape[0]))
+                    plans[msg.uav_id] = (time.time(), msg.positions_m)
                 now = time.time()
                 for uav, t_kill in list(kills.items()):
                     if now >= epoch + t_kill:
@@ -294,6 +340,15 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                     min_d = min(min_d, d_now)
                     trace_t.append(now - epoch)
                     trace_d.append(d_now)
+                if now >= next_scene:
+                    next_scene = now + SCENE_PERIOD_S
+                    t_rel = max(0.0, now - epoch)
+                    d_last = trace_d[-1] if trace_d and trace_t[-1] == now - epoch else None
+                    scene, metrics = _scene(t_rel, last_state, plans, now, prm, ground, d_last)
+                    rec.scene(t_rel, scene)
+                    rec.metrics(t_rel, metrics)
+                    if live is not None:
+                        live.publish(t_rel, scene, metrics)
                 time.sleep(0.005)
     finally:
         for p in procs.values():

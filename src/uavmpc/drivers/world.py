@@ -64,7 +64,7 @@ from uavmpc.tracker.kernels import make_scratch
 from uavmpc.view.scene import (
     ObjectView,
     UavView,
-    ground_entity,
+    ground_around,
     scene_update,
     stamp,
     state_of,
@@ -1075,11 +1075,7 @@ class World:
         """The ``foxglove.SceneUpdate`` of now: the UAVs (:meth:`views`), the ground, the
         geofence, the car and its deck."""
         if self._ground is None:
-            pts = np.array([p for sp in self.scenario.uavs
-                            for p in (sp.start_m, *sp.mission.points[:, :3])], dtype=float)
-            lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
-            self._ground = ground_entity(0.0, 0.5 * (lo + hi),
-                                         0.5 * float((hi - lo).max()) + 20.0)
+            self._ground = ground_around(self.scenario.points_m())
         objects = []
         if self.ground_vehicle is not None:
             car = self.ground_vehicle.state(self.t_s)

@@ -187,6 +187,11 @@ class Scenario:
     #: inside it; a UAV found outside flies back in and holds; offsets stay below its ceiling.
     geofence: Geofence | None = None
 
+    def points_m(self) -> np.ndarray:
+        """(n, 3) every start and mission point of every UAV (e.g. the area a view shows)."""
+        return np.array([p for u in self.uavs
+                         for p in (u.start_m, *u.mission.points[:, :3])], dtype=float)
+
 
 def _vec(value: Any, n: int, name: str) -> tuple[float, ...]:
     if not isinstance(value, list) or len(value) != n:

@@ -234,6 +234,14 @@ def ground_entity(t_s: float, centre_xy_m: Sequence[float], half_m: float,
                    lines=[_line(np.array(segs), (0.6, 0.6, 0.6, 0.5), 1.0, line_type=2)])
 
 
+def ground_around(points_m: np.ndarray, margin_m: float = 20.0) -> dict[str, Any]:
+    """A ground under ``points_m`` ((n, 3), e.g. a scenario's starts and waypoints), with
+    ``margin_m`` to spare on every side."""
+    pts = np.asarray(points_m, dtype=float).reshape(-1, 3)
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    return ground_entity(0.0, 0.5 * (lo + hi), 0.5 * float((hi - lo).max()) + margin_m)
+
+
 def scene_update(t_s: float, uavs: Sequence[UavView], *,
                  fence: tuple[np.ndarray, float, float] | None = None,
                  objects: Sequence[ObjectView] = (),
