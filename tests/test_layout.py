@@ -20,7 +20,7 @@ TIERS: dict[str, int] = {
     "tracker": 2, "control": 2, "comms": 2, "missions": 2, "geofence": 2,
     "avoidance": 3,
     "onboard": 4,
-    "scenarios": 5, "log": 5,
+    "scenarios": 5, "log": 5, "view": 5,
     "drivers": 6,
     "apps": 7,
 }

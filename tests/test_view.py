@@ -132,3 +132,27 @@ def test_a_view_with_an_unknown_state_is_refused() -> None:
     views = [UavView(s, np.array([i, 0.0, 5.0]), 0.3, np.ones((4, 3)), np.ones((4, 3)), 0.0,
                      s, 5.0, 6.0) for i, s in enumerate(STATES)]
     jsonschema.validate(scene_update(1.0, views), doc)
+
+
+def test_the_shipped_foxglove_layout_shows_channels_the_logs_carry(
+        swap_log: dict[str, list[tuple[int, dict]]]) -> None:
+    layout = json.loads((Path(__file__).parents[1] / "docs/foxglove_layout.json").read_text())
+    panels = layout["configById"]
+    assert panels["3D!uavmpc"]["topics"] == {"/scene": {"visible": True}}
+    _, metrics = swap_log["/metrics"][-1]
+    for panel in panels.values():
+        for p in panel.get("paths", []):
+            topic, *fields = p["value"].split(".")
+            assert topic in swap_log, p
+            if fields[:2] == ["uavs", "uav4"] or fields[:2] == ["uavs", "uav5"]:
+                continue  # a five-UAV campaign's; this flight has three
+            node = metrics
+            for f in fields:
+                node = node[f]
+            assert isinstance(node, float | int), p
+    assert panels["Table!state"]["topicPath"] == "/metrics.uavs"
+    # every panel the mosaic places is configured
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(
+            node["second"])
+    assert set(leaves(layout["layout"])) == set(panels)
