@@ -156,3 +156,16 @@ def test_the_shipped_foxglove_layout_shows_channels_the_logs_carry(
         return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(
             node["second"])
     assert set(leaves(layout["layout"])) == set(panels)
+
+
+def test_the_side_view_runs_along_the_paths_main_direction() -> None:
+    from uavmpc.apps.plots import main_axis
+
+    rng = np.random.default_rng(0)
+    along = rng.uniform(-50, 50, 200)
+    d = np.array([np.cos(0.6), np.sin(0.6)])
+    xy = np.outer(along, d) + rng.normal(0, 1.0, (200, 2)) * [[-d[1], d[0]]]
+    assert np.allclose(main_axis(xy), d, atol=0.02)
+    assert np.allclose(main_axis(-xy), d, atol=0.02)  # the same direction, whichever way
+    assert main_axis(np.zeros((5, 2))).tolist() == [1.0, 0.0]  # a hover: x
+    assert np.allclose(main_axis(np.array([[0.0, -3.0], [0.0, 4.0]])), [0.0, 1.0])

@@ -105,7 +105,8 @@ def test_same_seed_same_flight_and_log_is_readable(tmp_path) -> None:
     for u in first["uavs"].values():
         assert set(u) >= {"max_z_offset_m", "avoidance_active_s", "tracking_rmse_m",
                           "reached_goal"}
-    for fig in ("top_view.png", "altitude.png", "min_distance.png"):
+    for fig in ("top_view.png", "altitude.png", "min_distance.png", "side_view.png",
+                "view_3d.png"):
         assert (out / fig).stat().st_size > 10_000
     topics = read_topics(out / "flight.mcap")
     for uav in ("uav1", "uav2", "uav3"):

@@ -27,7 +27,7 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     import dataclasses
 
     from uavmpc import scenarios
-    from uavmpc.apps.plots import close_figure, plot_world
+    from uavmpc.apps.plots import close_figure, plot_side_and_3d, plot_world
     from uavmpc.drivers.world import COLLISION_DISTANCE_M, GROUND_VEHICLE_ID, World
     from uavmpc.log import FlightRecorder
 
@@ -111,9 +111,11 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                                                     "two UAVs"))
         names = ["top_view.png", "altitude.png", "traffic.png", "min_distance.png"]
     else:
-        figs = plot_world(result.t_s, result.positions_m, result.min_distance_m,
-                          result.uav_ids, title, COLLISION_DISTANCE_M)
-        names = ["top_view.png", "altitude.png", "min_distance.png"]
+        figs = (*plot_world(result.t_s, result.positions_m, result.min_distance_m,
+                            result.uav_ids, title, COLLISION_DISTANCE_M),
+                *plot_side_and_3d(result.t_s, result.positions_m, result.uav_ids, title))
+        names = ["top_view.png", "altitude.png", "min_distance.png", "side_view.png",
+                 "view_3d.png"]
     if "landing_uav" in summary:
         from uavmpc.apps.plots import plot_landing
 

@@ -101,6 +101,82 @@ def plot_world(t_s: np.ndarray, positions_m: np.ndarray, min_distance_m: np.ndar
     return top, alt, dist
 
 
+def main_axis(xy_m: np.ndarray) -> np.ndarray:
+    """The unit horizontal direction along which points ``xy_m`` (n, 2) spread most (their
+    principal axis; +x when they do not spread), pointed to have a positive x component when
+    it can."""
+    pts = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    centred = pts - pts.mean(axis=0)
+    if not np.any(centred):
+        return np.array([1.0, 0.0])
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    return -axis if axis[0] < 0 or (axis[0] == 0 and axis[1] < 0) else axis
+
+
+def _time_marks(t_s: np.ndarray, every_s: float | None) -> np.ndarray:
+    """Indices of ``t_s`` at about six evenly spaced times (or every ``every_s``)."""
+    span = float(t_s[-1] - t_s[0]) if len(t_s) else 0.0
+    step = every_s or max(1.0, round(span / 6.0))
+    marks = np.arange(t_s[0], t_s[-1] + 1e-9, step)
+    return np.unique(np.searchsorted(t_s, marks).clip(0, len(t_s) - 1))
+
+
+def plot_side_and_3d(t_s: np.ndarray, positions_m: np.ndarray, uav_ids: list[str], title: str,
+                     every_s: float | None = None) -> tuple[Figure, Figure]:
+    """A side view (distance along the main horizontal direction of the paths vs altitude)
+    and a 3-D view of the paths, with the UAVs' places at common times marked and labelled:
+    the avoidance of the height-offset strategy happens in the vertical plane a top view does
+    not show."""
+    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the 3-D projection)
+
+    t = np.asarray(t_s, dtype=float)
+    pos = np.asarray(positions_m, dtype=float)
+    axis = main_axis(pos[:, :, :2].reshape(-1, 2))
+    along = pos[:, :, :2] @ axis
+    marks = _time_marks(t, every_s)
+
+    side, ax = plt.subplots(figsize=(10, 4.5))
+    for i, uav in enumerate(uav_ids):
+        line = ax.plot(along[:, i], pos[:, i, 2], label=uav)[0]
+        ax.plot(along[marks, i], pos[marks, i, 2], "o", ms=4, color=line.get_color())
+    for k in marks:  # one label per mark, above the highest UAV there
+        top = int(np.argmax(pos[k, :, 2]))
+        ax.annotate(f"{t[k]:.0f} s", (along[k, top], pos[k, top, 2]),
+                    textcoords="offset points", xytext=(0, 6), ha="center", fontsize=7,
+                    color="0.35")
+    ax.set_xlabel(f"along ({axis[0]:+.2f}, {axis[1]:+.2f}) [m]")
+    ax.set_ylabel("altitude z [m]")
+    ax.set_title(f"{title}: side view (● the UAVs at common times)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    side.tight_layout()
+
+    fig3 = plt.figure(figsize=(9, 7))
+    ax3 = fig3.add_subplot(projection="3d")
+    for i, uav in enumerate(uav_ids):
+        line = ax3.plot(pos[:, i, 0], pos[:, i, 1], pos[:, i, 2], label=uav)[0]
+        ax3.scatter(pos[marks, i, 0], pos[marks, i, 1], pos[marks, i, 2], s=12,
+                    color=line.get_color(), depthshade=False)
+        for k in marks[1:-1]:
+            ax3.text(pos[k, i, 0], pos[k, i, 1], pos[k, i, 2] + 0.4, f"{t[k]:.0f}",
+                     fontsize=6, color=line.get_color())
+    # metres alike on x and y (a straight swap must not look like a zigzag of 1e-16 m)
+    lo, hi = pos[:, :, :2].reshape(-1, 2).min(axis=0), pos[:, :, :2].reshape(-1, 2).max(axis=0)
+    half = 0.5 * max(float((hi - lo).max()), 1.0)
+    mid = 0.5 * (lo + hi)
+    ax3.set_xlim(mid[0] - half, mid[0] + half)
+    ax3.set_ylim(mid[1] - half, mid[1] + half)
+    ax3.set_zlim(0.0, float(pos[:, :, 2].max()) + 1.0)
+    ax3.set_box_aspect((1.0, 1.0, 0.6))
+    ax3.set_xlabel("x [m]")
+    ax3.set_ylabel("y [m]")
+    ax3.set_zlabel("z [m]")
+    ax3.set_title(f"{title}: 3-D paths (labels: time [s])")
+    ax3.legend(loc="upper left")
+    fig3.tight_layout()
+    return side, fig3
+
+
 def close_figure(fig: Figure) -> None:
     """Free a figure once saved (pyplot keeps every figure it made until closed)."""
     plt.close(fig)
