@@ -108,6 +108,55 @@ def test_with_avoidance_no_collision(tmp_path: Path) -> None:
         assert key in on_disk
 
 
+def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
+        tmp_path: Path) -> None:
+    from html.parser import HTMLParser
+
+    from uavmpc.log import read_topics
+
+    r = run_campaign(tmp_path, avoidance=True, trials=4, trial_s=12.0, workers=1, logs=2,
+                     **SMALL)
+    page = (tmp_path / "report.html").read_text()
+    trials = {t["index"]: t for t in (json.loads(line) for line in
+                                      (tmp_path / "trials.jsonl").read_text().splitlines())}
+
+    class Page(HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.srcs: list[str] = []
+            self.links: list[str] = []
+            self.rows = 0
+            self.scripts = 0
+
+        def handle_starttag(self, tag: str, attrs: list) -> None:
+            a = dict(attrs)
+            if tag == "img":
+                self.srcs.append(a["src"])
+            elif tag == "a":
+                self.links.append(a["href"])
+            elif tag == "tr":
+                self.rows += 1
+            elif tag in ("script", "link") and ("src" in a or "href" in a):
+                self.scripts += 1  # fetched from elsewhere: not self-contained
+
+    p = Page()
+    p.feed(page)
+    assert p.scripts == 0 and len(p.srcs) == 2
+    assert all(s.startswith("data:image/png;base64,") for s in p.srcs)
+    # the report table (header + its rows) and the trials table (header + one per trial)
+    assert f"<td>{r['collisions']}</td>" in page and p.rows >= 1 + 4 + 1 + 10
+    closest = sorted(trials.values(), key=lambda t: t["min_distance_m"])[:2]
+    assert sorted(p.links) == sorted(f"logs/trial_{t['index']}.mcap" for t in closest)
+    for t in closest:  # each log is that trial, re-flown from its seeds
+        topics = read_topics(tmp_path / f"logs/trial_{t['index']}.mcap")
+        d = min(m["min_distance_m"] for m in topics["/metrics"])
+        assert d >= t["min_distance_m"] - 1e-9 and d < t["min_distance_m"] + 0.5
+    assert not list((tmp_path / "logs").glob("*.part"))
+    with pytest.raises(CampaignError, match="logs: must be an integer"):
+        run_campaign(tmp_path, avoidance=True, trials=4, trial_s=12.0, workers=1, logs=-1,
+                     **SMALL)
+
+
 def test_hours_stop_rule(tmp_path: Path) -> None:
     r = run_campaign(tmp_path, avoidance=True, hours=50.0 / 3600.0, trial_s=20.0, workers=1,
                      **SMALL)

@@ -9,7 +9,9 @@ A campaign lives in one folder ``DIR``:
   Ctrl-C loses nothing but the trials in flight.
 - ``runs.jsonl``: the wall time of each invocation that ran trials (the report's ``wall_s`` is
   their sum).
-- ``report.json``, ``report.md``, ``ttc_cdf.png``, ``min_distance_hist.png``: the aggregate.
+- ``report.json``, ``report.md``, ``ttc_cdf.png``, ``min_distance_hist.png``: the aggregate;
+  ``report.html`` the same in one self-contained page with every trial, sortable, and
+  ``logs/trial_<index>.mcap`` the flight logs of the closest trials, re-flown from their seeds.
 
 Trial ``i`` draws its seeds from ``numpy.random.SeedSequence(seed, spawn_key=(i,))`` (the same
 as ``SeedSequence(seed).spawn(n)[i]``): one for the scenario's starts and waypoints, one for the
@@ -95,12 +97,13 @@ def trial_seeds(seed: int, index: int) -> tuple[int, int]:
     return int(words[0]), int(words[1])
 
 
-def run_trial(job: TrialJob) -> dict[str, Any]:
-    """Fly one trial; returns its JSON record."""
+def run_trial(job: TrialJob, log_path: Path | None = None) -> dict[str, Any]:
+    """Fly one trial; returns its JSON record. ``log_path``: also write its flight log there
+    (the flight is the same)."""
     from uavmpc.drivers.world import World, world_faults
     from uavmpc.scenarios import LinkSettings
     from uavmpc.scenarios.faults import draw_faults
-    from uavmpc.scenarios.random_walk import random_walk, waypoints_reached
+    from uavmpc.scenarios.random_walk import random_walk
 
     wall0 = time.perf_counter()
     spec = FaultSpec(**job.faults)
@@ -115,9 +118,28 @@ def run_trial(job: TrialJob) -> dict[str, Any]:
         sc = dataclasses.replace(sc, avoidance={**sc.avoidance, **table})
     faults = draw_faults(spec, [u.uav_id for u in sc.uavs], job.duration_s, 0.0,
                          job.world_seed)
+    recorder = None
+    if log_path is not None:
+        from uavmpc.log import FlightRecorder
+
+        recorder = FlightRecorder(log_path, [u.uav_id for u in sc.uavs],
+                                  {"campaign_trial": job.index,
+                                   "scenario_seed": job.scenario_seed,
+                                   "world_seed": job.world_seed})
     world = World(sc, avoidance=job.avoidance, seed=job.world_seed, link=link,
                   wind_mps=job.wind_mps, launch_check_s=job.launch_check_s,
-                  **world_faults(faults))
+                  recorder=recorder, **world_faults(faults))
+    try:
+        return _fly_trial(job, sc, world, faults, wall0)
+    finally:
+        if recorder is not None:
+            recorder.close()
+
+
+def _fly_trial(job: TrialJob, sc: Any, world: Any, faults: Any, wall0: float
+               ) -> dict[str, Any]:
+    from uavmpc.scenarios.random_walk import waypoints_reached
+
     if job.avoidance:
         res = world.run(job.duration_s)
         collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
@@ -475,9 +497,10 @@ def _fmt_ttc(report: dict[str, Any], key: str) -> str:
     return f"{v:.1f} s" if v is not None else f"> {report['censored_at_s']:g} s"
 
 
-def markdown_table(*reports: dict[str, Any]) -> str:
-    """One table: a column without avoidance, one with; each report fills its own column
-    (give one report, or one of each to merge two campaigns)."""
+def report_rows(*reports: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The rows of the report table in the reference design's layout: (quantity, without
+    avoidance, with avoidance); each report fills its own column (give one report, or one of
+    each to merge two campaigns)."""
     cols: dict[bool, dict[str, Any] | None] = {False: None, True: None}
     for r in reports:
         cols[bool(r["avoidance"])] = r
@@ -522,8 +545,13 @@ def markdown_table(*reports: dict[str, Any]) -> str:
         rows.append(("avoidance parameters", lambda r: ", ".join(
             f"{k} {v}" for k, v in r["parameters"].get("avoidance_params", {}).items())
             or "defaults"))
+    return [(name, cell(False, f), cell(True, f)) for name, f in rows]
+
+
+def markdown_table(*reports: dict[str, Any]) -> str:
+    """:func:`report_rows` as a Markdown table."""
     lines = ["| random_walk | without avoidance | with avoidance |", "|---|---|---|"]
-    lines += [f"| {name} | {cell(False, f)} | {cell(True, f)} |" for name, f in rows]
+    lines += [f"| {name} | {a} | {b} |" for name, a, b in report_rows(*reports)]
     return "\n".join(lines) + "\n"
 
 
@@ -607,6 +635,7 @@ def run_campaign(
     faults: FaultSpec | None = None,
     avoidance_params: dict[str, Any] | None = None,
     launch_check_s: float | None = None,
+    logs: int = 3,
 ) -> dict[str, Any]:
     """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
 
@@ -615,7 +644,10 @@ def run_campaign(
     :class:`~uavmpc.avoidance.AvoidanceParams` to fly instead of the defaults (e.g. a larger
     cylinder for a coarser position estimate). ``launch_check_s``: every UAV holds at its
     start until it has heard every other one, at most this long
-    (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``).
+    (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``). ``logs``: the ``logs``
+    trials with the closest approach are re-flown from their seeds into flight logs
+    (``logs/trial_<index>.mcap``; a full campaign's would be gigabytes), linked from
+    ``report.html``.
 
     Stops after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest
     prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
@@ -659,6 +691,8 @@ def run_campaign(
                                            and 0.0 <= launch_check_s <= trial_s):
         raise CampaignError(f"launch check: must be a time in [0, trial_s] [s], got "
                             f"{launch_check_s!r}")
+    if isinstance(logs, bool) or not isinstance(logs, int) or not 0 <= logs <= 100:
+        raise CampaignError(f"logs: must be an integer in [0, 100], got {logs!r}")
     if workers is None:
         workers = os.cpu_count() or 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -719,7 +753,34 @@ def run_campaign(
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     (out / "report.md").write_text(report_markdown(report))
     _figures(out, selected, report)
+    _write_html(out, report, selected, _flight_logs(out, selected, job, logs))
     return report
+
+
+def _flight_logs(out: Path, selected: list[dict[str, Any]], job: Callable[[int], TrialJob],
+                 n: int) -> dict[int, str]:
+    """The flight logs of the ``n`` closest trials (re-flown from their seeds when missing):
+    trial index → path relative to ``out``."""
+    closest = sorted(selected, key=lambda r: (r["min_distance_m"], r["index"]))[:n]
+    logs = {}
+    for rec in closest:
+        i = int(rec["index"])
+        rel = f"logs/trial_{i}.mcap"
+        if not (out / rel).exists():
+            part = out / f"{rel}.part"  # a log is there whole or not at all
+            run_trial(job(i), part)
+            part.rename(out / rel)
+        logs[i] = rel
+    return logs
+
+
+def _write_html(out: Path, report: dict[str, Any], selected: list[dict[str, Any]],
+                logs: dict[int, str]) -> None:
+    from uavmpc.apps.report_html import report_html
+
+    page = report_html(report, report_rows(report), selected,
+                       [out / "ttc_cdf.png", out / "min_distance_hist.png"], logs)
+    (out / "report.html").write_text(page)
 
 
 def iter_trials(out_dir: str | Path) -> Iterator[dict[str, Any]]:
@@ -775,6 +836,9 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
                    help="run on Ray ('auto', 'local' or ray://host:port); "
                         "pip install 'uavmpc[cluster]'")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--logs", type=int, default=3, metavar="N",
+                   help="random-walk: re-fly the N trials with the closest approach into "
+                        "flight logs linked from report.html (default 3)")
     add_fault_arguments(p)
     p.set_defaults(func=campaign_command)
     return p
@@ -818,7 +882,7 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
                         ray_address=args.ray, progress=not args.no_progress,
                         faults=fault_spec(args),
                         avoidance_params=avoidance_file(args.avoidance_file),
-                        launch_check_s=args.launch_check)
+                        launch_check_s=args.launch_check, logs=args.logs)
 
 
 def avoidance_file(path: str | None) -> dict[str, Any]:
