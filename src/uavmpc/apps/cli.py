@@ -429,6 +429,17 @@ def _swarm(args: argparse.Namespace) -> int:
     return 0
 
 
+def _file_reference(args: argparse.Namespace) -> int:
+    from uavmpc.apps.fileref import reference_markdown
+
+    text = reference_markdown()
+    if args.out:
+        Path(args.out).write_text(text)
+    else:
+        print(text, end="")
+    return 0
+
+
 def _formation_shape(args: argparse.Namespace) -> int:
     from uavmpc.comms.zenoh_link import ZenohTransport
     from uavmpc.drivers.node import FORMATION_CHANNEL
@@ -775,6 +786,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "ws://127.0.0.1:PORT while it flies (default port 8765; pip "
                             "install 'uavmpc[viz]')")
     swarm.set_defaults(func=_swarm)
+    ref = sub.add_parser("file-reference",
+                         help="the reference of the scenario and airframe files, from their "
+                              "loaders (Markdown)")
+    ref.add_argument("--out", default=None, help="write it here (default: print it)")
+    ref.set_defaults(func=_file_reference)
     shape = sub.add_parser("formation-shape",
                            help="tell a formation's followers (node processes) to change shape")
     shape.add_argument("shape", help="line or square")

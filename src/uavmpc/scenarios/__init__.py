@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from uavmpc.avoidance import AvoidanceParams
 from uavmpc.config import ConfigError, from_table, positive, read_toml, reject_unknown, take
 from uavmpc.geofence import Geofence, GeofenceError
 from uavmpc.missions.formation import FormationSpec
@@ -299,6 +300,7 @@ def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:
     avoidance = data.get("avoidance", {})
     if not isinstance(avoidance, dict):
         raise ConfigError("avoidance: must be a table")
+    AvoidanceParams.from_dict(dict(avoidance))  # a bad field fails on load, not in flight
     limits: dict[str, float] = {}
     if "limits" in data:
         if not isinstance(data["limits"], dict):
