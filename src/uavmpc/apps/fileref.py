@@ -296,6 +296,15 @@ def reference_tables() -> dict[str, list[tuple[str, str, str]]]:
     return tables
 
 
+def _cell(text: str) -> str:
+    """Text for a Markdown table cell: no column breaks, and brackets that no renderer takes
+    for a link (``[0, 1) [s]``)."""
+    parts = text.replace("|", "/").split("`")
+    for i in range(0, len(parts), 2):  # outside code spans only
+        parts[i] = parts[i].replace("[", "\\[").replace("]", "\\]")
+    return "`".join(parts)
+
+
 def reference_markdown() -> str:
     """The page ``docs/reference/files.md``."""
     head = (
@@ -314,6 +323,5 @@ def reference_markdown() -> str:
                  f"`[{name}]`" if not name.startswith("airframe.") else
                  f"airframe: `[{name.split('.', 1)[1]}]`")
         parts.append(f"\n## {title}\n\n| field | default | meaning |\n|---|---|---|\n")
-        parts += [f"| `{f}` | {f'`{d}`' if d else ''} | {t.replace('|', '/')} |\n"
-                  for f, d, t in rows]
+        parts += [f"| `{f}` | {f'`{d}`' if d else ''} | {_cell(t)} |\n" for f, d, t in rows]
     return "".join(parts)
