@@ -584,10 +584,10 @@ def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) 
         levels = np.arange(times.size + 1) / n
         ax.step(np.r_[0.0, times, report["censored_at_s"]], np.r_[levels, levels[-1]],
                 where="post")
-        ax.set_xlim(0.0, report["censored_at_s"])
     else:
         ax.text(0.5, 0.5, f"no collision in {n} trials", transform=ax.transAxes,
                 ha="center", va="center")
+    ax.set_xlim(0.0, report["censored_at_s"])
     ax.set_ylim(0.0, 1.0)
     ax.set_xlabel("time to first collision [s]")
     ax.set_ylabel("fraction of trials")
@@ -949,7 +949,9 @@ def campaign_command(args: argparse.Namespace) -> int:
     print(f"random_walk, {'with' if r['avoidance'] else 'without'} avoidance: {r['trials']} "
           f"trials, {r['simulated_hours']:.2f} h simulated, {r['collisions']} collision(s), "
           f"closest approach {r['min_distance_m']:.2f} m; time to first collision: {pct}")
-    print(f"wrote {out}/report.json, report.md, ttc_cdf.png, min_distance_hist.png")
+    logs = f", logs/ (the {args.logs} closest trials)" if args.logs else ""
+    print(f"wrote {out}/report.html, report.json, report.md, ttc_cdf.png, "
+          f"min_distance_hist.png{logs}")
     return 0 if (not r["avoidance"] or r["collisions"] == 0) else 1
 
 
