@@ -164,7 +164,8 @@ def test_hours_stop_rule(tmp_path: Path) -> None:
 
 
 def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> None:
-    kw = dict(avoidance=False, cap_s=20.0, workers=1, seed=3, **SMALL)
+    # (no flight logs: those re-fly trials on purpose, this counts the campaign's own)
+    kw = dict(avoidance=False, cap_s=20.0, workers=1, seed=3, logs=0, **SMALL)
     run_campaign(tmp_path, trials=2, **kw)
     assert len((tmp_path / "trials.jsonl").read_text().splitlines()) == 2
     # a crash mid-write leaves a torn line: it is dropped and the trial re-run

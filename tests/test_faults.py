@@ -222,3 +222,32 @@ def test_a_campaign_records_its_launch_check(tmp_path, capsys) -> None:
     assert main([*args, "--out", str(tmp_path / "c")]) == 2
     assert main([*args, "--out", str(tmp_path / "d"), "--launch-check", "-1"]) == 2
     assert "launch check" in capsys.readouterr().err
+
+
+def test_rule_8_a_uav_nobody_hears_yields_to_the_one_that_does_not_react() -> None:
+    from uavmpc import scenarios
+    from uavmpc.drivers.world import World
+
+    def head_on(grace_s: float):
+        sc = scenarios.from_dict({
+            "name": "head_on", "duration_s": 30.0,
+            "avoidance": {"unheard_grace_s": grace_s},
+            "uavs": [
+                {"id": "high", "priority": 1, "start": [-25.0, 0.0, 10.0],
+                 "path": {"waypoints": [[-25.0, 0.0, 10.0], [25.0, 0.0, 10.0]],
+                          "speed_mps": 3.0}},
+                {"id": "low", "priority": 2, "start": [25.0, 0.0, 10.0],
+                 "heading_rad": 3.14159,
+                 "path": {"waypoints": [[25.0, 0.0, 10.0], [-25.0, 0.0, 10.0]],
+                          "speed_mps": 3.0}},
+            ]})
+        # high's radio is dead from the start: low never hears it; high hears low
+        return World(sc, seed=0, silent_from_s={"high": 0.0}).run()
+
+    off = head_on(0.0)  # low does not know high is there; high waits for low to climb
+    assert off.collisions
+    on = head_on(1.0)   # low keeps its plan through high's for 1 s: high climbs instead
+    assert not on.collisions and on.min_distance_m.min() > 2.9
+    uavs = on.summary()["uavs"]
+    assert uavs["high"]["max_z_offset_m"] == 3.0 and uavs["low"]["max_z_offset_m"] == 0.0
+    assert uavs["high"]["reached_goal"] and uavs["low"]["reached_goal"]

@@ -81,6 +81,12 @@ class AvoidanceParams:
             could be; a hovering neighbour 6.4 m away is in the way after 2.6 s of silence,
             not after 1.9 s. Found in the 24 h campaign with burst loss: two UAVs that had
             not heard each other for 5 s, one of them off to a new waypoint, met head-on.
+        unheard_grace_s: rule 8: a UAV that must yield to us but whose plan has stayed in
+            conflict with ours this long has not heard us (it would have climbed): we yield
+            to it as if it had priority. 0 (the default) turns this off; 1.0 is measured in
+            docs/faults.md (``configs/avoidance_unheard_grace.toml``). It bounds what loss
+            hides from the lower priority, and a radio that went silent: its UAV, hearing
+            the others, yields to everyone it conflicts with.
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -103,6 +109,7 @@ class AvoidanceParams:
     silent_radius_m: float = 3.0
     silent_speed_mps: float = 8.3
     silent_accel_mps2: float = 2.5
+    unheard_grace_s: float = 0.0
 
     def __post_init__(self) -> None:
         p = "avoidance"
@@ -122,6 +129,8 @@ class AvoidanceParams:
         positive(self.silent_speed_mps, f"{p}.silent_speed_mps", upper=MAX_SPEED_MPS,
                  allow_zero=True)
         positive(self.silent_accel_mps2, f"{p}.silent_accel_mps2", upper=MAX_ACCEL_MPS2,
+                 allow_zero=True)
+        positive(self.unheard_grace_s, f"{p}.unheard_grace_s", upper=MAX_TIME_S,
                  allow_zero=True)
         for f in fields(self):
             if f.name != "time_reference":
@@ -273,6 +282,8 @@ class HeightOffsetStrategy:
     def reset(self) -> None:
         """Forget the offset and the conflict history (e.g. after landing)."""
         self.z_offset_m = 0.0
+        #: Since when each UAV that yields to us has kept its plan in conflict with ours.
+        self._unheard_since: dict[str, float] = {}
         self._last_conflict_s: float | None = None
         self._last_update_s: float | None = None
 
@@ -331,6 +342,7 @@ class HeightOffsetStrategy:
         times = own_prediction_times
         if not known.ids:
             # Nobody near: no conflict now, none on the way down; only the release runs.
+            self._unheard_since = {}
             self._release(now_s)
             self._last_update_s = now_s
             recent = (self._last_conflict_s is not None
@@ -348,6 +360,8 @@ class HeightOffsetStrategy:
 
         c_start = _conflicts(enc, self.z_offset_m, half_h)  # (k, m)
         hit_start = c_start.any(axis=1)
+        if prm.unheard_grace_s > 0.0:
+            must_yield = must_yield | self._unheard(now_s, enc, hit_start & ~must_yield)
         yield_hit = hit_start & must_yield
         ceiling_hit = False
         waiting_for: tuple[str, ...] = ()
@@ -391,6 +405,20 @@ class HeightOffsetStrategy:
             waiting_for=waiting_for,
             silent=enc.silent,
         )
+
+    def _unheard(self, now_s: float, enc: Encounters, hit: np.ndarray) -> np.ndarray:
+        """(k,) UAVs that must yield to us and have kept their plan in conflict with ours
+        for ``unheard_grace_s`` (``hit``: those in conflict now)."""
+        # A silent spell does not restart the count: on a lossy link the other flickers
+        # between fresh and silent, and its last plan is still what it does.
+        since = {}
+        out = np.zeros(len(enc.ids), dtype=bool)
+        for k, other in enumerate(enc.ids):
+            if hit[k]:
+                since[other] = self._unheard_since.get(other, now_s)
+                out[k] = now_s - since[other] >= self.params.unheard_grace_s
+        self._unheard_since = since
+        return out
 
     def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
                ahead_s: np.ndarray, climbed: float) -> tuple[float, bool, tuple[str, ...]]:
