@@ -169,3 +169,10 @@ def test_the_side_view_runs_along_the_paths_main_direction() -> None:
     assert np.allclose(main_axis(-xy), d, atol=0.02)  # the same direction, whichever way
     assert main_axis(np.zeros((5, 2))).tolist() == [1.0, 0.0]  # a hover: x
     assert np.allclose(main_axis(np.array([[0.0, -3.0], [0.0, 4.0]])), [0.0, 1.0])
+
+
+def test_the_metrics_table_says_each_uav_s_state_and_whom_it_yields_to(
+        swap_log: dict[str, list[tuple[int, dict]]]) -> None:
+    rows = [m["uavs"]["uav3"] for _, m in swap_log["/metrics"] if "state" in m["uavs"]["uav3"]]
+    assert {r["state"] for r in rows} >= {"yielding"}
+    assert any(r["detail"].startswith("yielding to ") for r in rows)

@@ -48,7 +48,14 @@ from uavmpc.log import FlightRecorder
 from uavmpc.missions.formation import formation_error, formation_table
 from uavmpc.plant import Airframe
 from uavmpc.scenarios import Scenario
-from uavmpc.view.scene import UavView, ground_around, scene_update, stamp, state_of
+from uavmpc.view.scene import (
+    UavView,
+    detail_of,
+    ground_around,
+    scene_update,
+    stamp,
+    state_of,
+)
 
 #: Seconds from launch to the common mission start (discovery takes ≈ 1 s; numba loads ≈ 1 s).
 STARTUP_S = 4.0
@@ -155,9 +162,12 @@ def _scene(t_s: float, states: dict[str, dict[str, Any]],
                      waiting_for=s.get("waiting_for", []),
                      yielding_to=s.get("yielding_to", []), z_offset_m=z_off,
                      avoiding=bool(s.get("avoiding", False))),
-            prm.radius_m, prm.height_m))
+            prm.radius_m, prm.height_m,
+            detail_of(yielding_to=s.get("yielding_to", []),
+                      waiting_for=s.get("waiting_for", []))))
     metrics = {"t_s": t_s, "min_distance_m": min_distance_m,
-               "uavs": {v.uav_id: {"z_offset_m": v.z_offset_m,
+               "uavs": {v.uav_id: {"state": v.state, "detail": v.detail,
+                                   "z_offset_m": v.z_offset_m,
                                    "avoiding": bool(states[v.uav_id].get("avoiding", False))}
                         for v in views}}
     return scene_update(t_s, views, ground=dict(ground, timestamp=stamp(t_s))), metrics

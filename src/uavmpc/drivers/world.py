@@ -64,6 +64,7 @@ from uavmpc.tracker.kernels import make_scratch
 from uavmpc.view.scene import (
     ObjectView,
     UavView,
+    detail_of,
     ground_around,
     scene_update,
     stamp,
@@ -593,8 +594,9 @@ class World:
             if (self.recorder is not None or on_scene is not None) \
                     and self.t_s >= self._next_scene_s - 1e-9:
                 self._next_scene_s = self.t_s + SCENE_PERIOD_S
-                scene = self.scene()
-                metrics = self.metrics(float(dmin[k]) if n > 1 else None)
+                views = self.views()
+                scene = self.scene(views)
+                metrics = self.metrics(float(dmin[k]) if n > 1 else None, views)
                 if self.recorder is not None:
                     self.recorder.scene(self.t_s, scene)
                     self.recorder.metrics(self.t_s, metrics)
@@ -1059,11 +1061,8 @@ class World:
                              yielding_to=d.yielding_to if d else (),
                              z_offset_m=stack.tracker.z_offset_m,
                              avoiding=bool(d is not None and d.avoiding))
-            detail = ""
-            if d is not None and d.yielding_to:
-                detail = "yielding to " + ", ".join(d.yielding_to)
-            elif d is not None and d.waiting_for:
-                detail = "waiting for " + ", ".join(d.waiting_for)
+            detail = detail_of(yielding_to=d.yielding_to if d else (),
+                               waiting_for=d.waiting_for if d else ())
             out.append(UavView(
                 u.uav_id, s.position_m, float(heading_of(s.attitude_wxyz)),
                 plan.position_m if plan is not None else np.zeros((0, 3)), desired,
@@ -1071,9 +1070,9 @@ class World:
                 detail))
         return out
 
-    def scene(self) -> dict[str, Any]:
-        """The ``foxglove.SceneUpdate`` of now: the UAVs (:meth:`views`), the ground, the
-        geofence, the car and its deck."""
+    def scene(self, views: Sequence[UavView] | None = None) -> dict[str, Any]:
+        """The ``foxglove.SceneUpdate`` of now: the UAVs (``views``, default :meth:`views`),
+        the ground, the geofence, the car and its deck."""
         if self._ground is None:
             self._ground = ground_around(self.scenario.points_m())
         objects = []
@@ -1090,19 +1089,28 @@ class World:
         if self.geofence is not None:
             g = self.geofence
             fence = (g.polygon_xy_m, g.min_altitude_m, g.max_altitude_m)
-        return scene_update(self.t_s, self.views(), fence=fence, objects=objects,
+        return scene_update(self.t_s, self.views() if views is None else views, fence=fence,
+                            objects=objects,
                             ground=dict(self._ground, timestamp=stamp(self.t_s)))
 
-    def metrics(self, min_distance_m: float | None) -> dict[str, Any]:
-        """The plot-ready numbers of now: the closest pair's distance and, per UAV, its z
-        offset, how far its virtual UAV is outside the limits, its tracker fallbacks."""
-        return {"t_s": self.t_s, "min_distance_m": min_distance_m,
-                "uavs": {u.uav_id: {"z_offset_m": u.stack.tracker.z_offset_m,
-                                    "limit_excess": u.stack.tracker.limit_excess(),
-                                    "tracker_fallbacks": u.stack.tracker.fallback_count,
-                                    "avoiding": bool(u.stack.decision is not None
-                                                     and u.stack.decision.avoiding)}
-                         for u in self.uavs}}
+    def metrics(self, min_distance_m: float | None,
+                views: Sequence[UavView] | None = None) -> dict[str, Any]:
+        """The plot-ready numbers of now: the closest pair's distance and, per UAV, its
+        cylinder state and whom it yields to or waits for (``views``, default
+        :meth:`views`), its z offset, how far its virtual UAV is outside the limits, its
+        tracker fallbacks."""
+        shown = {v.uav_id: v for v in (self.views() if views is None else views)}
+        out: dict[str, Any] = {}
+        for u in self.uavs:
+            row: dict[str, Any] = {"z_offset_m": u.stack.tracker.z_offset_m,
+                                   "limit_excess": u.stack.tracker.limit_excess(),
+                                   "tracker_fallbacks": u.stack.tracker.fallback_count,
+                                   "avoiding": bool(u.stack.decision is not None
+                                                    and u.stack.decision.avoiding)}
+            if u.uav_id in shown:
+                row.update(state=shown[u.uav_id].state, detail=shown[u.uav_id].detail)
+            out[u.uav_id] = row
+        return {"t_s": self.t_s, "min_distance_m": min_distance_m, "uavs": out}
 
     def _log(self) -> None:
         rec = self.recorder

@@ -51,8 +51,9 @@ _PALETTE = ((0.12, 0.47, 0.71), (1.00, 0.50, 0.05), (0.17, 0.63, 0.17), (0.84, 0
 FRAME = "world"
 SCENE_SCHEMA = "foxglove.SceneUpdate"
 #: The plot-ready numbers beside the scene (``/metrics``): the closest pair's distance [m], and
-#: per UAV its z offset [m], how far its virtual UAV is outside its limits, its tracker
-#: fallbacks (ticks) and whether it is avoiding.
+#: per UAV its cylinder state (:data:`STATES`) and whom it yields to or waits for, its z
+#: offset [m], how far its virtual UAV is outside its limits, its tracker fallbacks (ticks)
+#: and whether it is avoiding.
 METRICS_SCHEMA: dict[str, Any] = {
     "title": "uavmpc.Metrics",
     "type": "object",
@@ -61,6 +62,7 @@ METRICS_SCHEMA: dict[str, Any] = {
         "min_distance_m": {"type": ["number", "null"]},
         "uavs": {"type": "object", "additionalProperties": {
             "type": "object", "properties": {
+                "state": {"type": "string", "enum": list(STATES)}, "detail": {"type": "string"},
                 "z_offset_m": {"type": "number"}, "limit_excess": {"type": "number"},
                 "tracker_fallbacks": {"type": "integer"}, "avoiding": {"type": "boolean"}}}},
     },
@@ -134,6 +136,15 @@ def state_of(*, silent: bool, waiting_for: Sequence[str], yielding_to: Sequence[
     if yielding_to or z_offset_m > 0.0:
         return "yielding"
     return "avoiding" if avoiding else "free"
+
+
+def detail_of(*, yielding_to: Sequence[str], waiting_for: Sequence[str]) -> str:
+    """A label's second line: whom a UAV yields to, or waits for."""
+    if yielding_to:
+        return "yielding to " + ", ".join(yielding_to)
+    if waiting_for:
+        return "waiting for " + ", ".join(waiting_for)
+    return ""
 
 
 def stamp(t_s: float) -> dict[str, int]:
