@@ -176,3 +176,12 @@ def test_the_metrics_table_says_each_uav_s_state_and_whom_it_yields_to(
     rows = [m["uavs"]["uav3"] for _, m in swap_log["/metrics"] if "state" in m["uavs"]["uav3"]]
     assert {r["state"] for r in rows} >= {"yielding"}
     assert any(r["detail"].startswith("yielding to ") for r in rows)
+
+
+def test_the_log_of_uavmpc_run_validates_too(tmp_path: Path) -> None:
+    from uavmpc.apps.cli import main
+
+    assert main(["run", "swap_through_static", "--duration", "3", "--out", str(tmp_path)]) == 0
+    topics = _read(tmp_path / "flight.mcap")  # every message against its declared schema
+    assert len(topics["/scene"]) == 30 and len(topics["/metrics"]) == 30
+    assert {"/uav1/state", "/uav3/prediction", "/uav2/status", "/link"} <= set(topics)
