@@ -16,6 +16,7 @@ from uavmpc.apps.campaign import (
     merge_reports,
     run_campaign,
     run_trial,
+    trial_job,
     trial_seeds,
 )
 from uavmpc.config import ConfigError
@@ -152,6 +153,11 @@ def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
         d = min(m["min_distance_m"] for m in topics["/metrics"])
         assert d >= t["min_distance_m"] - 1e-9 and d < t["min_distance_m"] + 0.5
     assert not list((tmp_path / "logs").glob("*.part"))
+    # a trial flown again from the folder's parameters is the same trial
+    params = json.loads((tmp_path / "campaign.json").read_text())["parameters"]
+    again = run_trial(trial_job(params, closest[0]["index"]))
+    assert {k: v for k, v in again.items() if k != "wall_s"} == {
+        k: v for k, v in closest[0].items() if k != "wall_s"}
     with pytest.raises(CampaignError, match="logs: must be an integer"):
         run_campaign(tmp_path, avoidance=True, trials=4, trial_s=12.0, workers=1, logs=-1,
                      **SMALL)

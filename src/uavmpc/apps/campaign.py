@@ -97,6 +97,24 @@ def trial_seeds(seed: int, index: int) -> tuple[int, int]:
     return int(words[0]), int(words[1])
 
 
+def trial_job(params: dict[str, Any], index: int,
+              avoidance_params: dict[str, Any] | None = None) -> TrialJob:
+    """Trial ``index`` of the campaign with ``params`` (its ``campaign.json`` parameters), to
+    fly again with :func:`run_trial`; ``avoidance_params`` replace the campaign's own (a
+    replay with another rule)."""
+    s, w = trial_seeds(params["seed"], index)
+    avoid = bool(params["avoidance"])
+    lc = params.get("launch_check_s")
+    return TrialJob(index, s, w, params["uavs"], float(params["area_m"]),
+                    float(params["height_m"]), avoid, params["loss"], params["latency_s"],
+                    params["jitter_s"], float(params["wind_mps"]),
+                    float(params["trial_s" if avoid else "cap_s"]),
+                    dict(params.get("faults", {})),
+                    dict(params.get("avoidance_params", {}) if avoidance_params is None
+                         else avoidance_params),
+                    None if lc is None else float(lc))
+
+
 def run_trial(job: TrialJob, log_path: Path | None = None) -> dict[str, Any]:
     """Fly one trial; returns its JSON record. ``log_path``: also write its flight log there
     (the flight is the same)."""
@@ -719,11 +737,7 @@ def run_campaign(
     done = load_trials(out, seed)
 
     def job(i: int) -> TrialJob:
-        s, w = trial_seeds(seed, i)
-        return TrialJob(i, s, w, uavs, float(area_m), float(height_m), bool(avoidance),
-                        link.loss, link.latency_s, link.jitter_s, float(wind), length,
-                        dict(fault_fields), dict(avoidance_table),
-                        None if launch_check_s is None else float(launch_check_s))
+        return trial_job(params, i)
 
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
