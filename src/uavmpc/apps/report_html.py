@@ -64,7 +64,7 @@ def _cell(text: Any, sort: Any = None, numeric: bool = False) -> str:
 
 def report_html(report: dict[str, Any], rows: Sequence[tuple[str, str, str]],
                 trials: Sequence[dict[str, Any]], figures: Sequence[Path],
-                logs: dict[int, str], command: str | None = None) -> str:
+                logs: dict[int, str]) -> str:
     """The page: ``rows`` as :func:`~uavmpc.apps.campaign.report_rows` gives them,
     ``trials`` the records, ``figures`` PNG files to inline, ``logs`` trial index → relative
     path of its flight log."""
@@ -107,9 +107,6 @@ def report_html(report: dict[str, Any], rows: Sequence[tuple[str, str, str]],
         "the empirical CDF over all trials; a trial without collision counts as later than "
         "its length (\"&gt; …\").</p>",
     ]
-    if command:
-        parts.append(f"<p>Made by <code>{esc(command)}</code> (re-run it to continue the "
-                     "campaign).</p>")
     parts += table
     parts += ["<h2>Figures</h2>", '<div class="figs">']
     parts += [_img(f) for f in figures]

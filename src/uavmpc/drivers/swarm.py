@@ -53,7 +53,6 @@ from uavmpc.view.scene import (
     detail_of,
     ground_around,
     scene_update,
-    stamp,
     state_of,
 )
 
@@ -170,7 +169,7 @@ def _scene(t_s: float, states: dict[str, dict[str, Any]],
                                    "z_offset_m": v.z_offset_m,
                                    "avoiding": bool(states[v.uav_id].get("avoiding", False))}
                         for v in views}}
-    return scene_update(t_s, views, ground=dict(ground, timestamp=stamp(t_s))), metrics
+    return scene_update(t_s, views, ground=ground), metrics
 
 
 def _last_json_line(p: subprocess.Popen[str], log: Path | None = None) -> dict[str, Any]:

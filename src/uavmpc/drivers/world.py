@@ -67,7 +67,6 @@ from uavmpc.view.scene import (
     detail_of,
     ground_around,
     scene_update,
-    stamp,
     state_of,
 )
 
@@ -1091,7 +1090,7 @@ class World:
             fence = (g.polygon_xy_m, g.min_altitude_m, g.max_altitude_m)
         return scene_update(self.t_s, self.views() if views is None else views, fence=fence,
                             objects=objects,
-                            ground=dict(self._ground, timestamp=stamp(self.t_s)))
+                            ground=self._ground)
 
     def metrics(self, min_distance_m: float | None,
                 views: Sequence[UavView] | None = None) -> dict[str, Any]:

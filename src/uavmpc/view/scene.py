@@ -260,9 +260,10 @@ def scene_update(t_s: float, uavs: Sequence[UavView], *,
     """The ``foxglove.SceneUpdate`` (as a JSON-ready dict) of one snapshot at ``t_s``.
 
     ``fence``: (polygon (n, 2), minimum altitude, maximum altitude) [m]; ``ground``: an entity
-    from :func:`ground_entity` (sent once or with every update). Entities keep their ids from
-    one update to the next, so that each replaces the last."""
-    entities: list[dict[str, Any]] = [] if ground is None else [ground]
+    from :func:`ground_around` (made once, stamped here with every update). Entities keep
+    their ids from one update to the next, so that each replaces the last."""
+    entities: list[dict[str, Any]] = [] if ground is None else [
+        dict(ground, timestamp=stamp(t_s))]
     for i, u in enumerate(uavs):
         entities += _uav_entities(t_s, u, _PALETTE[i % len(_PALETTE)])
     if fence is not None:
