@@ -65,6 +65,86 @@ def test_heading_round_trips_and_east_is_ninety_degrees(h: float) -> None:
                        [math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])
 
 
+# --- geodetic ↔ ENU (PX4's azimuthal equidistant map on its sphere) ------------------------
+
+origins = st.tuples(st.floats(-85.0, 85.0), st.floats(-180.0, 180.0), st.floats(-400.0, 5000.0))
+local = st.lists(st.floats(-5000.0, 5000.0), min_size=3, max_size=3).map(np.array)
+PX4_HOME = (47.397742, 8.545594, 488.0)
+
+
+@given(origins, local)
+def test_enu_to_geodetic_and_back_is_the_same_point_to_a_millimetre(origin, p) -> None:
+    lat, lon, alt = frames.enu_to_geodetic(p, origin)
+    assert -90.0 <= lat <= 90.0 and -180.0 <= lon < 180.0
+    assert np.allclose(frames.geodetic_to_enu(lat, lon, alt, origin), p, atol=1e-3, rtol=0)
+
+
+@given(origins, st.floats(-0.04, 0.04), st.floats(-0.04, 0.04), st.floats(-100.0, 100.0))
+def test_geodetic_to_enu_and_back_is_the_same_point(origin, dlat, dlon, dalt) -> None:
+    lat = float(np.clip(origin[0] + dlat, -90.0, 90.0))
+    p = frames.geodetic_to_enu(lat, origin[1] + dlon, origin[2] + dalt, origin)
+    back = frames.enu_to_geodetic(p, origin)
+    assert math.isclose(back[0], lat, abs_tol=1e-9)
+    assert math.isclose(math.remainder(back[1] - (origin[1] + dlon), 360.0), 0.0, abs_tol=1e-8)
+    assert math.isclose(back[2], origin[2] + dalt, abs_tol=1e-9)
+
+
+@given(origins, local)
+def test_the_horizontal_distance_is_the_great_circle_distance(origin, p) -> None:
+    """Azimuthal equidistant: |(east, north)| from the origin is the distance on the sphere."""
+    lat, lon, _ = frames.enu_to_geodetic(p, origin)
+    phi0, phi = math.radians(origin[0]), math.radians(lat)
+    dlon = math.radians(lon - origin[1])
+    hav = math.sin((phi - phi0) / 2) ** 2 + math.cos(phi0) * math.cos(phi) * math.sin(dlon / 2) ** 2
+    great_circle = 2 * frames.EARTH_RADIUS_M * math.asin(math.sqrt(hav))
+    assert math.isclose(math.hypot(p[0], p[1]), great_circle, abs_tol=1e-3)
+
+
+def test_known_values_on_px4s_sphere() -> None:
+    # one degree of latitude is 2π·6 371 000 / 360 = 111 194.93 m straight north
+    e, n, u = frames.geodetic_to_enu(PX4_HOME[0] + 1.0, PX4_HOME[1], PX4_HOME[2] + 10.0,
+                                     PX4_HOME)
+    assert abs(e) < 1e-6 and math.isclose(n, 111194.93, abs_tol=0.01) and u == 10.0
+    # along the equator the map is the arc length too, east positive
+    e, n, _ = frames.geodetic_to_enu(0.0, 0.01, 0.0, (0.0, 0.0, 0.0))
+    assert math.isclose(e, 1111.9493, abs_tol=1e-3) and abs(n) < 1e-9
+    # the origin itself, and a point 100 m east at Zürich's latitude
+    assert np.array_equal(frames.geodetic_to_enu(*PX4_HOME, PX4_HOME), [0.0, 0.0, 0.0])
+    lat, lon, alt = frames.enu_to_geodetic(np.array([100.0, 0.0, 0.0]), PX4_HOME)
+    assert math.isclose(lon - PX4_HOME[1],
+                        math.degrees(100.0 / (frames.EARTH_RADIUS_M
+                                              * math.cos(math.radians(PX4_HOME[0])))),
+                        rel_tol=1e-6)
+    assert math.isclose(lat, PX4_HOME[0], abs_tol=1e-8) and alt == PX4_HOME[2]
+
+
+def test_geodetic_conversions_vectorise() -> None:
+    p = np.array([[0.0, 0.0, 0.0], [10.0, -20.0, 3.0], [-3000.0, 4000.0, -50.0]])
+    lat, lon, alt = frames.enu_to_geodetic(p, PX4_HOME)
+    assert lat.shape == lon.shape == alt.shape == (3,)
+    back = frames.geodetic_to_enu(lat, lon, alt, PX4_HOME)
+    assert back.shape == (3, 3) and np.allclose(back, p, atol=1e-6)
+    for i in range(3):
+        assert np.allclose(frames.geodetic_to_enu(lat[i], lon[i], alt[i], PX4_HOME), p[i],
+                           atol=1e-6)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: frames.geodetic_to_enu(91.0, 0.0, 0.0, PX4_HOME), r"latitude.*\[-90, 90\]"),
+    (lambda: frames.geodetic_to_enu(float("nan"), 0.0, 0.0, PX4_HOME), "latitude must be finite"),
+    (lambda: frames.geodetic_to_enu(0.0, float("inf"), 0.0, PX4_HOME), "longitude must be fin"),
+    (lambda: frames.geodetic_to_enu(0.0, 0.0, 0.0, (-90.5, 0.0, 0.0)), "origin latitude"),
+    (lambda: frames.geodetic_to_enu(0.0, 0.0, 0.0, (0.0, 0.0)), r"origin must be \(lat_deg"),
+    (lambda: frames.geodetic_to_enu(0.0, 180.0, 0.0, (0.0, 0.0, 0.0)), "antipode"),
+    (lambda: frames.enu_to_geodetic(np.array([1.0, 2.0]), PX4_HOME), r"shape \(\.\.\., 3\)"),
+    (lambda: frames.enu_to_geodetic(np.array([1.0, np.nan, 0.0]), PX4_HOME), "finite"),
+    (lambda: frames.enu_to_geodetic([0.0, 0.0, 0.0], ("a", 0.0, 0.0)), "origin must be a numb"),
+])
+def test_geodetic_conversions_reject_bad_input_clearly(call, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
 def _pair(origin: tuple[float, float, float]):
     from uavmpc.drivers.px4.sitl import StandInPx4
     from uavmpc.drivers.px4.vehicle import Px4Vehicle
