@@ -1,3 +1,6 @@
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -37,3 +40,54 @@ start = [2.0, 0.0, 5.0]
 goto = [2.0, 0.0, 5.0, 0.0]
 """)
     return path
+
+
+# --- the real PX4 firmware (SITL with SIH) ------------------------------------------------------
+
+_PX4_SKIP = ("real PX4 SITL not available: set UAVMPC_PX4_SITL to an extracted PX4 SITL build "
+             "(bin/px4, etc/)")
+_SHARED_PX4 = Path(__file__).resolve().parents[2] / "shared" / "px4-sitl"
+
+
+@pytest.fixture(scope="session")
+def px4_sitl_build():
+    """The validated PX4 SITL build of ``$UAVMPC_PX4_SITL`` (CI extracts it); unset, the
+    archive in the repository's sibling ``shared/px4-sitl/``, extracted once into a cache under
+    the temporary directory; else the test is skipped."""
+    from uavmpc.drivers.px4.firmware import Px4BuildError, Px4SitlBuild
+
+    where = os.environ.get("UAVMPC_PX4_SITL")
+    if where:  # set on purpose: a wrong value is an error, not a skip
+        return Px4SitlBuild.locate(where, flag="UAVMPC_PX4_SITL")
+    archives = sorted(_SHARED_PX4.glob("*.tar.gz"))
+    if not archives:
+        pytest.skip(_PX4_SKIP)
+    try:
+        return Px4SitlBuild.locate(archives[-1], flag="shared archive")
+    except Px4BuildError:
+        pytest.skip(_PX4_SKIP)
+
+
+@pytest.fixture
+def px4_instances(px4_sitl_build, tmp_path):
+    """``start(n, first=7, homes=None)`` boots ``n`` PX4 SIH instances numbered from
+    ``first`` (clear of instances 0–3 a developer may be running), each in its own folder
+    under ``tmp_path``, and waits until every one is ready; all are stopped at teardown."""
+    from uavmpc.drivers.px4.firmware import DEFAULT_GEO_ORIGIN, Px4Instance
+
+    started: list[Px4Instance] = []
+
+    def start(n: int, first: int = 7, homes=None) -> list[Px4Instance]:
+        batch = [Px4Instance(px4_sitl_build, first + k, tmp_path / f"px4-{first + k}",
+                             home=(homes[k] if homes else DEFAULT_GEO_ORIGIN))
+                 for k in range(n)]
+        for inst in batch:
+            started.append(inst)
+            inst.start()
+        for inst in batch:  # they boot in parallel
+            inst.wait_ready(timeout_s=30.0)
+        return batch
+
+    yield start
+    for inst in started:
+        inst.stop()
