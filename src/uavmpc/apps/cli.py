@@ -248,6 +248,13 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _say_compiling(airframe: Any) -> None:
+    """One line before the kernels load: cold, they compile for about a minute."""
+    print(f"uavmpc node: loading the compiled kernels for {airframe.name} before the link "
+          "opens (the first run after install compiles them: about a minute)",
+          file=sys.stderr, flush=True)
+
+
 def _node(args: argparse.Namespace) -> int:
     import dataclasses
 
@@ -298,14 +305,23 @@ def _node(args: argparse.Namespace) -> int:
             formation_mission = FormationFollower(spec, args.id)
     vehicle = None
     lost: tuple[type[Exception], ...] = ()
+    if args.geo_origin is not None and not args.mavlink:
+        print("uavmpc node: --geo-origin places a PX4's frame: it needs --mavlink",
+              file=sys.stderr)
+        return 2
     if args.mavlink:
+        from uavmpc.drivers.node import warm_up
         from uavmpc.drivers.px4.vehicle import Px4Vehicle, VehicleLost
 
         lost = (VehicleLost,)
+        # Compile before the link exists: a first run compiles for a minute, and neither
+        # the autopilot's clock map nor its stream should start before the flight can.
+        _say_compiling(airframe)
+        warm_up(airframe)
         try:
             vehicle = Px4Vehicle(args.mavlink, airframe, setpoints=args.setpoints,
                                  system_id=args.system_id, hover_thrust=args.hover_thrust,
-                                 origin_m=args.origin)
+                                 origin_m=args.origin, geo_origin=args.geo_origin)
         except (ValueError, OSError) as exc:
             print(f"uavmpc node: --mavlink: {exc}", file=sys.stderr)
             return 2
@@ -742,6 +758,11 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument("--origin", type=float, nargs=3, default=[0.0, 0.0, 0.0],
                       metavar=("X", "Y", "Z"),
                       help="--mavlink: the autopilot's local-frame origin in the world (ENU)")
+    node.add_argument("--geo-origin", type=float, nargs=3, default=None,
+                      metavar=("LAT", "LON", "ALT"),
+                      help="--mavlink: the world's ENU origin on the globe (degrees, metres "
+                           "AMSL); the autopilot's frame is then placed from its own "
+                           "GPS_GLOBAL_ORIGIN (no --origin needed)")
     node.add_argument("--hover-thrust", type=float, default=None,
                       help="--mavlink: normalised hover thrust (default: MPC_THR_HOVER)")
     node.add_argument("--system-id", type=int, default=None,

@@ -51,11 +51,13 @@ MAX_MESSAGES_PER_TICK = 32
 RESYNC_PERIODS = 5
 #: A vehicle this far below its start position takes off to it before its mission [m].
 TAKEOFF_BELOW_M = 0.5
-#: Landing: down at the tracker's pace to this height above the ground, then slowly [m, m/s],
-#: aiming this far below the ground so that the vehicle settles on it.
+#: Landing: down at the tracker's pace to this height above the ground, then at the flare
+#: speed [m, m/s] through the ground until the vehicle's driver says landed. The descent goes
+#: on after touchdown because an autopilot's land detector looks for exactly that: a commanded
+#: descent with no vertical movement (PX4: more than 1.1 × LNDMC_Z_VEL_MAX = 0.275 m/s, and, in
+#: attitude control, thrust falling to idle as the position error grows).
 FLARE_HEIGHT_M = 1.0
 FLARE_SPEED_MPS = 0.5
-LANDING_DEPTH_M = 0.3
 #: Longest landing before the node gives up waiting (the vehicle is left to its autopilot).
 LANDING_TIMEOUT_S = 60.0
 #: A sealed command sent longer ago than this (by its signer's clock) is refused as stale: it
@@ -514,8 +516,8 @@ class Node:
                                                   start_s=now))
 
     def _land(self, now: float, state: VehicleState) -> None:
-        """Fly down where it is: at the tracker's pace to the flare height, then slowly to
-        below the ground (the vehicle's driver disarms once it rests)."""
+        """Fly down where it is: at the tracker's pace to the flare height, then at the flare
+        speed into the ground until the vehicle's driver says landed (and disarms)."""
         assert self.stack is not None and self.vehicle is not None
         if not self.vehicle.flying:
             return
@@ -525,11 +527,11 @@ class Node:
         flare = ground + FLARE_HEIGHT_M
         descend = self.stack.tracker.limits.descend_speed_mps
         t1 = now + max(z - flare, 0.0) / descend + 0.01  # knots strictly increase
-        t2 = t1 + (max(min(z, flare) - ground, 0.0) + LANDING_DEPTH_M) / FLARE_SPEED_MPS
+        t2 = t1 + LANDING_TIMEOUT_S
         self.stack.set_mission(Reference(
             np.array([now, t1, t2]),
             np.array([[x, y, z, heading], [x, y, min(z, flare), heading],
-                      [x, y, ground - LANDING_DEPTH_M, heading]])))
+                      [x, y, min(z, flare) - FLARE_SPEED_MPS * LANDING_TIMEOUT_S, heading]])))
 
     def _step_mission(self, now: float, state: VehicleState) -> None:
         assert self.mission is not None and self.stack is not None

@@ -7,18 +7,32 @@ simulated plant. It reads the vehicle's state from ``ODOMETRY`` (or ``LOCAL_POSI
 ``SET_ATTITUDE_TARGET`` (default) or ``SET_POSITION_TARGET_LOCAL_NED``, and walks the phases::
 
     connecting → streaming (setpoints > 1 s) → offboard (MAV_CMD_DO_SET_MODE, retried while
-    refused) → arming → flying (the node takes off and flies its mission) → landing →
-    disarming → landed
+    refused) → arming → flying (the node takes off and flies its mission) → landing (a
+    commanded descent until PX4's land detector says landed) → disarming → landed
 
-Every command's ``COMMAND_ACK`` is checked, a rejection reported with its result name. Our
-failsafes: an estimate older than ``estimate_timeout_s`` (0.2 s), an autopilot that leaves
-offboard or disarms, or a lost link (no HEARTBEAT) → **stopped**: no more setpoints, the reason
-reported; the node then broadcasts what the vehicle really does (:meth:`OnboardStack.follow
-<uavmpc.onboard.OnboardStack.follow>`). A stopped vehicle is never taken back: a pilot who
-switched modes keeps the vehicle.
+What real PX4 does and how this class meets it (docs/px4.md has the table):
+
+- HEARTBEAT is a fixed 1 Hz stream, so its armed flag and mode lag a ``COMMAND_ACK`` by up to a
+  second: an accepted ACK sets the state at once, and a HEARTBEAT that contradicts it is believed
+  from the second one after the ACK (the first may have left before the change).
+- PX4's clock is not ours (in lockstep SITL it runs slow): estimates are placed on our clock
+  through a fitted offset and rate (:class:`~.clock.ClockMap`, from MAVLink TIMESYNC).
+- PX4 disarms only when its land detector agrees: the landing descends at a commanded rate
+  (which is what that detector looks for) until ``EXTENDED_SYS_STATE.landed_state`` says on the
+  ground, never judged by the estimator's height (EKF2's drifts by decimetres at rest).
+- PX4 sends its STATUSTEXT (the reasons for a refusal) only to a ground station: we send a
+  ground station's HEARTBEAT at 1 Hz.
+
+Every command's ``COMMAND_ACK`` is checked, a rejection reported with its result name and PX4's
+text. Our failsafes: an estimate older than ``estimate_timeout_s`` (0.2 s), an autopilot that
+leaves offboard or disarms, or a lost link (no HEARTBEAT) → **stopped**: no more setpoints, the
+reason reported; the node then broadcasts what the vehicle really does
+(:meth:`OnboardStack.follow <uavmpc.onboard.OnboardStack.follow>`). A stopped vehicle is never
+taken back: a pilot who switched modes keeps the vehicle.
 
 Frames: PX4's local frame is NED with its origin where its estimator started; ``origin_m`` is
-that origin in the swarm's ENU world (the conversions are :mod:`.frames`).
+that origin in the swarm's ENU world, given, or placed from PX4's own ``GPS_GLOBAL_ORIGIN``
+against the swarm's geodetic origin (``geo_origin``). The conversions are :mod:`.frames`.
 """
 
 from __future__ import annotations
@@ -31,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from uavmpc.drivers.px4.clock import ClockMap
 from uavmpc.drivers.px4.dialect import (
     FORCE_DISARM,
     OFFBOARD,
@@ -46,6 +61,7 @@ from uavmpc.drivers.px4.frames import (
     enu_to_ned,
     flu_to_frd,
     frd_to_flu,
+    geodetic_to_enu,
     heading_enu_to_ned,
     ned_frd_quat_to_enu_flu,
     ned_to_enu,
@@ -67,11 +83,19 @@ RETRY_S = 1.0
 GIVE_UP_S = 30.0
 #: After an accepted mode change, the HEARTBEAT must show it within this.
 MODE_CONFIRM_S = 3.0
-#: Landed: within this height of the take-off point and slower than LANDED_SPEED_MPS for
-#: LANDED_HOLD_S (or the autopilot's EXTENDED_SYS_STATE says on ground).
+#: Landed, for an autopilot that never says (no EXTENDED_SYS_STATE): within this height of
+#: the take-off point and slower than LANDED_SPEED_MPS for LANDED_HOLD_S. PX4 always says, and
+#: its word is taken instead: EKF2's height drifts by ±0.6 m at rest.
 LANDED_HEIGHT_M = 0.15
 LANDED_SPEED_MPS = 0.25
 LANDED_HOLD_S = 0.5
+#: Our ground station HEARTBEAT and TIMESYNC requests [s]: PX4 sends its STATUSTEXT only to a
+#: link that heard a ground station; five round trips a second keep the clock map fresh.
+GCS_HEARTBEAT_S = 1.0
+TIMESYNC_S = 0.2
+#: A HEARTBEAT that contradicts an accepted ACK is believed from this many HEARTBEATs after it
+#: (PX4 sends them at a fixed 1 Hz: the first may have left before the change).
+HEARTBEATS_TO_CONTRADICT = 2
 #: MAV_COMP_ID_ONBOARD_COMPUTER: who we are on the vehicle's MAVLink network.
 ONBOARD_COMPONENT = 191
 SETPOINT_MODES = ("attitude", "position")
@@ -128,8 +152,20 @@ class Px4Report:
     estimate_age_p99_ms: float = 0.0
     odometry_received: int = 0
     heartbeats_received: int = 0
+    #: HEARTBEATs that showed the state from before an accepted ACK (and were not believed).
+    heartbeats_behind_ack: int = 0
+    #: The clock map: our seconds per autopilot second, the shortest TIMESYNC round trip.
+    clock_rate: float = 1.0
+    clock_round_trip_ms: float | None = None
+    clock_source: str = ""
+    #: PX4's local-frame origin in the world (ENU) and where it came from.
+    origin_m: list[float] = field(default_factory=list)
+    origin_source: str = ""
+    landed_states: list[str] = field(default_factory=list)
     garbage: int = 0
     foreign: int = 0
+    #: Valid frames of messages outside the common dialect, by id (PX4 sends four such).
+    unknown_ids: dict[str, int] = field(default_factory=dict)
     commands: list[dict[str, Any]] = field(default_factory=list)
     modes: list[str] = field(default_factory=list)
     status_texts: list[str] = field(default_factory=list)
@@ -153,6 +189,9 @@ class Px4Vehicle:
         offboard_after_s: how long to stream setpoints before asking for offboard (PX4 needs
             more than 1 s).
         estimate_timeout_s: estimate age that stops the commanding.
+        geo_origin: (latitude [deg], longitude [deg], altitude [m AMSL]) of the swarm's ENU
+            origin; with it, ``origin_m`` is placed from the autopilot's ``GPS_GLOBAL_ORIGIN``
+            (its estimator's origin) instead of being given.
     """
 
     def __init__(self, address: str, airframe: Airframe, *, setpoints: str = "attitude",
@@ -160,7 +199,8 @@ class Px4Vehicle:
                  origin_m: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
                  offboard_after_s: float = OFFBOARD_STREAM_S + 0.2,
                  estimate_timeout_s: float = ESTIMATE_TIMEOUT_S,
-                 own_system_id: int | None = None) -> None:
+                 own_system_id: int | None = None,
+                 geo_origin: tuple[float, float, float] | None = None) -> None:
         if setpoints not in SETPOINT_MODES:
             raise ValueError(f"setpoints: must be one of {SETPOINT_MODES}, got {setpoints!r}")
         if hover_thrust is not None and not 0.0 < float(hover_thrust) < 1.0:
@@ -170,6 +210,12 @@ class Px4Vehicle:
             raise ValueError(f"origin_m: must be 3 finite numbers, got {origin_m!r}")
         if system_id is not None and not 1 <= int(system_id) <= 255:
             raise ValueError(f"system_id: must be in 1..255, got {system_id!r}")
+        if geo_origin is not None:
+            geodetic_to_enu(*geo_origin, origin=geo_origin)  # raises naming a bad value
+            self.geo_origin: tuple[float, float, float] | None = (
+                float(geo_origin[0]), float(geo_origin[1]), float(geo_origin[2]))
+        else:
+            self.geo_origin = None
         self.airframe = airframe
         self.setpoints = setpoints
         self.origin_m = origin
@@ -189,12 +235,21 @@ class Px4Vehicle:
         self.mode: Px4Mode | None = None
         self.landed_state = 0  # MAV_LANDED_STATE_UNDEFINED until the autopilot says
         self.last_heartbeat_s = -math.inf
+        self.clock = ClockMap()
         self._odom: tuple[float, VehicleState] | None = None  # (receipt wall time, state)
         self._lpn: Any = None
         self._att: Any = None
-        self._clock_offset_s: float | None = None
-        self._clock_seen_s = 0.0
+        self._origin_known = geo_origin is None
+        self._next_gcs_s = -math.inf
+        self._next_timesync_s = -math.inf
+        #: The armed flag / mode an accepted ACK set, and HEARTBEATs seen since it.
+        self._acked_armed: bool | None = None
+        self._acked_mode: Px4Mode | None = None
+        self._heartbeats_since_ack = 0
         self._pending: _Command | None = None
+        self._texts: list[tuple[float, str]] = []  # (arrival, STATUSTEXT)
+        self._command_first_s = math.inf  # when the current request was sent
+        self._refused_s: float | None = None  # when the refused command was sent
         self._phase_s = 0.0
         self._first_request_s = 0.0
         self._stream_start_s: float | None = None
@@ -222,8 +277,9 @@ class Px4Vehicle:
 
     @property
     def done(self) -> bool:
-        """Landed and disarmed: nothing left to do."""
-        return self.phase == Phase.LANDED
+        """Landed and disarmed, or stopped and disarmed (by PX4's failsafe, or a pilot):
+        nothing left to do."""
+        return self.phase == Phase.LANDED or (self.phase == Phase.STOPPED and not self.armed)
 
     @property
     def ground_z_m(self) -> float:
@@ -231,42 +287,85 @@ class Px4Vehicle:
         return 0.0 if self._ground_z_m is None else self._ground_z_m
 
     def start(self, timeout_s: float = 20.0) -> VehicleState:
-        """Wait for the autopilot's HEARTBEAT and a fresh estimate, learn the hover thrust;
-        return the first estimate.
+        """Wait for the autopilot's HEARTBEAT, a fresh estimate on our clock, its hover thrust
+        and (with ``geo_origin``) its estimator's global origin; return the first estimate.
+
+        What queued on the socket before this call is dropped: a first run compiles kernels
+        for a minute after the socket opened, and that minute's estimates are history.
 
         Raises:
             VehicleLost: nothing usable within ``timeout_s`` (the message says what is missing).
         """
-        t_end = time.time() + timeout_s
-        requested = -math.inf
+        self.link.drain()
+        self._t0_s = time.time()
+        t_end = self._t0_s + timeout_s
+        requested = origin_requested = -math.inf
+        est = None
         while time.time() < t_end:
             now = time.time()
             self.poll(now)
+            self._send_periodic(now)
             if self.system_id is not None and self.hover_thrust is None \
                     and now - requested > 0.5:
                 requested = now
                 self.link.send(_M.MAVLink_param_request_read_message(
                     self.system_id, self.component_id, b"MPC_THR_HOVER", -1))
+            if self.system_id is not None and not self._origin_known \
+                    and now - origin_requested > 0.5:
+                origin_requested = now
+                self.link.send(_M.MAVLink_command_long_message(
+                    self.system_id, self.component_id, _M.MAV_CMD_REQUEST_MESSAGE, 0,
+                    float(_M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN), 0, 0, 0, 0, 0, 0))
             est = self.estimate(now)
-            if est is not None and self.hover_thrust is not None:
-                break
-            if est is not None and now - self._t0_s > 3.0:  # the autopilot kept its param
+            if est is not None and self._origin_known and self.hover_thrust is None \
+                    and now - self._t0_s > 3.0:  # the autopilot kept its parameter
                 self.hover_thrust = self.airframe.mass_kg * 9.80665 / self.airframe.max_thrust_n
                 self.report_data.hover_thrust_source = "airframe (MPC_THR_HOVER not answered)"
+            if est is not None and self.hover_thrust is not None and self._origin_known:
                 break
             self.link.wait(0.02)
         else:
-            what = ("no HEARTBEAT from an autopilot" if self.system_id is None
-                    else "no ODOMETRY or LOCAL_POSITION_NED + ATTITUDE_QUATERNION")
-            raise VehicleLost(f"{what} on {self.link.address} within {timeout_s:g} s")
+            raise VehicleLost(f"{self._missing(est)} on {self.link.address} within "
+                              f"{timeout_s:g} s")
+        assert est is not None
         self.report_data.hover_thrust = self.hover_thrust
+        self.report_data.origin_m = [round(float(v), 3) for v in self.origin_m]
+        self.report_data.origin_source = self.report_data.origin_source or "given (--origin)"
         self._ground_z_m = float(est.position_m[2])
         self._connected = True
         return est
 
+    def _missing(self, est: VehicleState | None) -> str:
+        """What :meth:`start` still waits for, in words."""
+        if self.system_id is None:
+            return "no HEARTBEAT from an autopilot"
+        if not self._origin_known:
+            return ("no GPS_GLOBAL_ORIGIN (the autopilot's estimator has no global position "
+                    "yet; --geo-origin needs one)")
+        if self._odom is None and (self._lpn is None or self._att is None):
+            return "no ODOMETRY or LOCAL_POSITION_NED + ATTITUDE_QUATERNION"
+        if est is None:
+            return (f"estimates arrive but none is younger than {self.estimate_timeout_s:g} s "
+                    "on our clock (no TIMESYNC answer, and the stamps do not map)")
+        return "no hover thrust"
+
+    def _send_periodic(self, now_s: float) -> None:
+        """Our 1 Hz ground-station HEARTBEAT and the TIMESYNC requests (once the autopilot
+        is known: a listening endpoint has nobody to send to before)."""
+        if self.system_id is None:
+            return
+        if now_s >= self._next_gcs_s:
+            self._next_gcs_s = now_s + GCS_HEARTBEAT_S
+            self.link.send(_M.MAVLink_heartbeat_message(
+                _M.MAV_TYPE_GCS, _M.MAV_AUTOPILOT_INVALID, 0, 0, _M.MAV_STATE_ACTIVE, 3))
+        if now_s >= self._next_timesync_s:
+            self._next_timesync_s = now_s + TIMESYNC_S
+            self.link.send(_M.MAVLink_timesync_message(0, time.time_ns()))
+
     def update(self, now_s: float) -> VehicleState | None:
         """Take what arrived, advance the life cycle; the fresh estimate, or None."""
         self.poll(now_s)
+        self._send_periodic(now_s)
         est = self.estimate(now_s)
         self._advance(now_s, est)
         return est
@@ -322,7 +421,16 @@ class Px4Vehicle:
     def report(self) -> dict[str, Any]:
         r = self.report_data
         r.phase = self.phase.value
+        said = self._said_about_refusal()
+        if said and r.stop_reason is not None and said not in r.stop_reason:
+            r.stop_reason = f"{r.stop_reason} ({said})"
         r.garbage = self.link.garbage
+        r.unknown_ids = {str(k): v for k, v in sorted(self.link.unknown_ids.items())}
+        r.clock_rate = round(self.clock.rate, 6)
+        if math.isfinite(self.clock.round_trip_s):
+            r.clock_round_trip_ms = round(self.clock.round_trip_s * 1e3, 3)
+        r.clock_source = ("TIMESYNC round trips" if math.isfinite(self.clock.round_trip_s)
+                          else "message stamps (no TIMESYNC answer)")
         if self._periods:
             ms = np.array(self._periods) * 1e3
             r.setpoint_period_p50_ms = float(np.median(ms))
@@ -360,13 +468,42 @@ class Px4Vehicle:
                 handler(self, msg, arrived_s)
 
     def _on_heartbeat(self, msg: Any, now_s: float) -> None:
+        if msg.type == _M.MAV_TYPE_GCS or msg.autopilot == _M.MAV_AUTOPILOT_INVALID:
+            return  # not the autopilot's own (e.g. another component on its id)
         self.report_data.heartbeats_received += 1
         self.last_heartbeat_s = now_s
-        self.armed = bool(msg.base_mode & _M.MAV_MODE_FLAG_SAFETY_ARMED)
+        armed = bool(msg.base_mode & _M.MAV_MODE_FLAG_SAFETY_ARMED)
         mode = Px4Mode.decode(msg.custom_mode)
+        self._heartbeats_since_ack += 1
+        behind = ((self._acked_armed is not None and armed != self._acked_armed)
+                  or (self._acked_mode is not None and mode != self._acked_mode))
+        if behind and self._heartbeats_since_ack < HEARTBEATS_TO_CONTRADICT:
+            self.report_data.heartbeats_behind_ack += 1
+            return  # sent before the change the ACK confirmed
+        self._acked_armed = self._acked_mode = None
+        self.armed = armed
+        self._set_mode(mode, now_s)
+
+    def _set_mode(self, mode: Px4Mode, now_s: float) -> None:
         if mode != self.mode:
             self.report_data.modes.append(f"{now_s - self._t0_s:.2f} s: {mode}")
         self.mode = mode
+
+    def _on_timesync(self, msg: Any, now_s: float) -> None:
+        if msg.tc1 == 0:  # the autopilot's own request: answer with our time, as PX4 expects
+            self.link.send(_M.MAVLink_timesync_message(time.time_ns(), msg.ts1))
+            return
+        # An answer to one of ours: ts1 is our send time [ns], tc1 its time [ns].
+        self.clock.add_round_trip(msg.ts1 * 1e-9, msg.tc1 * 1e-9, now_s)
+
+    def _on_global_origin(self, msg: Any, now_s: float) -> None:
+        if self.geo_origin is None or self._origin_known:
+            return
+        lat, lon, alt = msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3
+        self.origin_m = geodetic_to_enu(lat, lon, alt, origin=self.geo_origin)
+        self._origin_known = True
+        self.report_data.origin_source = (f"GPS_GLOBAL_ORIGIN {lat:.7f}, {lon:.7f}, {alt:.2f} m "
+                                          f"against --geo-origin")
 
     def _on_odometry(self, msg: Any, now_s: float) -> None:
         if msg.frame_id not in (_M.MAV_FRAME_LOCAL_NED, _M.MAV_FRAME_LOCAL_FRD):
@@ -382,7 +519,10 @@ class Px4Vehicle:
         v_ned = vals[3:6]
         if msg.child_frame_id in _ODOMETRY_CHILD_BODY:  # velocity given in the body frame
             v_ned = quat_to_rot(q_ned) @ v_ned
-        t = self._stamp(msg.time_usec * 1e-6, now_s)
+        self.clock.add_one_way(msg.time_usec * 1e-6, now_s)
+        t = self.clock.to_local(msg.time_usec * 1e-6)
+        if not math.isfinite(t):
+            return
         self.report_data.odometry_received += 1
         self._odom = (now_s, VehicleState(
             t_s=t, position_m=self.origin_m + ned_to_enu(vals[0:3]),
@@ -390,6 +530,7 @@ class Px4Vehicle:
             body_rates_radps=frd_to_flu(vals[6:9])))
 
     def _on_local_position(self, msg: Any, now_s: float) -> None:
+        self.clock.add_one_way(msg.time_boot_ms * 1e-3, now_s)
         self._lpn = (now_s, msg)
 
     def _on_attitude(self, msg: Any, now_s: float) -> None:
@@ -397,11 +538,20 @@ class Px4Vehicle:
 
     def _on_ack(self, msg: Any, now_s: float) -> None:
         cmd = self._pending
-        if cmd is None or msg.command != cmd.command:
-            return
+        if cmd is None or msg.command != cmd.command or cmd.result is not None:
+            return  # not ours, or a second ACK (PX4 answers DO_SET_MODE twice)
         if msg.result == _M.MAV_RESULT_IN_PROGRESS:
             return
         cmd.result = int(msg.result)
+        if cmd.result == _M.MAV_RESULT_ACCEPTED:
+            # The ACK is the news; the 1 Hz HEARTBEAT may tell the old state for a second.
+            self._heartbeats_since_ack = 0
+            if cmd.command == _M.MAV_CMD_COMPONENT_ARM_DISARM:
+                self.armed = self._acked_armed = cmd.params[0] > 0.5
+            elif cmd.command == _M.MAV_CMD_DO_SET_MODE:
+                mode = Px4Mode(int(cmd.params[1]), int(cmd.params[2]))
+                self._acked_mode = mode
+                self._set_mode(mode, now_s)
         self.report_data.commands.append({
             "t_s": round(now_s - self._t0_s, 3), "command": command_name(cmd.command),
             "params": list(cmd.params[:3]), "result": result_name(msg.result),
@@ -415,26 +565,19 @@ class Px4Vehicle:
             self.report_data.hover_thrust_source = "MPC_THR_HOVER"
 
     def _on_extended_state(self, msg: Any, now_s: float) -> None:
+        if int(msg.landed_state) != self.landed_state:
+            name = mavlink.enums["MAV_LANDED_STATE"].get(int(msg.landed_state))
+            self.report_data.landed_states.append(
+                f"{now_s - self._t0_s:.2f} s: "
+                f"{name.name.removeprefix('MAV_LANDED_STATE_') if name else msg.landed_state}")
         self.landed_state = int(msg.landed_state)
 
     def _on_status_text(self, msg: Any, now_s: float) -> None:
         text = msg.text.rstrip("\x00") if isinstance(msg.text, str) else repr(msg.text)
         self.report_data.status_texts.append(f"{now_s - self._t0_s:.2f} s: {text}")
         del self.report_data.status_texts[:-20]
-
-    def _stamp(self, t_autopilot_s: float, now_s: float) -> float:
-        """Autopilot time → our time: the offset follows the lowest-latency sample (a minimum
-        that may creep up by 100 ppm, so that the two clocks may drift apart slowly)."""
-        if t_autopilot_s <= 0.0:
-            return now_s
-        sample = now_s - t_autopilot_s
-        if self._clock_offset_s is None:
-            self._clock_offset_s = sample
-        else:
-            creep = 1e-4 * max(now_s - self._clock_seen_s, 0.0)
-            self._clock_offset_s = min(sample, self._clock_offset_s + creep)
-        self._clock_seen_s = now_s
-        return t_autopilot_s + self._clock_offset_s
+        self._texts.append((now_s, text))
+        del self._texts[:-20]
 
     def estimate(self, now_s: float) -> VehicleState | None:
         """The latest estimate if younger than ``estimate_timeout_s``, else None."""
@@ -442,10 +585,14 @@ class Px4Vehicle:
         if self._odom is not None:
             est = self._odom[1]
         elif self._lpn is not None and self._att is not None:
-            (t_p, p), (t_a, a) = self._lpn, self._att
+            (_, p), (_, a) = self._lpn, self._att
             q_ned = np.array([a.q1, a.q2, a.q3, a.q4])
+            t_s = min(self.clock.to_local(p.time_boot_ms * 1e-3),
+                      self.clock.to_local(a.time_boot_ms * 1e-3))
+            if not math.isfinite(t_s):
+                return None
             est = VehicleState(
-                t_s=min(t_p, t_a),
+                t_s=t_s,
                 position_m=self.origin_m + ned_to_enu(np.array([p.x, p.y, p.z])),
                 velocity_mps=ned_to_enu(np.array([p.vx, p.vy, p.vz])),
                 attitude_wxyz=ned_frd_quat_to_enu_flu(q_ned / np.linalg.norm(q_ned)),
@@ -467,6 +614,7 @@ class Px4Vehicle:
 
     def _send_command(self, now_s: float, command: int, *params: float) -> None:
         p = (list(params) + [0.0] * 7)[:7]
+        self._command_first_s = now_s
         self._pending = _Command(command, tuple(p), now_s)
         self._transmit(self._pending)
 
@@ -507,8 +655,12 @@ class Px4Vehicle:
         if self._offboard_seen and self.mode is not None and not self.mode.is_offboard:
             self._stop(now_s, f"the autopilot left offboard (now {self.mode})")
             return
-        if self.phase in (Phase.FLYING, Phase.LANDING) and not self.armed:
-            self._stop(now_s, "the autopilot disarmed")
+        if self.phase in (Phase.FLYING, Phase.LANDING, Phase.DISARMING) and not self.armed:
+            if self.phase != Phase.FLYING and self._autopilot_says_landed(est):
+                self._pending = None  # its own auto-disarm after landing (COM_DISARM_LAND)
+                self._enter(Phase.LANDED, now_s)
+            else:
+                self._stop(now_s, "the autopilot disarmed")
             return
         if self.mode is not None and self.mode.is_offboard:
             self._offboard_seen = True
@@ -553,16 +705,24 @@ class Px4Vehicle:
     def _in_flying(self, now_s: float, est: VehicleState) -> None:
         pass
 
+    def _autopilot_says_landed(self, est: VehicleState) -> bool:
+        """Landed by the autopilot's land detector (PX4's EXTENDED_SYS_STATE); only an
+        autopilot that never reports it is judged by its estimate (height and speed)."""
+        if self.landed_state != _M.MAV_LANDED_STATE_UNDEFINED:
+            return self.landed_state == _M.MAV_LANDED_STATE_ON_GROUND
+        return (est.position_m[2] - self.ground_z_m < LANDED_HEIGHT_M
+                and float(np.linalg.norm(est.velocity_mps)) < LANDED_SPEED_MPS)
+
     def _in_landing(self, now_s: float, est: VehicleState) -> None:
-        on_ground = self.landed_state == _M.MAV_LANDED_STATE_ON_GROUND or (
-            est.position_m[2] - self.ground_z_m < LANDED_HEIGHT_M
-            and float(np.linalg.norm(est.velocity_mps)) < LANDED_SPEED_MPS)
-        if not on_ground:
+        # The node keeps descending at its flare speed through the ground: a commanded descent
+        # with no vertical movement is what PX4's land detector calls ground contact.
+        if not self._autopilot_says_landed(est):
             self._landed_since_s = None
             return
         if self._landed_since_s is None:
             self._landed_since_s = now_s
-        if now_s - self._landed_since_s >= LANDED_HOLD_S:
+        if self.landed_state != _M.MAV_LANDED_STATE_UNDEFINED \
+                or now_s - self._landed_since_s >= LANDED_HOLD_S:
             self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
             self._enter(Phase.DISARMING, now_s)
 
@@ -595,7 +755,20 @@ class Px4Vehicle:
                               "must end it")
 
     def _last_result(self) -> str:
-        return self.report_data.commands[-1]["result"] if self.report_data.commands else "?"
+        """The last command's result; :meth:`report` adds what the autopilot said about it."""
+        if not self.report_data.commands:
+            return "?"
+        self._refused_s = self._command_first_s
+        return str(self.report_data.commands[-1]["result"])
+
+    def _said_about_refusal(self) -> str:
+        """PX4's STATUSTEXT from the refused command's sending to a second after the stop
+        (PX4 queues its texts: they may arrive after the ACK)."""
+        if self._refused_s is None:
+            return ""
+        until = self._phase_s + 1.0
+        texts = [t for t_s, t in self._texts if self._refused_s - 0.05 <= t_s <= until]
+        return "; ".join(f'PX4: "{t}"' for t in texts[-3:])
 
 
 _HANDLERS = {
@@ -607,4 +780,6 @@ _HANDLERS = {
     "PARAM_VALUE": Px4Vehicle._on_param,
     "EXTENDED_SYS_STATE": Px4Vehicle._on_extended_state,
     "STATUSTEXT": Px4Vehicle._on_status_text,
+    "TIMESYNC": Px4Vehicle._on_timesync,
+    "GPS_GLOBAL_ORIGIN": Px4Vehicle._on_global_origin,
 }
