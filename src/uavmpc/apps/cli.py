@@ -397,7 +397,27 @@ def _swarm(args: argparse.Namespace) -> int:
         plot_min_distance_trace(t_s, d_m, COLLISION_DISTANCE_M).savefig(
             out / "min_distance.png", dpi=110)
 
-    if args.mavlink:
+    build = None
+    if args.px4_sitl is not None and args.mavlink:
+        print("uavmpc swarm: --px4-sitl and --mavlink are exclusive: --px4-sitl flies real PX4 "
+              "instances, --mavlink the stand-ins", file=sys.stderr)
+        return 2
+    if args.geo_origin is not None and args.px4_sitl is None:
+        print("uavmpc swarm: --geo-origin needs --px4-sitl (it places the real PX4s' homes)",
+              file=sys.stderr)
+        return 2
+    if args.px4_sitl is not None:
+        from uavmpc.drivers.px4.firmware import DEFAULT_GEO_ORIGIN, Px4SitlBuild
+        from uavmpc.drivers.px4.frames import enu_to_geodetic
+
+        geo_origin = tuple(args.geo_origin or DEFAULT_GEO_ORIGIN)
+        try:
+            enu_to_geodetic([0.0, 0.0, 0.0], geo_origin)
+        except ValueError as exc:
+            print(f"uavmpc swarm: --geo-origin: {exc}", file=sys.stderr)
+            return 2
+        build = Px4SitlBuild.locate(args.px4_sitl)  # a ConfigError names what is missing
+    if args.mavlink or build is not None:
         import uavmpc.drivers.px4.dialect  # noqa: F401  (fail early if pymavlink is missing)
     if args.ros2:
         from uavmpc.comms.ros2 import Ros2Codec
@@ -417,10 +437,12 @@ def _swarm(args: argparse.Namespace) -> int:
         s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
                       duration_s=args.duration, key_file=args.key_file, on_trace=draw,
                       mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2,
-                      live=live)
+                      live=live, px4_sitl=build, px4_first_instance=args.px4_first_instance,
+                      **({"geo_origin": geo_origin} if build is not None else {}))
     verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
     closest = s["min_distance_m"]
-    via = " each flying a PX4 stand-in over MAVLink" if args.mavlink else ""
+    via = (" each flying a real PX4 SITL (SIH) over MAVLink" if build is not None
+           else " each flying a PX4 stand-in over MAVLink" if args.mavlink else "")
     print(f"{s['scenario']} as {len(s['uavs'])} node processes over Zenoh{via}: {verdict}; "
           f"closest approach {closest if closest is None else round(closest, 2)} m")
     for uav, u in s["uavs"].items():
@@ -435,6 +457,8 @@ def _swarm(args: argparse.Namespace) -> int:
             line += (f"; MAVLink {px4.get('phase')}"
                      + (f" ({px4['stop_reason']})" if px4.get("stop_reason") else "")
                      + f", setpoints p99 {px4.get('setpoint_period_p99_ms', 0.0):.2f} ms")
+        if u.get("px4"):
+            line += f"; PX4 log {u['px4'].get('ulog') or u['px4'].get('log')}"
         print(line)
     fe = s.get("formation_error_m")
     if fe:
@@ -797,8 +821,18 @@ def build_parser() -> argparse.ArgumentParser:
                        help="each node flies its own stand-in PX4 (uavmpc sitl) over "
                             "MAVLink/UDP on 127.0.0.1: take-off from the ground, mission, "
                             "landing")
+    swarm.add_argument("--px4-sitl", metavar="DIR",
+                       help="each node flies a real PX4 SITL instance with SIH from this build "
+                            "(bin/px4, etc/; or its .tar.gz): the i-th UAV is instance i, "
+                            "working in OUT/px4/<id>/")
+    swarm.add_argument("--geo-origin", type=float, nargs=3, default=None,
+                       metavar=("LAT", "LON", "ALT"),
+                       help="--px4-sitl: the world's ENU origin on the globe (degrees, metres "
+                            "AMSL; default PX4's SITL home 47.397742 8.545594 488)")
+    swarm.add_argument("--px4-first-instance", type=int, default=0, metavar="N",
+                       help="--px4-sitl: instance number of the first UAV (ports 14540+N...)")
     swarm.add_argument("--setpoints", choices=["attitude", "position"], default="attitude",
-                       help="--mavlink: the setpoint message the nodes send")
+                       help="--mavlink, --px4-sitl: the setpoint message the nodes send")
     swarm.add_argument("--ros2", metavar="ROUTER",
                        help="every node also appears on a ROS 2 graph through this Zenoh router "
                             "(rmw_zenohd, e.g. tcp/localhost:7447)")
