@@ -13,6 +13,15 @@ With ``mavlink=True`` every UAV is a pair of processes: a stand-in PX4 (``uavmpc
 on the ground below the UAV's start, and its node, connected over MAVLink/UDP on 127.0.0.1. The
 node takes off to its start before the epoch, flies the mission, then lands and disarms; the
 monitor keeps watching until every node has landed.
+
+With ``px4_sitl`` (``uavmpc swarm SCENARIO --px4-sitl DIR``) every UAV is the real PX4 firmware
+instead of the stand-in: the i-th UAV is PX4 SITL instance ``px4_first_instance + i`` with its
+built-in SIH simulator, working in ``out/px4/<id>/`` (its console in ``px4.log``, its flight
+log in ``log/<date>/*.ulg``), booted at the geodetic point below the UAV's start
+(``enu_to_geodetic((x, y, 0), geo_origin)``); its node listens on ``udp://:14540+i`` and places
+PX4's frame in the swarm's world from PX4's own GPS_GLOBAL_ORIGIN (``--geo-origin``). Every
+instance is ready for take-off before the mission's epoch is set; all are stopped, with their
+process groups, after their nodes.
 """
 
 from __future__ import annotations
@@ -38,6 +47,8 @@ from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
 from uavmpc.config import ConfigError
 from uavmpc.drivers.node import warm_up
+from uavmpc.drivers.px4.firmware import DEFAULT_GEO_ORIGIN, Px4Instance, Px4SitlBuild
+from uavmpc.drivers.px4.frames import enu_to_geodetic
 from uavmpc.drivers.world import (
     COLLISION_DISTANCE_M,
     FORMATION_SETTLE_S,
@@ -60,8 +71,14 @@ from uavmpc.view.scene import (
 STARTUP_S = 4.0
 #: Extra seconds with MAVLink: stream > 1 s, offboard, arm, and climb to the start.
 TAKEOFF_S = 8.0
+#: Extra seconds with the real PX4: its HEARTBEAT is 1 Hz (so are its mode and arming
+#: reports), EKF2 must have its origin, and position-mode take-off spools up for 1 s and ramps
+#: for 3 s (lift-off ≈ 3.4 s after arming) before the climb to the start.
+PX4_TAKEOFF_S = 14.0
 #: Longest wait for the nodes to land after the mission.
 LANDING_WAIT_S = 40.0
+#: Longest wait for a PX4 SITL instance to print that it is ready for take-off (≈ 4–6 s alone).
+PX4_READY_TIMEOUT_S = 60.0
 
 
 def free_ports(n: int) -> list[int]:
@@ -81,8 +98,12 @@ def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
                  mission_file: Path | None, avoidance: bool, duration_s: float,
                  key_file: str | None = None, mavlink: str | None = None,
                  setpoints: str = "attitude", ros2: str | None = None,
-                 formation_file: Path | None = None) -> list[str]:
-    """The ``uavmpc node`` command line of one UAV of a scenario."""
+                 formation_file: Path | None = None,
+                 geo_origin: tuple[float, float, float] | None = None,
+                 system_id: int | None = None) -> list[str]:
+    """The ``uavmpc node`` command line of one UAV of a scenario. ``geo_origin`` (lat [deg],
+    lon [deg], alt [m AMSL] of the world's ENU origin): the autopilot's frame is placed from
+    its GPS_GLOBAL_ORIGIN instead of the ground below the start (``--origin``)."""
     cmd = [sys.executable, "-m", "uavmpc.apps.cli", "node", "--id", spec.uav_id,
            "--priority", str(spec.priority), "--airframe", spec.airframe,
            "--swarm", swarm, "--listen", listen,
@@ -101,10 +122,25 @@ def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
     if formation_file is not None:
         cmd += ["--formation", str(formation_file)]
     if mavlink:
-        ground = (*spec.start_m[:2], 0.0)
-        cmd += ["--mavlink", mavlink, "--setpoints", setpoints,
-                "--origin", *(repr(v) for v in ground)]
+        cmd += ["--mavlink", mavlink, "--setpoints", setpoints]
+        if geo_origin is not None:
+            cmd += ["--geo-origin", *(repr(float(v)) for v in geo_origin)]
+        else:
+            cmd += ["--origin", *(repr(v) for v in (*spec.start_m[:2], 0.0))]
+        if system_id is not None:
+            cmd += ["--system-id", str(system_id)]
     return cmd
+
+
+def px4_instances(scenario: Scenario, build: Px4SitlBuild, out: Path, *,
+                  geo_origin: tuple[float, float, float] = DEFAULT_GEO_ORIGIN,
+                  first_instance: int = 0) -> dict[str, Px4Instance]:
+    """One PX4 SITL instance per UAV (not started): instance ``first_instance + i`` for the
+    i-th, working in ``out/px4/<id>/``, home on the ground below its start."""
+    return {spec.uav_id: Px4Instance(
+        build, first_instance + i, out / "px4" / spec.uav_id,
+        home=enu_to_geodetic(np.array([spec.start_m[0], spec.start_m[1], 0.0]), geo_origin))
+        for i, spec in enumerate(scenario.uavs)}
 
 
 def sitl_command(spec: Any, address: str) -> list[str]:
@@ -199,7 +235,10 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               kill_at_s: dict[str, float] | None = None,
               on_trace: Callable[[list[float], list[float]], None] | None = None,
               mavlink: bool = False, setpoints: str = "attitude",
-              ros2: str | None = None, live: LiveSink | None = None) -> dict[str, Any]:
+              ros2: str | None = None, live: LiveSink | None = None,
+              px4_sitl: Px4SitlBuild | None = None,
+              geo_origin: tuple[float, float, float] = DEFAULT_GEO_ORIGIN,
+              px4_first_instance: int = 0) -> dict[str, Any]:
     """Fly ``scenario`` as separate node processes; returns the summary (also written).
 
     ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
@@ -210,7 +249,10 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it. Each
     node's error output goes to ``out/<id>.node.log``. ``live``: gets the 3-D scene and the
     metrics every :data:`~uavmpc.drivers.world.SCENE_PERIOD_S` of the wall clock, as the
-    monitor hears the nodes (e.g. :class:`uavmpc.view.live.LiveView`)."""
+    monitor hears the nodes (e.g. :class:`uavmpc.view.live.LiveView`). ``px4_sitl``: every
+    node flies a real PX4 SITL instance of that build instead of a stand-in (see the module's
+    docstring; ``geo_origin`` is the world's ENU origin on the globe, ``px4_first_instance``
+    the first instance number); excludes ``mavlink``."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
     if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
@@ -219,27 +261,56 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                                          ("[limits]", scenario.limits)) if v)
         raise ConfigError(f"{scenario.name}: {what} need the simulated world; node processes "
                           f"do not run them yet (fly it with: uavmpc run {scenario.name})")
+    if mavlink and px4_sitl is not None:
+        raise ConfigError("--px4-sitl and --mavlink are exclusive: --px4-sitl flies real PX4 "
+                          "instances, --mavlink the stand-ins")
+    real_px4 = px4_sitl is not None
+    mavlink = mavlink or real_px4  # the nodes fly over MAVLink either way
     duration = scenario.duration_s if duration_s is None else float(duration_s)
     auth_key = load_key(key_file) if key_file else None
     out.mkdir(parents=True, exist_ok=True)
     swarm = f"s{os.getpid()}"
     n = len(scenario.uavs)
     ports = free_ports(n + 1)
-    mav_ports = free_ports(n) if mavlink else []
+    mav_ports = free_ports(n) if mavlink and not real_px4 else []
     endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
+    px4s: dict[str, Px4Instance] = {}
+    if px4_sitl is not None:  # they boot while the kernels load
+        px4s = px4_instances(scenario, px4_sitl, out, geo_origin=geo_origin,
+                             first_instance=px4_first_instance)
+        try:
+            for inst in px4s.values():
+                inst.start()
+        except BaseException:
+            for inst in px4s.values():
+                inst.stop()
+            raise
     # Compile the kernels once here, into the cache every node loads them from, before the
     # clock of the mission starts.
-    for name in sorted({u.airframe for u in scenario.uavs}):
-        warm_up(Airframe.named(name))
-    epoch = time.time() + STARTUP_S + (TAKEOFF_S if mavlink else 0.0)
+    try:
+        for name in sorted({u.airframe for u in scenario.uavs}):
+            warm_up(Airframe.named(name))
+        for inst in px4s.values():
+            inst.wait_ready(PX4_READY_TIMEOUT_S)
+    except BaseException:
+        for inst in px4s.values():
+            inst.stop()
+        raise
+    takeoff = PX4_TAKEOFF_S if real_px4 else TAKEOFF_S if mavlink else 0.0
+    epoch = time.time() + STARTUP_S + takeoff
     ids = [u.uav_id for u in scenario.uavs]
     goals = {u.uav_id: np.array(u.goal_m) for u in scenario.uavs}
     procs: dict[str, subprocess.Popen[str]] = {}
     sitls: dict[str, subprocess.Popen[str]] = {}
     at_end: dict[str, np.ndarray] = {}
     tmp = tempfile.TemporaryDirectory(prefix="uavmpc-swarm-")
-    monitor = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
-                             connect=[endpoints[0]], max_pending=4096)
+    try:
+        monitor = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
+                                 connect=[endpoints[0]], max_pending=4096)
+    except BaseException:
+        for inst in px4s.values():
+            inst.stop()
+        raise
     states = monitor.subscribe("*/state", maxlen=100_000)
     predictions = monitor.subscribe("*/prediction", maxlen=10_000)
     latest: dict[str, np.ndarray] = {}
@@ -271,7 +342,9 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                     "times_s": (spec.mission.times_s + epoch).tolist(),
                     "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
             address = None
-            if mavlink:
+            if real_px4:
+                address = px4s[spec.uav_id].mavlink_address
+            elif mavlink:
                 address = f"udp://127.0.0.1:{mav_ports[i]}"
                 sitls[spec.uav_id] = subprocess.Popen(
                     sitl_command(spec, f"udpout://127.0.0.1:{mav_ports[i]}"),
@@ -283,12 +356,15 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                                avoidance=avoidance,
                                duration_s=duration + (epoch - time.time()) + 1.0,
                                key_file=key_file, mavlink=address, setpoints=setpoints,
-                               ros2=ros2, formation_file=formation_file if member else None)
+                               ros2=ros2, formation_file=formation_file if member else None,
+                               geo_origin=geo_origin if real_px4 else None,
+                               system_id=(px4s[spec.uav_id].system_id if real_px4 else None))
             with open(logs[spec.uav_id], "w") as err:  # the child keeps its own copy
                 procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err,
                                                       text=True)
         meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
-                "vehicle": "PX4 stand-in over MAVLink" if mavlink else "simulated plant"}
+                "vehicle": ("PX4 SITL (SIH) over MAVLink" if real_px4
+                            else "PX4 stand-in over MAVLink" if mavlink else "simulated plant")}
         with FlightRecorder(out / "flight.mcap", ids, meta) as rec:
             end = epoch + duration
             landing_end = end + (LANDING_WAIT_S if mavlink else 0.0)
@@ -368,6 +444,9 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
         sitl_reports = {uav: _last_json_line(p) for uav, p in sitls.items()}
+        for inst in px4s.values():  # the real PX4s too, each with its process group
+            inst.stop()
+        px4_reports = {uav: inst.report() for uav, inst in px4s.items()}
         monitor.close()
         tmp.cleanup()
     sent = sum(s.get("predictions_sent", 0) for s in node_stats.values()) * (n - 1)
@@ -388,18 +467,24 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
             "last_state": last_state.get(uav, {}),
             "node": st,
         }
-        if mavlink:
+        if real_px4:
+            uavs[uav]["px4"] = px4_reports.get(uav, {})
+        elif mavlink:
             uavs[uav]["sitl"] = sitl_reports.get(uav, {})
     summary = {
         "scenario": scenario.name, "avoidance": avoidance, "duration_s": duration,
         "transport": "zenoh (peer to peer, 127.0.0.1)",
-        "vehicles": (f"PX4 stand-ins over MAVLink/UDP, {setpoints} setpoints" if mavlink
+        "vehicles": (f"real PX4 SITL firmware with SIH over MAVLink/UDP, {setpoints} setpoints"
+                     if real_px4 else
+                     f"PX4 stand-ins over MAVLink/UDP, {setpoints} setpoints" if mavlink
                      else "simulated plants in the nodes"),
         "collisions": collisions,
         "min_distance_m": min_d if math.isfinite(min_d) else None,
         "uavs": uavs,
         "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
     }
+    if px4_sitl is not None:
+        summary["px4_sitl"] = {"build": str(px4_sitl.root), "geo_origin": list(geo_origin)}
     if formation is not None:
         summary.update(_formation_summary(formation, tracks, epoch, duration))
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
