@@ -367,7 +367,9 @@ def _sitl(args: argparse.Namespace) -> int:
     try:
         sitl = StandInPx4(airframe, args.connect, position_m=args.position,
                           heading_rad=args.heading, system_id=args.system_id,
-                          odometry_rate_hz=args.odometry_rate)
+                          odometry_rate_hz=args.odometry_rate, clock_rate=args.clock_rate,
+                          seed=args.seed, estimator_error=not args.no_estimator_error,
+                          geo_origin_deg=None if args.no_geo else args.geo_origin)
     except (ValueError, OSError) as exc:
         print(f"uavmpc sitl: {exc}", file=sys.stderr)
         return 2
@@ -808,7 +810,19 @@ def build_parser() -> argparse.ArgumentParser:
                       metavar=("X", "Y", "Z"), help="boot position (ENU) [m], on the ground")
     sitl.add_argument("--heading", type=float, default=0.0, help="boot heading [rad]")
     sitl.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default 1)")
-    sitl.add_argument("--odometry-rate", type=float, default=100.0, help="ODOMETRY [Hz]")
+    sitl.add_argument("--odometry-rate", type=float, default=30.0,
+                      help="ODOMETRY [Hz] (default 30, PX4's onboard rate)")
+    sitl.add_argument("--clock-rate", type=float, default=0.986,
+                      help="its clock against the wall clock (default 0.986, lockstep SITL)")
+    sitl.add_argument("--seed", type=int, default=0, help="the estimator error's seed")
+    sitl.add_argument("--no-estimator-error", action="store_true",
+                      help="report (and control on) the true state")
+    sitl.add_argument("--geo-origin", type=float, nargs=3, default=[47.397742, 8.545594, 488.0],
+                      metavar=("LAT", "LON", "ALT"),
+                      help="the world's ENU origin on the globe (deg, deg, m AMSL; default "
+                           "PX4 SITL's home)")
+    sitl.add_argument("--no-geo", action="store_true",
+                      help="no global position (no GPS_GLOBAL_ORIGIN, GLOBAL_POSITION_INT)")
     sitl.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     sitl.set_defaults(func=_sitl)
     swarm = sub.add_parser("swarm", help="a scenario as one node process per UAV on loopback")
