@@ -185,6 +185,8 @@ class NodeStats:
     max_z_offset_m: float = 0.0
     avoidance_active_s: float = 0.0
     final_position_m: list[float] = field(default_factory=list)
+    #: Where the vehicle was (its estimate) when the mission ended and the landing began.
+    mission_end_position_m: list[float] = field(default_factory=list)
     cpu_s: float = 0.0
     wall_s: float = 0.0
     #: The vehicle driver's report (the MAVLink link's phases, commands, rates), if any.
@@ -436,6 +438,7 @@ class Node:
                 if landing_until is None and (self._stop.is_set()
                                               or (t_end is not None and now >= t_end)):
                     landing_until = now + LANDING_TIMEOUT_S
+                    self.stats.mission_end_position_m = state.position_m.tolist()
                     self._land(now, state)
                     vehicle.land(time.time())
                 if landing_until is not None and (vehicle.done or now >= landing_until
