@@ -252,7 +252,9 @@ class _LandDetector:
         vertical = abs(float(velocity_ned_mps[2])) > vz_max
         horizontal = math.hypot(float(velocity_ned_mps[0]),
                                 float(velocity_ned_mps[1])) > LNDMC_XY_VEL_MAX_MPS
-        low = throttle <= MPC_THR_MIN + 0.3 * (self.hover - MPC_THR_MIN)
+        # PX4 compares in float32 (a MAVLink thrust of 0.09 is 0.09f, not 0.0900000036).
+        throttle32 = np.float32(throttle)
+        low = throttle32 <= np.float32(MPC_THR_MIN + 0.3 * (self.hover - MPC_THR_MIN))
         contact = low
         if climb_rate_control:
             self.in_descend = math.isfinite(vz_sp_down_mps) and vz_sp_down_mps > DESCENT_VZ_MPS
@@ -268,7 +270,7 @@ class _LandDetector:
         rot_max = math.radians(LNDMC_ROT_MAX_DEGPS) * (2.5 if maybe else 1.0)
         rotating = math.hypot(float(body_rates_frd_radps[0]),
                               float(body_rates_frd_radps[1])) > rot_max
-        maybe_now = (not armed) or (throttle <= sys_min and not rotating
+        maybe_now = (not armed) or (throttle32 <= np.float32(sys_min) and not rotating
                                     and self.ground_contact.state)
         self.maybe_landed.update(maybe_now, t_s)
         self.landed.update((not armed) or self.maybe_landed.state, t_s)
@@ -373,6 +375,7 @@ class StandInPx4:
         self.takeoff_state = "disarmed"
         self._ramp = 0.0
         self.throttle = 0.0
+        self._attitude_throttle: float | None = None
         self._last_target: AttitudeTarget | None = None
         self._gcs_heard_s = -math.inf
         self._texts: deque[tuple[float, int, str]] = deque(maxlen=32)
@@ -441,7 +444,11 @@ class StandInPx4:
         self._send_streams(t, truth, est)
         target = self._control(t, truth, est)
         self._last_target = target
-        self.throttle = float(target.thrust_n) / self.airframe.max_thrust_n if self.armed else 0.0
+        if self._attitude_throttle is not None:  # exactly what was sent (no round trip)
+            self.throttle = self._attitude_throttle
+        else:
+            self.throttle = (float(target.thrust_n) / self.airframe.max_thrust_n
+                             if self.armed else 0.0)
         self.plant.step(target, PERIOD_S)
         self.estimator.step(PERIOD_S)
 
@@ -468,6 +475,7 @@ class StandInPx4:
                     and self.setpoint.kind == "attitude")
 
     def _control(self, t: float, truth: VehicleState, est: VehicleState) -> AttitudeTarget:
+        self._attitude_throttle = None
         level = AttitudeTarget(yaw_quat(float(heading_of(truth.attitude_wxyz))), 0.0)
         if not self.armed:
             self.takeoff_state = "disarmed"
@@ -476,6 +484,7 @@ class StandInPx4:
                 and self.setpoint.kind == "attitude":
             self._takeoff_update(t, False)
             q_ned, rates_frd, thrust = self.setpoint.values
+            self._attitude_throttle = thrust
             return AttitudeTarget(ned_frd_quat_to_enu_flu(q_ned),
                                   thrust * self.airframe.max_thrust_n, frd_to_flu(rates_frd))
         # Position control (Takeoff.cpp, MulticopterPositionControl.cpp) on the estimate.
@@ -637,8 +646,9 @@ class StandInPx4:
         """mavlink_timesync.cpp: a request (tc1 = 0) is answered with our time [ns] and its
         ts1; an answer to our own requests only feeds PX4's offset filter (not modelled)."""
         if int(msg.tc1) == 0:
+            # tc1 = 0 would read as a request: at boot (its clock at 0) answer 1 ns.
             self.link.send(_M.MAVLink_timesync_message(
-                round(float(self.px4_time_s(now_s) * 1e9)), int(msg.ts1)))
+                max(1, round(float(self.px4_time_s(now_s) * 1e9))), int(msg.ts1)))
 
     def _on_attitude_target(self, msg: Any, t: float) -> None:
         q = np.array(msg.q, dtype=float)
