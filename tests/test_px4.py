@@ -258,7 +258,7 @@ def test_arming_refused_without_the_setpoint_stream_is_retried_until_it_flows() 
     assert any("No offboard signal" in t for t in rep["status_texts"])
 
 
-def test_lost_setpoints_make_the_stand_in_hold_and_the_node_stop_and_say_so() -> None:
+def test_lost_setpoints_make_the_stand_in_fail_safe_and_the_node_stop_and_say_so() -> None:
     with PxFlight(duration_s=30.0) as f:
         f.wait_phase("flying")
         time.sleep(4.0)  # up at 3 m
@@ -278,8 +278,10 @@ def test_lost_setpoints_make_the_stand_in_hold_and_the_node_stop_and_say_so() ->
     assert "left offboard (now POSCTL)" in rep["stop_reason"]
     assert 1.0 <= stopped - cut < 3.0  # COM_OF_LOSS_T, then the next HEARTBEAT
     assert not sent_after  # it stopped commanding
-    held = [h for t, h, mode in f.heights if t > cut + 1.5]
-    assert held and min(held) > 2.5 and max(held) < 3.5  # the stand-in holds in the air
+    # The stand-in fails safe as PX4 without RC does: position mode, descending (to land and
+    # disarm by itself), never taken back by the node.
+    after = [h for t, h, mode in f.heights if t > cut + 1.5]
+    assert after and max(after) < 3.5 and after[-1] < after[0] - 0.3, after[::20]
     assert f.heights[-1][2] == "POSCTL"
 
 
@@ -334,12 +336,14 @@ def test_three_nodes_each_flying_its_own_stand_in_avoid_each_other(tmp_path: Pat
     for uav, u in s["uavs"].items():  # a node without a report says why (exit code, errors)
         assert u["node"].get("vehicle", {}).get("phase") == "landed", (uav, u["node"])
     # Tracking through MAVLink and the stand-in's attitude loop, against the built-in plant
-    # (the same scenario in the simulated world, whose tracking equals the node's plant).
+    # (the same scenario in the simulated world, whose tracking equals the node's plant). The
+    # stand-in's estimates come at PX4's 30 Hz and wander as EKF2's do, so the bound is
+    # absolute: a decimetre-scale error, not a multiple of the ideal plant's centimetres.
     world = World(sc, seed=0).run(28.0)
     for uav, u in s["uavs"].items():
         built_in = world.per_uav[uav].tracking_rmse_m
-        assert u["tracking_rmse_m"] < 2.0 * max(built_in, 0.02), (uav, u["tracking_rmse_m"],
-                                                                   built_in)
+        assert u["tracking_rmse_m"] < max(2.0 * built_in, 0.25), (uav, u["tracking_rmse_m"],
+                                                                  built_in)
         # The stream never paused as long as PX4 allows before it leaves offboard (it needs
         # setpoints faster than 2 Hz); the tail of the period is the machine's, not ours.
         assert u["node"]["vehicle"]["setpoint_period_max_ms"] < 500.0, u["node"]["vehicle"]

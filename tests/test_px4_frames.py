@@ -172,7 +172,7 @@ def test_a_state_crosses_odometry_and_comes_back(p, v, q, w) -> None:
         true = VehicleState(0.0, p + sitl.origin_m, v * 0.01, q, w * 0.001)
         sitl.plant.set_state(true)
         s = sitl.plant.state()  # after the ground contact had its say
-        msg = _wire(sitl.link, vehicle.link, sitl._odometry(sitl.t0_s + 1.0))
+        msg = _wire(sitl.link, vehicle.link, sitl.odometry_message(1.0, s, s))
         vehicle._on_odometry(msg, 1.0)
         est = vehicle._odom[1]
         # float32 on the wire

@@ -461,6 +461,20 @@ class StandInPx4:
         """The estimator's state (world ENU): the truth plus the estimator's error."""
         return self._estimate_of(self.plant.state())
 
+    def odometry_message(self, t_s: float, truth: VehicleState,
+                         est: VehicleState) -> Any:
+        """``ODOMETRY`` as PX4 sends it at its time ``t_s`` [s since boot]: EKF2's position
+        and velocity in local NED (``child_frame_id`` LOCAL_NED), the attitude body FRD →
+        NED and the body rates of ``truth`` (the estimate's error is in position and
+        velocity only)."""
+        p = enu_to_ned(est.position_m - self.origin_m)
+        return _M.MAVLink_odometry_message(
+            int(t_s * 1e6), _M.MAV_FRAME_LOCAL_NED, _M.MAV_FRAME_LOCAL_NED, *map(float, p),
+            enu_flu_quat_to_ned_frd(truth.attitude_wxyz).tolist(),
+            *map(float, enu_to_ned(est.velocity_mps)),
+            *map(float, flu_to_frd(truth.body_rates_radps)), _POSE_COV, _TWIST_COV, 0,
+            _M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0)
+
     def _estimate_of(self, s: VehicleState) -> VehicleState:
         if not self.estimator.enabled:
             return s
@@ -791,10 +805,7 @@ class StandInPx4:
             roll, pitch, yaw = _euler(q)
             send(_M.MAVLink_attitude_message(ms, roll, pitch, yaw, *map(float, w)))
         if self._due("odometry", t):
-            send(_M.MAVLink_odometry_message(
-                us, _M.MAV_FRAME_LOCAL_NED, _M.MAV_FRAME_LOCAL_NED, *map(float, p), q.tolist(),
-                *map(float, v), *map(float, w), _POSE_COV, _TWIST_COV, 0,
-                _M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0))
+            send(self.odometry_message(t, truth, est))
         if self._due("local", t):
             send(_M.MAVLink_local_position_ned_message(ms, *map(float, p), *map(float, v)))
         if self._due("attitude_q", t):
