@@ -181,6 +181,8 @@ class NodeStats:
     commands_rejected: dict[str, int] = field(default_factory=dict)
     #: With a geofence: missions refused for leaving it, breaches, the farthest outside [m].
     geofence: dict[str, Any] = field(default_factory=dict)
+    #: Over the flight until the landing began: the landing descends through the ground on
+    #: purpose (an autopilot's land detector wants a commanded descent), not a tracking error.
     tracking_rmse_m: float = 0.0
     max_z_offset_m: float = 0.0
     avoidance_active_s: float = 0.0
@@ -430,6 +432,7 @@ class Node:
         deadline = time.perf_counter()
         last = None
         landing_until: float | None = None
+        mission_rmse: float | None = None
         ticks = 0
         commanded = False
         try:
@@ -439,6 +442,7 @@ class Node:
                                               or (t_end is not None and now >= t_end)):
                     landing_until = now + LANDING_TIMEOUT_S
                     self.stats.mission_end_position_m = state.position_m.tolist()
+                    mission_rmse = stack.report().tracking_rmse_m
                     self._land(now, state)
                     vehicle.land(time.time())
                 if landing_until is not None and (vehicle.done or now >= landing_until
@@ -502,7 +506,7 @@ class Node:
         s.rejected = dict(rep.messages_rejected)
         if self.commands is not None:
             s.commands_rejected = dict(self.commands.rejected)
-        s.tracking_rmse_m = rep.tracking_rmse_m
+        s.tracking_rmse_m = rep.tracking_rmse_m if mission_rmse is None else mission_rmse
         s.max_z_offset_m = rep.max_z_offset_m
         s.avoidance_active_s = rep.avoidance_active_s
         s.final_position_m = state.position_m.tolist()

@@ -151,6 +151,8 @@ class Px4Report:
     estimate_age_p50_ms: float = 0.0
     estimate_age_p99_ms: float = 0.0
     odometry_received: int = 0
+    #: Ticks after start() on which no estimate was fresh (none commands on such a tick).
+    ticks_without_estimate: int = 0
     heartbeats_received: int = 0
     #: HEARTBEATs that showed the state from before an accepted ACK (and were not believed).
     heartbeats_behind_ack: int = 0
@@ -166,6 +168,8 @@ class Px4Report:
     foreign: int = 0
     #: Valid frames of messages outside the common dialect, by id (PX4 sends four such).
     unknown_ids: dict[str, int] = field(default_factory=dict)
+    #: Each phase and when it began [s after start()], e.g. "3.41 s: flying".
+    phases: list[str] = field(default_factory=list)
     commands: list[dict[str, Any]] = field(default_factory=list)
     modes: list[str] = field(default_factory=list)
     status_texts: list[str] = field(default_factory=list)
@@ -226,7 +230,7 @@ class Px4Vehicle:
         # A companion computer shares its autopilot's system id; before we know it, 245.
         self.link = MavlinkEndpoint(address, system_id=own_system_id or self.system_id or 245,
                                     component_id=ONBOARD_COMPONENT)
-        self.report_data = Px4Report(setpoint_mode=setpoints)
+        self.report_data = Px4Report(setpoint_mode=setpoints, system_id=self.system_id)
         self.hover_thrust = None if hover_thrust is None else float(hover_thrust)
         if self.hover_thrust is not None:
             self.report_data.hover_thrust_source = "given"
@@ -321,7 +325,8 @@ class Px4Vehicle:
                     and now - self._t0_s > 3.0:  # the autopilot kept its parameter
                 self.hover_thrust = self.airframe.mass_kg * 9.80665 / self.airframe.max_thrust_n
                 self.report_data.hover_thrust_source = "airframe (MPC_THR_HOVER not answered)"
-            if est is not None and self.hover_thrust is not None and self._origin_known:
+            if est is not None and self.hover_thrust is not None and self._origin_known \
+                    and math.isfinite(self.last_heartbeat_s):
                 break
             self.link.wait(0.02)
         else:
@@ -337,7 +342,7 @@ class Px4Vehicle:
 
     def _missing(self, est: VehicleState | None) -> str:
         """What :meth:`start` still waits for, in words."""
-        if self.system_id is None:
+        if self.system_id is None or not math.isfinite(self.last_heartbeat_s):
             return "no HEARTBEAT from an autopilot"
         if not self._origin_known:
             return ("no GPS_GLOBAL_ORIGIN (the autopilot's estimator has no global position "
@@ -367,6 +372,8 @@ class Px4Vehicle:
         self.poll(now_s)
         self._send_periodic(now_s)
         est = self.estimate(now_s)
+        if est is None and self._connected:
+            self.report_data.ticks_without_estimate += 1
         self._advance(now_s, est)
         return est
 
@@ -604,6 +611,8 @@ class Px4Vehicle:
 
     # ------------------------------------------------------------------ the life cycle
     def _enter(self, phase: Phase, now_s: float) -> None:
+        if phase != self.phase:
+            self.report_data.phases.append(f"{now_s - self._t0_s:.2f} s: {phase.value}")
         self.phase = phase
         self._phase_s = now_s
 
