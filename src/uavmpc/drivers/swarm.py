@@ -319,6 +319,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     offsets: dict[str, float] = dict.fromkeys(ids, 0.0)
     collisions: list[dict[str, Any]] = []
     in_contact: set[tuple[str, str]] = set()
+    closest: dict[tuple[str, str], float] = {}  # each pair's closest approach [m]
     min_d = math.inf
     trace_t: list[float] = []
     trace_d: list[float] = []
@@ -353,7 +354,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
             cmd = node_command(spec, swarm=swarm, listen=endpoints[i],
                                connect=[] if i == 0 else [endpoints[0]],
                                mission_file=None if follower else mission,
-                               avoidance=avoidance,
+                               avoidance=avoidance and spec.avoidance,
                                duration_s=duration + (epoch - time.time()) + 1.0,
                                key_file=key_file, mavlink=address, setpoints=setpoints,
                                ros2=ros2, formation_file=formation_file if member else None,
@@ -416,6 +417,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                             d = float(np.linalg.norm(pa - pb))
                             d_now = min(d_now, d)
                             pair = (watched[a], watched[b])
+                            closest[pair] = min(closest.get(pair, math.inf), d)
                             if d < COLLISION_DISTANCE_M and pair not in in_contact:
                                 in_contact.add(pair)
                                 collisions.append({"t": now - epoch, "a": pair[0],
@@ -480,6 +482,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                      else "simulated plants in the nodes"),
         "collisions": collisions,
         "min_distance_m": min_d if math.isfinite(min_d) else None,
+        "closest_by_pair_m": {f"{a}-{b}": round(d, 3) for (a, b), d in sorted(closest.items())},
         "uavs": uavs,
         "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
     }
