@@ -308,17 +308,20 @@ def test_rows_of_a_shared_record_fly_like_standalone_plants() -> None:
 
 
 def test_target_check_and_normalisation_match_numpy() -> None:
-    """The compiled check accepts what numpy's did and normalises as numpy did (to the bit
-    where numpy's dot is a chain of fused multiply-adds, as OpenBLAS's on x86-64 with FMA)."""
+    """The compiled check accepts what the exact norm accepts and normalises within 2 ULP of
+    it. The reference is a correctly rounded sum (``math.fsum``), not numpy's dot: which BLAS
+    kernel numpy's dot runs (fused multiply-adds or not, in which order) depends on the
+    machine, and a test pinned to one machine's bits fails on the next."""
     rng = np.random.default_rng(5)
     for _ in range(2000):
         qd = rng.normal(size=4) * rng.choice([0.1, 0.5, 1.0])
         qd /= rng.uniform(0.8, 1.2) * np.linalg.norm(qd)
-        norm = math.sqrt(float(qd @ qd))
-        assert attitude_target_ok(qd, 1.0, np.zeros(3)) == (0.9 < norm < 1.1)
+        norm = math.sqrt(math.fsum(float(v) * float(v) for v in qd))
+        if abs(norm - 0.9) > 1e-12 and abs(norm - 1.1) > 1e-12:  # not on a bound's last bit
+            assert attitude_target_ok(qd, 1.0, np.zeros(3)) == (0.9 < norm < 1.1)
         q = qd.copy()
         normalize_quat(q)
-        np.testing.assert_array_max_ulp(q, qd / norm, maxulp=1)
+        np.testing.assert_array_max_ulp(q, qd / norm, maxulp=2)
     good = np.array([1.0, 0.0, 0.0, 0.0])
     assert attitude_target_ok(good, 10.0, np.zeros(3))
     assert not attitude_target_ok(good, float("inf"), np.zeros(3))

@@ -63,22 +63,6 @@ def _full_cycle_checks(rep: dict[str, Any], mode: str) -> None:
     assert any("Armed" in t or "armed" in t for t in px4["status_texts"]), px4["status_texts"]
 
 
-def test_the_node_flies_real_px4_through_its_whole_cycle_in_both_setpoint_modes(
-        px4_instances) -> None:
-    """connect → offboard → arm → take off → mission → land → disarm, attitude and position
-    setpoints, two PX4 instances flown at once (each alone in its own swarm)."""
-    att, pos = px4_instances(2)
-    goto = ["--goto", *map(str, _GOAL), "0", "--duration", "12"]
-    procs = {
-        mode: subprocess.Popen(
-            _node_command(f"uav-{mode}", inst.mavlink_address, "--setpoints", mode, *goto),
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for mode, inst in (("attitude", att), ("position", pos))}
-    reports = {mode: _report(p, 150.0) for mode, p in procs.items()}
-    for mode, rep in reports.items():
-        _full_cycle_checks(rep, mode)
-
-
 class _Relay:
     """A UDP relay between PX4 (which sends to ``px4_port``) and the node (listening on
     ``node_port``) that can cut the node → PX4 direction, and reads what crosses."""
@@ -153,18 +137,33 @@ def _wait(condition, timeout_s: float, what: str) -> None:
         time.sleep(0.05)
 
 
-def test_a_cut_setpoint_stream_makes_px4_leave_offboard_and_the_node_never_takes_it_back(
-        px4_instances) -> None:
-    """The node's setpoints stop reaching PX4 while it flies: PX4 fails safe out of offboard
-    (COM_OF_LOSS_T), the node reports it and stops commanding; when the link is whole again no
-    setpoint of the node's reaches PX4 and PX4 never flies offboard again."""
-    (inst,) = px4_instances(1)
-    node_port = _free_udp_port()
-    relay = _Relay(inst.offboard_port, node_port)
+@pytest.fixture(scope="module")
+def flights(px4_sitl_build, tmp_path_factory) -> dict[str, Any]:
+    """Three real PX4 instances flown at once, each by its own ``uavmpc node`` (each alone in
+    its own swarm): the whole cycle with attitude setpoints, the same with position
+    setpoints, and a third whose setpoint stream a UDP relay cuts while it flies. The reports
+    of the three nodes and what the relay saw."""
+    from uavmpc.drivers.px4.firmware import Px4Instance
+
+    work = tmp_path_factory.mktemp("px4real")
+    instances = [Px4Instance(px4_sitl_build, 7 + k, work / f"px4-{k}") for k in range(3)]
+    procs: dict[str, subprocess.Popen[str]] = {}
+    relay = None
     try:
-        proc = subprocess.Popen(
+        for inst in instances:
+            inst.start()
+        for inst in instances:
+            inst.wait_ready(timeout_s=30.0)
+        goto = ["--goto", *map(str, _GOAL), "0", "--duration", "15"]
+        for mode, inst in zip(("attitude", "position"), instances, strict=False):
+            procs[mode] = subprocess.Popen(
+                _node_command(f"uav-{mode}", inst.mavlink_address, "--setpoints", mode, *goto),
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        node_port = _free_udp_port()
+        relay = _Relay(instances[2].offboard_port, node_port)
+        procs["cut"] = subprocess.Popen(
             _node_command("uav-cut", f"udp://127.0.0.1:{node_port}", "--goto", "0", "0",
-                          str(_GOAL[2]), "0", "--duration", "12"),
+                          str(_GOAL[2]), "0", "--duration", "15"),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         offboard = 6
         _wait(lambda: any(m == offboard and armed for _, m, armed in relay.modes), 90.0,
@@ -179,10 +178,31 @@ def test_a_cut_setpoint_stream_makes_px4_leave_offboard_and_the_node_never_takes
         time.sleep(1.5)
         relay.cut.clear()
         relay.restored_at = time.time()
-        rep = _report(proc, 120.0)
+        reports = {name: _report(p, 150.0) for name, p in procs.items()}
     finally:
-        relay.close()
-    px4 = rep["vehicle"]
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+        if relay is not None:
+            relay.close()
+        for inst in instances:
+            inst.stop()
+    return {"reports": reports, "relay": relay}
+
+
+@pytest.mark.parametrize("mode", ["attitude", "position"])
+def test_the_node_flies_real_px4_through_its_whole_cycle(flights, mode: str) -> None:
+    """connect → offboard → arm → take off → mission → land → disarm, in each setpoint mode."""
+    _full_cycle_checks(flights["reports"][mode], mode)
+
+
+def test_a_cut_setpoint_stream_makes_px4_leave_offboard_and_the_node_never_takes_it_back(
+        flights) -> None:
+    """The node's setpoints stop reaching PX4 while it flies: PX4 fails safe out of offboard
+    (COM_OF_LOSS_T), the node reports it and stops commanding; when the link is whole again no
+    setpoint of the node's reaches PX4 and PX4 never flies offboard again."""
+    relay, px4 = flights["relay"], flights["reports"]["cut"]["vehicle"]
+    offboard = 6
     assert px4["phase"] == "stopped", px4
     assert "left offboard" in px4["stop_reason"], px4["stop_reason"]
     # Never taken back: nothing of ours reached PX4 after the link was whole, and PX4 never

@@ -528,8 +528,8 @@ class Px4Vehicle:
             v_ned = quat_to_rot(q_ned) @ v_ned
         self.clock.add_one_way(msg.time_usec * 1e-6, now_s)
         t = self.clock.to_local(msg.time_usec * 1e-6)
-        if not math.isfinite(t):
-            return
+        if not math.isfinite(t) or not self._origin_known:
+            return  # an estimate placed before its frame's origin is known would be wrong
         self.report_data.odometry_received += 1
         self._odom = (now_s, VehicleState(
             t_s=t, position_m=self.origin_m + ned_to_enu(vals[0:3]),
@@ -591,7 +591,7 @@ class Px4Vehicle:
         est = None
         if self._odom is not None:
             est = self._odom[1]
-        elif self._lpn is not None and self._att is not None:
+        elif self._lpn is not None and self._att is not None and self._origin_known:
             (_, p), (_, a) = self._lpn, self._att
             q_ned = np.array([a.q1, a.q2, a.q3, a.q4])
             t_s = min(self.clock.to_local(p.time_boot_ms * 1e-3),
