@@ -1,7 +1,7 @@
 """The node against the real PX4 firmware (SITL with SIH): each phase's time, the hold error by
 PX4's estimate, the setpoint period and the estimate age, in both setpoint modes.
 
-    python benchmarks/px4_real.py DIR [--runs 3] [--instance 20]
+    python benchmarks/px4_real.py DIR [--runs 3] [--instance 5]
 
 DIR is a PX4 SITL build (``bin/px4`` and ``etc/``) or its ``.tar.gz``. Each run boots a fresh
 PX4 instance, flies ``uavmpc node --mavlink`` through its whole cycle (take off to 3 m, 3 m
@@ -75,7 +75,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("build", help="PX4 SITL build folder (bin/px4, etc/) or its .tar.gz")
     ap.add_argument("--runs", type=int, default=3, help="cycles per setpoint mode")
-    ap.add_argument("--instance", type=int, default=20, help="PX4 instance number to use")
+    ap.add_argument("--instance", type=int, default=5, help="PX4 instance number (0..9)")
     args = ap.parse_args()
     build = Px4SitlBuild.locate(args.build)
     rows = []

@@ -45,6 +45,23 @@ def test_what_is_missing_is_named(tmp_path: Path, capsys) -> None:
         Px4SitlBuild.from_dir(tmp_path / "bin")
 
 
+def test_more_vehicles_than_px4_sitl_has_onboard_ports_is_one_line(tmp_path: Path,
+                                                                  capsys) -> None:
+    """PX4 SITL sends the onboard link of every instance above 9 to one port (14549): three
+    UAVs from instance 8 would need instance 10."""
+    for f in ("bin/px4", "etc/init.d-posix/rcS", "etc/init.d-posix/airframes/10040_sihsim_quadx"):
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text("#!/bin/sh\n")
+    (tmp_path / "bin" / "px4").chmod(0o755)
+    argv = ["swarm", "swap_through_static", "--px4-sitl", str(tmp_path), "--out",
+            str(tmp_path / "run"), "--px4-first-instance", "8"]
+    assert main(argv) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "instances 8..10" in line and "0..9" in line and "14549" in line
+    with pytest.raises(ValueError, match="14549"):
+        Px4Instance(Px4SitlBuild.from_dir(tmp_path), 10, tmp_path / "w")
+
+
 @pytest.mark.parametrize("argv, words", [
     (["--px4-sitl", "/x", "--mavlink"], "--px4-sitl and --mavlink are exclusive"),
     (["--geo-origin", "47", "8", "400"], "--geo-origin needs --px4-sitl"),

@@ -265,7 +265,7 @@ def test_two_real_px4_vehicles_head_on_keep_2_m_with_avoidance_and_not_without(
     path = tmp_path / "head_on.toml"
     path.write_text(_HEAD_ON)
     s = run_swarm(scenarios.load(path), tmp_path / "run", px4_sitl=px4_sitl_build,
-                  px4_first_instance=7)
+                  px4_first_instance=6)
     closest = s["closest_by_pair_m"]
     assert closest["a1-a2"] >= 2.0, closest
     assert closest["b1-b2"] < 1.5, closest

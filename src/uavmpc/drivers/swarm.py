@@ -47,7 +47,12 @@ from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
 from uavmpc.config import ConfigError
 from uavmpc.drivers.node import warm_up
-from uavmpc.drivers.px4.firmware import DEFAULT_GEO_ORIGIN, Px4Instance, Px4SitlBuild
+from uavmpc.drivers.px4.firmware import (
+    DEFAULT_GEO_ORIGIN,
+    MAX_INSTANCE,
+    Px4Instance,
+    Px4SitlBuild,
+)
 from uavmpc.drivers.px4.frames import enu_to_geodetic
 from uavmpc.drivers.world import (
     COLLISION_DISTANCE_M,
@@ -136,7 +141,16 @@ def px4_instances(scenario: Scenario, build: Px4SitlBuild, out: Path, *,
                   geo_origin: tuple[float, float, float] = DEFAULT_GEO_ORIGIN,
                   first_instance: int = 0) -> dict[str, Px4Instance]:
     """One PX4 SITL instance per UAV (not started): instance ``first_instance + i`` for the
-    i-th, working in ``out/px4/<id>/``, home on the ground below its start."""
+    i-th, working in ``out/px4/<id>/``, home on the ground below its start.
+
+    Raises:
+        ConfigError: more UAVs than PX4 SITL has onboard ports for (instances 0–9)."""
+    last = first_instance + len(scenario.uavs) - 1
+    if first_instance < 0 or last > MAX_INSTANCE:
+        raise ConfigError(
+            f"--px4-sitl: {len(scenario.uavs)} UAVs from instance {first_instance} need "
+            f"instances {first_instance}..{last}, but PX4 SITL gives an onboard port of its own "
+            f"only to instances 0..{MAX_INSTANCE} (above, all share UDP 14549)")
     return {spec.uav_id: Px4Instance(
         build, first_instance + i, out / "px4" / spec.uav_id,
         home=enu_to_geodetic(np.array([spec.start_m[0], spec.start_m[1], 0.0]), geo_origin))

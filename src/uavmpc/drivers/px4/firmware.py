@@ -148,6 +148,11 @@ def _build_root(folder: Path) -> Path:
     return inner[0] if len(inner) == 1 else folder
 
 
+#: The highest instance whose onboard link has a port of its own (14540 + i): PX4 SITL's
+#: ``px4-rc.mavlink`` sends every instance above 9 to 14549.
+MAX_INSTANCE = 9
+
+
 class Px4Instance:
     """One PX4 SITL process with SIH: instance ``instance``, its own ``workdir``, booted at
     the geodetic ``home = (lat_deg, lon_deg, alt_m)`` (SIH's ``SIH_LOC_LAT0/LON0/H0``).
@@ -159,8 +164,12 @@ class Px4Instance:
     def __init__(self, build: Px4SitlBuild, instance: int, workdir: str | os.PathLike[str],
                  home: tuple[float, float, float] = DEFAULT_GEO_ORIGIN, *,
                  model: str = "sihsim_quadx") -> None:
-        if not 0 <= int(instance) <= 200:  # 14540 + i must stay clear of the GCS ports
-            raise ValueError(f"PX4 instance number must be in 0..200, got {instance}")
+        if not 0 <= int(instance) <= MAX_INSTANCE:
+            raise ValueError(
+                f"PX4 instance number must be in 0..{MAX_INSTANCE}, got {instance}: PX4 SITL "
+                "sends the onboard link of instance 10 and above to one shared port, 14549 "
+                "(etc/init.d-posix/px4-rc.mavlink), so one machine flies at most 10 vehicles "
+                "each with its own node")
         lat, lon, alt = (float(v) for v in home)
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0 and abs(alt) < 1e5):
             raise ValueError(f"PX4 home must be (lat [-90, 90], lon [-180, 180], alt m), "
