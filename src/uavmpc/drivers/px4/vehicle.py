@@ -67,7 +67,7 @@ from uavmpc.drivers.px4.frames import (
     ned_to_enu,
 )
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
-from uavmpc.plant.interface import quat_to_rot
+from uavmpc.plant.interface import heading_of, quat_to_rot, yaw_quat
 
 __all__ = ["SETPOINT_MODES", "Phase", "Px4Vehicle", "VehicleLost"]
 
@@ -96,6 +96,9 @@ TIMESYNC_S = 0.2
 #: A HEARTBEAT that contradicts an accepted ACK is believed from this many HEARTBEATs after it
 #: (PX4 sends them at a fixed 1 Hz: the first may have left before the change).
 HEARTBEATS_TO_CONTRADICT = 2
+#: While landing, a thrust below this fraction of the hover thrust is flown level (a descent
+#: pushed into the ground; in the air it is a vertical descent).
+TOUCHDOWN_THRUST_FRACTION = 0.5
 #: MAV_COMP_ID_ONBOARD_COMPUTER: who we are on the vehicle's MAVLink network.
 ONBOARD_COMPONENT = 191
 SETPOINT_MODES = ("attitude", "position")
@@ -387,10 +390,18 @@ class Px4Vehicle:
             return
         ms = int((now_s - self._t0_s) * 1e3) & 0xFFFFFFFF
         if self.setpoints == "attitude":
-            q = enu_flu_quat_to_ned_frd(target.attitude_wxyz)
-            rates = flu_to_frd(target.body_rates_ff_radps)  # only the yaw rate is used
+            attitude = target.attitude_wxyz
             thrust = float(np.clip(target.thrust_n / (self.airframe.mass_kg * 9.80665)
                                    * self.hover_thrust, 0.0, 1.0))
+            if self.phase in (Phase.LANDING, Phase.DISARMING) \
+                    and thrust < TOUCHDOWN_THRUST_FRACTION * self.hover_thrust:
+                # Pushed into the ground, the SE(3) law's thrust vector is small and its
+                # direction is its horizontal terms: up to the tilt limit, a vehicle rocking on
+                # its legs, which PX4's land detector reads as rotation (landings took a minute).
+                # Level, as PX4's position controller is on ground contact.
+                attitude = yaw_quat(float(heading_of(attitude)))
+            q = enu_flu_quat_to_ned_frd(attitude)
+            rates = flu_to_frd(target.body_rates_ff_radps)  # only the yaw rate is used
             msg = _M.MAVLink_set_attitude_target_message(
                 ms, self.system_id, self.component_id, _ATT_TYPE_MASK, q.tolist(),
                 float(rates[0]), float(rates[1]), float(rates[2]), thrust)
