@@ -246,6 +246,29 @@ def test_a_node_takes_off_flies_lands_and_disarms_with_every_command_acknowledge
     assert 9.5 < rep["setpoint_period_p50_ms"] < 10.5
 
 
+def test_a_node_that_trusts_only_the_heartbeat_fails_against_the_stand_in_as_against_px4(
+        monkeypatch) -> None:
+    """The node as it was before it met PX4 took the armed flag from the HEARTBEAT alone: the
+    stand-in, whose HEARTBEAT is PX4's fixed 1 Hz stream, stops it right after the accepted
+    arm, as the real PX4 did ("the autopilot disarmed"); the node of today flies on."""
+    from uavmpc.drivers.px4 import vehicle as vehicle_module
+
+    on_ack = vehicle_module._HANDLERS["COMMAND_ACK"]
+
+    def ack_without_state(v: Px4Vehicle, msg, now_s: float) -> None:
+        armed, mode = v.armed, v.mode
+        on_ack(v, msg, now_s)
+        v.armed, v.mode = armed, mode  # the ACK's news ignored, as before
+        v._acked_armed = v._acked_mode = None
+
+    monkeypatch.setitem(vehicle_module._HANDLERS, "COMMAND_ACK", ack_without_state)
+    with PxFlight(duration_s=6.0) as f:
+        f.join()
+    rep = f.stats.vehicle
+    assert rep["phase"] == "stopped" and rep["stop_reason"] == "the autopilot disarmed", rep
+    assert max(h for _, h, _ in f.heights) < 1.0  # it never got up
+
+
 def test_arming_refused_without_the_setpoint_stream_is_retried_until_it_flows() -> None:
     with PxFlight(duration_s=6.0) as f:
         f.hop.drop("to_sitl", SET_ATTITUDE_TARGET, 0.0, time.time() + 3.0)
@@ -327,11 +350,57 @@ def test_garbage_and_other_systems_at_the_nodes_port_change_nothing() -> None:
 
 # ---------------------------------------------------------------------- a swarm of PX4s
 
-def test_three_nodes_each_flying_its_own_stand_in_avoid_each_other(tmp_path: Path) -> None:
-    sc = scenarios.load("swap_through_static")
-    s = run_swarm(sc, tmp_path, duration_s=28.0, mavlink=True)
-    assert not s["collisions"], s["collisions"]
-    assert s["min_distance_m"] > 1.0
+_TWO_PAIRS = """
+# Two head-on pairs 60 m apart, all at 4 m: the first with avoidance, the second without.
+name = "standin_head_on_pairs"
+duration_s = 14.0
+
+[[uavs]]
+id = "a1"
+priority = 1
+airframe = "f550"
+start = [-7.0, 0.0, 4.0]
+goto = [7.0, 0.0, 4.0, 0.0]
+
+[[uavs]]
+id = "a2"
+priority = 2
+airframe = "f550"
+start = [7.0, 0.0, 4.0]
+heading_rad = 3.141592653589793
+goto = [-7.0, 0.0, 4.0, 3.141592653589793]
+
+[[uavs]]
+id = "b1"
+priority = 3
+airframe = "f550"
+avoidance = false
+start = [-7.0, 60.0, 4.0]
+goto = [7.0, 60.0, 4.0, 0.0]
+
+[[uavs]]
+id = "b2"
+priority = 4
+airframe = "f550"
+avoidance = false
+start = [7.0, 60.0, 4.0]
+heading_rad = 3.141592653589793
+goto = [-7.0, 60.0, 4.0, 3.141592653589793]
+"""
+
+
+def test_nodes_flying_stand_ins_avoid_each_other_and_without_avoidance_collide(
+        tmp_path: Path) -> None:
+    """Four node + stand-in pairs in one swarm (the same two head-on pairs as the real-PX4
+    test): the pair with avoidance keeps clear, the pair without collides, all land."""
+    path = tmp_path / "two_pairs.toml"
+    path.write_text(_TWO_PAIRS)
+    sc = scenarios.load(path)
+    s = run_swarm(sc, tmp_path / "run", mavlink=True)
+    closest = s["closest_by_pair_m"]
+    assert closest["a1-a2"] > 2.0, closest
+    assert closest["b1-b2"] < 1.0 and {(c["a"], c["b"]) for c in s["collisions"]} == {
+        ("b1", "b2")}, s["collisions"]
     assert all(u["reached_goal"] for u in s["uavs"].values()), s["uavs"]
     for uav, u in s["uavs"].items():  # a node without a report says why (exit code, errors)
         assert u["node"].get("vehicle", {}).get("phase") == "landed", (uav, u["node"])
@@ -339,7 +408,7 @@ def test_three_nodes_each_flying_its_own_stand_in_avoid_each_other(tmp_path: Pat
     # (the same scenario in the simulated world, whose tracking equals the node's plant). The
     # stand-in's estimates come at PX4's 30 Hz and wander as EKF2's do, so the bound is
     # absolute: a decimetre-scale error, not a multiple of the ideal plant's centimetres.
-    world = World(sc, seed=0).run(28.0)
+    world = World(sc, seed=0).run(sc.duration_s)
     for uav, u in s["uavs"].items():
         built_in = world.per_uav[uav].tracking_rmse_m
         assert u["tracking_rmse_m"] < max(2.0 * built_in, 0.25), (uav, u["tracking_rmse_m"],
@@ -347,10 +416,4 @@ def test_three_nodes_each_flying_its_own_stand_in_avoid_each_other(tmp_path: Pat
         # The stream never paused as long as PX4 allows before it leaves offboard (it needs
         # setpoints faster than 2 Hz); the tail of the period is the machine's, not ours.
         assert u["node"]["vehicle"]["setpoint_period_max_ms"] < 500.0, u["node"]["vehicle"]
-
-
-def test_the_same_swarm_of_stand_ins_without_avoidance_collides(tmp_path: Path) -> None:
-    s = run_swarm(scenarios.load("swap_through_static"), tmp_path, avoidance=False,
-                  duration_s=10.0, mavlink=True)
-    assert s["collisions"]
 

@@ -255,7 +255,7 @@ class Px4Vehicle:
         self._heartbeats_since_ack = 0
         self._pending: _Command | None = None
         self._texts: list[tuple[float, str]] = []  # (arrival, STATUSTEXT)
-        self._command_first_s = math.inf  # when the current request was sent
+        self._command_sent_s = math.inf  # when the current request was sent
         self._refused_s: float | None = None  # when the refused command was sent
         self._phase_s = 0.0
         self._first_request_s = 0.0
@@ -634,7 +634,7 @@ class Px4Vehicle:
 
     def _send_command(self, now_s: float, command: int, *params: float) -> None:
         p = (list(params) + [0.0] * 7)[:7]
-        self._command_first_s = now_s
+        self._command_sent_s = now_s
         self._pending = _Command(command, tuple(p), now_s)
         self._transmit(self._pending)
 
@@ -778,7 +778,7 @@ class Px4Vehicle:
         """The last command's result; :meth:`report` adds what the autopilot said about it."""
         if not self.report_data.commands:
             return "?"
-        self._refused_s = self._command_first_s
+        self._refused_s = self._command_sent_s
         return str(self.report_data.commands[-1]["result"])
 
     def _said_about_refusal(self) -> str:
