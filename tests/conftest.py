@@ -91,3 +91,40 @@ def px4_instances(px4_sitl_build, tmp_path):
     yield start
     for inst in started:
         inst.stop()
+
+
+_HEAD_ON_PAIRS = """
+# Two head-on pairs 60 m apart, all at 4 m: the first with avoidance, the second without.
+name = "head_on_pairs"
+duration_s = 14.0
+{uavs}
+"""
+_UAV = """
+[[uavs]]
+id = "{id}"
+priority = {priority}
+airframe = "{airframe}"
+avoidance = {avoidance}
+start = [{x0}, {y}, 4.0]
+heading_rad = {heading}
+goto = [{x1}, {y}, 4.0, {heading}]
+"""
+
+
+@pytest.fixture
+def head_on_pairs(tmp_path):
+    """``make(airframe) -> Path``: a scenario file of two head-on pairs 60 m apart at 4 m, 14 m
+    apart each: ``a1``/``a2`` with avoidance, ``b1``/``b2`` without (the PX4 swarm tests')."""
+
+    def make(airframe: str) -> Path:
+        uavs = "".join(
+            _UAV.format(id=f"{pair}{k + 1}", priority=2 * p + k + 1, airframe=airframe,
+                        avoidance=str(pair == "a").lower(), y=60.0 * p,
+                        x0=-7.0 if k == 0 else 7.0, x1=7.0 if k == 0 else -7.0,
+                        heading=0.0 if k == 0 else 3.141592653589793)
+            for p, pair in enumerate("ab") for k in range(2))
+        path = tmp_path / f"head_on_pairs_{airframe}.toml"
+        path.write_text(_HEAD_ON_PAIRS.format(uavs=uavs))
+        return path
+
+    return make

@@ -350,52 +350,13 @@ def test_garbage_and_other_systems_at_the_nodes_port_change_nothing() -> None:
 
 # ---------------------------------------------------------------------- a swarm of PX4s
 
-_TWO_PAIRS = """
-# Two head-on pairs 60 m apart, all at 4 m: the first with avoidance, the second without.
-name = "standin_head_on_pairs"
-duration_s = 14.0
-
-[[uavs]]
-id = "a1"
-priority = 1
-airframe = "f550"
-start = [-7.0, 0.0, 4.0]
-goto = [7.0, 0.0, 4.0, 0.0]
-
-[[uavs]]
-id = "a2"
-priority = 2
-airframe = "f550"
-start = [7.0, 0.0, 4.0]
-heading_rad = 3.141592653589793
-goto = [-7.0, 0.0, 4.0, 3.141592653589793]
-
-[[uavs]]
-id = "b1"
-priority = 3
-airframe = "f550"
-avoidance = false
-start = [-7.0, 60.0, 4.0]
-goto = [7.0, 60.0, 4.0, 0.0]
-
-[[uavs]]
-id = "b2"
-priority = 4
-airframe = "f550"
-avoidance = false
-start = [7.0, 60.0, 4.0]
-heading_rad = 3.141592653589793
-goto = [-7.0, 60.0, 4.0, 3.141592653589793]
-"""
 
 
 def test_nodes_flying_stand_ins_avoid_each_other_and_without_avoidance_collide(
-        tmp_path: Path) -> None:
+        tmp_path: Path, head_on_pairs) -> None:
     """Four node + stand-in pairs in one swarm (the same two head-on pairs as the real-PX4
     test): the pair with avoidance keeps clear, the pair without collides, all land."""
-    path = tmp_path / "two_pairs.toml"
-    path.write_text(_TWO_PAIRS)
-    sc = scenarios.load(path)
+    sc = scenarios.load(head_on_pairs("f550"))
     s = run_swarm(sc, tmp_path / "run", mavlink=True)
     closest = s["closest_by_pair_m"]
     assert closest["a1-a2"] > 2.0, closest

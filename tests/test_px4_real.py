@@ -215,56 +215,17 @@ def test_a_cut_setpoint_stream_makes_px4_leave_offboard_and_the_node_never_takes
     assert any("Failsafe" in t for t in px4["status_texts"]), px4["status_texts"]
 
 
-_HEAD_ON = """
-# Two head-on pairs 60 m apart, all at 4 m: the first with avoidance, the second without.
-name = "px4_head_on_pairs"
-duration_s = 14.0
-
-[[uavs]]
-id = "a1"
-priority = 1
-airframe = "x500"
-start = [-7.0, 0.0, 4.0]
-goto = [7.0, 0.0, 4.0, 0.0]
-
-[[uavs]]
-id = "a2"
-priority = 2
-airframe = "x500"
-start = [7.0, 0.0, 4.0]
-heading_rad = 3.141592653589793
-goto = [-7.0, 0.0, 4.0, 3.141592653589793]
-
-[[uavs]]
-id = "b1"
-priority = 3
-airframe = "x500"
-avoidance = false
-start = [-7.0, 60.0, 4.0]
-goto = [7.0, 60.0, 4.0, 0.0]
-
-[[uavs]]
-id = "b2"
-priority = 4
-airframe = "x500"
-avoidance = false
-start = [7.0, 60.0, 4.0]
-heading_rad = 3.141592653589793
-goto = [-7.0, 60.0, 4.0, 3.141592653589793]
-"""
 
 
 def test_two_real_px4_vehicles_head_on_keep_2_m_with_avoidance_and_not_without(
-        px4_sitl_build, tmp_path) -> None:
+        px4_sitl_build, tmp_path, head_on_pairs) -> None:
     """``uavmpc swarm`` with real PX4s: four SIH instances booted on the globe below their
     starts, each placed in the swarm's world from its own GPS_GLOBAL_ORIGIN. The pair with
     avoidance keeps 2 m; the pair without comes within 1.5 m (by PX4's estimates); all land."""
     from uavmpc import scenarios
     from uavmpc.drivers.swarm import run_swarm
 
-    path = tmp_path / "head_on.toml"
-    path.write_text(_HEAD_ON)
-    s = run_swarm(scenarios.load(path), tmp_path / "run", px4_sitl=px4_sitl_build,
+    s = run_swarm(scenarios.load(head_on_pairs("x500")), tmp_path / "run", px4_sitl=px4_sitl_build,
                   px4_first_instance=6)
     closest = s["closest_by_pair_m"]
     assert closest["a1-a2"] >= 2.0, closest
