@@ -37,8 +37,13 @@ MIN_RATE_SPAN_S = 2.0
 MAX_ROUND_TRIP_S = 0.5
 #: Round trips within this of the window's shortest are fitted (plus half the shortest).
 ROUND_TRIP_SLACK_S = 0.002
-#: Rates outside this are not clocks but a fault (a reboot, a time jump): the map restarts.
+#: Rates outside this are not clocks but a fault: the fit keeps its rate.
 MAX_RATE_ERROR = 0.2
+#: A round trip this far [s] (beyond its own length) from the map is not fitted; this many in a
+#: row are a reboot or a time jump, and the map restarts (PX4's own timesync resets likewise
+#: after consecutive high deviations: ``src/modules/mavlink/mavlink_timesync.cpp``).
+JUMP_S = 1.0
+JUMPS_TO_RESTART = 5
 
 
 class ClockMap:
@@ -57,6 +62,7 @@ class ClockMap:
         self.rate_known = False
         self.round_trip_s = math.nan
         self.resets = 0
+        self._jumps = 0
 
     @property
     def synced(self) -> bool:
@@ -77,7 +83,8 @@ class ClockMap:
         rtt = received_s - sent_s
         if not (0.0 <= rtt <= MAX_ROUND_TRIP_S and t_autopilot_s > 0.0):
             return False
-        self._jump_check(t_autopilot_s, 0.5 * (sent_s + received_s), rtt)
+        if self._jumped(t_autopilot_s, 0.5 * (sent_s + received_s), rtt):
+            return False
         self._round_trips.append((t_autopilot_s, 0.5 * (sent_s + received_s), rtt))
         self._trim(self._round_trips, received_s)
         self._fit()
@@ -102,13 +109,21 @@ class ClockMap:
         while samples and samples[0][1] < now_s - self.window_s:
             samples.popleft()
 
-    def _jump_check(self, t_ap: float, t_local: float, rtt: float) -> None:
-        """An autopilot that rebooted (or whose clock jumped) starts a new map."""
-        if self.synced and abs(self.to_local(t_ap) - t_local) > 1.0 + rtt:
-            self._round_trips.clear()
-            self._one_way.clear()
-            self._a, self._b, self.rate_known = math.nan, 1.0, False
-            self.resets += 1
+    def _jumped(self, t_ap: float, t_local: float, rtt: float) -> bool:
+        """True for a sample far from the map (not to be fitted). A single one is an outlier;
+        :data:`JUMPS_TO_RESTART` in a row, an autopilot that rebooted: a new map begins."""
+        if not self.synced or abs(self.to_local(t_ap) - t_local) <= JUMP_S + rtt:
+            self._jumps = 0
+            return False
+        self._jumps += 1
+        if self._jumps < JUMPS_TO_RESTART:
+            return True
+        self._round_trips.clear()
+        self._one_way.clear()
+        self._a, self._b, self.rate_known = math.nan, 1.0, False
+        self._jumps = 0
+        self.resets += 1
+        return False
 
     def _fit(self) -> None:
         if self._round_trips:
