@@ -248,140 +248,31 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _say_compiling(airframe: Any) -> None:
-    """One line before the kernels load: cold, they compile for about a minute."""
-    print(f"uavmpc node: loading the compiled kernels for {airframe.name} before the link "
-          "opens (the first run after install compiles them: about a minute)",
-          file=sys.stderr, flush=True)
-
-
 def _node(args: argparse.Namespace) -> int:
-    import dataclasses
+    from uavmpc.drivers.launch import NodeLaunch, run_node
 
-    import numpy as np
-
-    from uavmpc.comms.zenoh_link import ZenohTransport
-    from uavmpc.drivers.node import Node, parse_mission, run_node
-    from uavmpc.plant import Airframe
-    from uavmpc.reference import InvalidReferenceError, Reference
-
-    airframe = Airframe.named(args.airframe)
-    creds = _credentials(args, "uavmpc node", need_roster=True)
-    if creds is None:
-        return 2
-    key, identity, roster = creds
-    if identity is not None and identity.member_id != args.id:
-        print(f"uavmpc node: --identity-file is {identity.member_id!r}'s, not {args.id!r}'s",
-              file=sys.stderr)
-        return 2
-    mission = None
-    try:
-        if args.mission_file:
-            data = json.loads(Path(args.mission_file).read_text())
-            mission = Reference(np.asarray(data["times_s"], dtype=float),
-                                np.asarray(data["points"], dtype=float),
-                                bool(data.get("loop", False)))
-        elif args.goto:
-            mission = parse_mission(json.dumps({"goto": args.goto}).encode(), time.time())
-    except (OSError, KeyError, ValueError, InvalidReferenceError) as exc:
-        print(f"uavmpc node: bad mission: {exc}", file=sys.stderr)
-        return 2
-    formation_mission = None
-    pair_radius: dict[str, float] = {}
-    if args.formation:
-        from uavmpc.missions.formation import FormationFollower, load_formation
-
-        spec = load_formation(args.formation)
-        if args.id not in spec.members:
-            print(f"uavmpc node: --formation: {args.id!r} is not a member of the formation "
-                  f"({', '.join(spec.members)})", file=sys.stderr)
-            return 2
-        pair_radius = spec.pair_radii(args.id)
-        if args.id in spec.followers:
-            if mission is not None:
-                print("uavmpc node: a follower flies its slot: no --goto or --mission-file",
-                      file=sys.stderr)
-                return 2
-            formation_mission = FormationFollower(spec, args.id)
-    vehicle = None
-    lost: tuple[type[Exception], ...] = ()
-    if args.geo_origin is not None and not args.mavlink:
-        print("uavmpc node: --geo-origin places a PX4's frame: it needs --mavlink",
-              file=sys.stderr)
-        return 2
-    if args.mavlink:
-        from uavmpc.drivers.node import warm_up
-        from uavmpc.drivers.px4.vehicle import Px4Vehicle, VehicleLost
-
-        lost = (VehicleLost,)
-        # Compile before the link exists: a first run compiles for a minute, and neither
-        # the autopilot's clock map nor its stream should start before the flight can.
-        _say_compiling(airframe)
-        warm_up(airframe)
-        try:
-            vehicle = Px4Vehicle(args.mavlink, airframe, setpoints=args.setpoints,
-                                 system_id=args.system_id, hover_thrust=args.hover_thrust,
-                                 origin_m=args.origin, geo_origin=args.geo_origin)
-        except (ValueError, OSError) as exc:
-            print(f"uavmpc node: --mavlink: {exc}", file=sys.stderr)
-            return 2
-    graph = topics = None
-    if args.ros2:
-        from uavmpc.comms.ros2 import Ros2Graph, UavTopics
-
-        try:
-            graph = Ros2Graph(args.ros2, node_name=f"uavmpc_{args.id.replace('-', '_')}")
-        except (ValueError, OSError) as exc:
-            print(f"uavmpc node: --ros2: {exc}", file=sys.stderr)
-            return 2
-        # With a key, ROS 2 commands would be a way around it (ROS 2 has no signatures here):
-        # they are taken only when asked for.
-        topics = UavTopics(graph, args.id, commands=(key is None and roster is None)
-                           or args.ros2_commands)
-    with ZenohTransport(args.id, swarm=args.swarm, listen=args.listen or [],
-                        connect=args.connect or []) as transport:
-        node = Node(args.id, args.priority, airframe, transport, start_m=args.start,
-                    heading_rad=args.heading, avoidance=not args.no_avoidance, key=key,
-                    identity=identity, roster=roster, vehicle=vehicle, ros2=topics,
-                    mission=formation_mission,
-                    pair_radius_m=pair_radius)
-        if mission is not None:
-            node.set_mission(mission)
-        try:
-            stats = run_node(node, args.duration)
-        except lost as exc:  # the autopilot never answered
-            print(f"uavmpc node: {exc}", file=sys.stderr)
-            return 1
-        finally:
-            if graph is not None:
-                graph.close()
-    print(json.dumps(dataclasses.asdict(stats)), flush=True)
-    return 0
+    return run_node(NodeLaunch(
+        uav_id=args.id, priority=args.priority, airframe=args.airframe, swarm=args.swarm,
+        listen=tuple(args.listen or ()), connect=tuple(args.connect or ()),
+        start_m=tuple(args.start), heading_rad=args.heading, duration_s=args.duration,
+        goto=None if args.goto is None else tuple(args.goto), mission_file=args.mission_file,
+        formation_file=args.formation, avoidance=not args.no_avoidance,
+        key_file=args.key_file, identity_file=args.identity_file, roster_file=args.roster,
+        mavlink=args.mavlink, setpoints=args.setpoints, origin_m=tuple(args.origin),
+        geo_origin=None if args.geo_origin is None else tuple(args.geo_origin),
+        hover_thrust=args.hover_thrust, system_id=args.system_id, ros2=args.ros2,
+        ros2_commands=args.ros2_commands))
 
 
 def _sitl(args: argparse.Namespace) -> int:
-    from uavmpc.drivers.px4.sitl import StandInPx4, run_sitl
-    from uavmpc.plant import Airframe
+    from uavmpc.drivers.launch import SitlLaunch, run_sitl
 
-    airframe = Airframe.named(args.airframe)
-    try:
-        sitl = StandInPx4(airframe, args.connect, position_m=args.position,
-                          heading_rad=args.heading, system_id=args.system_id,
-                          odometry_rate_hz=args.odometry_rate, clock_rate=args.clock_rate,
-                          seed=args.seed, estimator_error=not args.no_estimator_error,
-                          geo_origin_deg=None if args.no_geo else args.geo_origin)
-    except (ValueError, OSError) as exc:
-        print(f"uavmpc sitl: {exc}", file=sys.stderr)
-        return 2
-    print(f"uavmpc sitl: PX4 stand-in (system {args.system_id}) on UDP port "
-          f"{sitl.link.local_port}, talking to {sitl.link.address}", file=sys.stderr, flush=True)
-    cpu0, wall0 = time.process_time(), time.perf_counter()
-    run_sitl(sitl, args.duration)
-    print(json.dumps({"events": sitl.events,
-                      "final_position_m": sitl.plant.state().position_m.tolist(),
-                      "cpu_s": time.process_time() - cpu0,
-                      "wall_s": time.perf_counter() - wall0}), flush=True)
-    return 0
+    return run_sitl(SitlLaunch(
+        connect=args.connect, airframe=args.airframe, position_m=tuple(args.position),
+        heading_rad=args.heading, system_id=args.system_id,
+        odometry_rate_hz=args.odometry_rate, clock_rate=args.clock_rate, seed=args.seed,
+        estimator_error=not args.no_estimator_error,
+        geo_origin=None if args.no_geo else tuple(args.geo_origin), duration_s=args.duration))
 
 
 def _swarm(args: argparse.Namespace) -> int:
@@ -511,31 +402,12 @@ def _formation_shape(args: argparse.Namespace) -> int:
 def _credentials(args: argparse.Namespace, prog: str, *, need_roster: bool) -> Any:
     """(key, identity, roster) from ``--key-file``, ``--identity-file``, ``--roster``, or
     None after printing what is wrong."""
-    key = identity = roster = None
-    given = [f for f in ("key_file", "identity_file") if getattr(args, f, None)]
-    if len(given) > 1:
-        print(f"{prog}: --key-file or --identity-file, not both", file=sys.stderr)
-        return None
-    try:
-        from uavmpc.comms import auth
+    from uavmpc.drivers.launch import load_credentials
 
-        if args.key_file:
-            key = auth.load_key(args.key_file)
-        if getattr(args, "identity_file", None):
-            identity = auth.load_identity(args.identity_file)
-        if need_roster:
-            if (identity is None) != (getattr(args, "roster", None) is None):
-                print(f"{prog}: --identity-file and --roster go together", file=sys.stderr)
-                return None
-            if args.roster:
-                roster = auth.load_roster(args.roster)
-    except ImportError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return None
-    except ValueError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return None
-    return key, identity, roster
+    return load_credentials(prog, key_file=args.key_file,
+                            identity_file=getattr(args, "identity_file", None),
+                            roster_file=getattr(args, "roster", None) if need_roster else None,
+                            need_roster=need_roster)
 
 
 def _command_sealer(args: argparse.Namespace, prog: str) -> Any:

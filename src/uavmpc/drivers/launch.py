@@ -1,0 +1,504 @@
+"""A node, or a stand-in PX4, as a process of the driver tier (issue 26).
+
+``python -m uavmpc.drivers.launch SPEC.json`` runs what a launch specification says: a
+:class:`NodeLaunch` (one UAV's :class:`~uavmpc.drivers.node.Node` over Zenoh, on its simulated
+plant or on an autopilot over MAVLink) or a :class:`SitlLaunch` (a stand-in PX4 on
+MAVLink/UDP). A specification is a frozen dataclass, written as one JSON object with its
+``kind`` (:meth:`NodeLaunch.to_json`) and checked field by field when it is read
+(:func:`load_launch`): a bad one is refused in one line that names the field.
+
+A process started with a ``report_file`` writes its report there when it ends, as one typed
+JSON object (``{"kind": "node", "report": {...NodeStats}}`` or ``{"kind": "sitl", ...}``),
+read back and checked by :func:`read_report`; without one it prints the report as one JSON
+line on its standard output (what ``uavmpc node`` and ``uavmpc sitl`` do).
+
+The construction is written once, here: ``uavmpc node`` and ``uavmpc sitl``
+(:mod:`uavmpc.apps.cli`) turn their flags into a specification and call :func:`run_node` or
+:func:`run_sitl`; :mod:`uavmpc.drivers.swarm` writes a specification per process and launches
+this module — a driver never launches the application tier.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import sys
+import time
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar, Union
+
+from uavmpc.drivers.node import NodeStats
+
+__all__ = ["LaunchError", "NodeLaunch", "SitlLaunch", "SitlReport", "launch_command",
+           "load_credentials", "load_launch", "read_report", "run_node", "run_sitl",
+           "write_report"]
+
+#: The module a launch runs (``python -m`` this).
+MODULE = "uavmpc.drivers.launch"
+#: PX4 SITL's home: the stand-in's default origin on the globe (deg, deg, m AMSL).
+PX4_SITL_HOME = (47.397742, 8.545594, 488.0)
+SETPOINTS = ("attitude", "position")
+
+Vec3 = tuple[float, float, float]
+
+
+class LaunchError(ValueError):
+    """A launch specification or a process report that does not hold (one line, naming the
+    field)."""
+
+
+@dataclass(frozen=True)
+class NodeLaunch:
+    """One UAV's node process (the flags of ``uavmpc node``, by the same names)."""
+
+    uav_id: str
+    priority: int
+    airframe: str = "f550"
+    swarm: str = "default"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    start_m: Vec3 = (0.0, 0.0, 5.0)
+    heading_rad: float = 0.0
+    #: Seconds to fly (with ``mavlink``: then land); None: until SIGINT/SIGTERM.
+    duration_s: float | None = None
+    #: Initial mission: fly to (x, y, z, heading), or the trajectory in this JSON file.
+    goto: tuple[float, float, float, float] | None = None
+    mission_file: str | None = None
+    formation_file: str | None = None
+    avoidance: bool = True
+    key_file: str | None = None
+    identity_file: str | None = None
+    roster_file: str | None = None
+    #: Fly an autopilot at this MAVLink address instead of the simulated plant.
+    mavlink: str | None = None
+    setpoints: str = "attitude"
+    origin_m: Vec3 = (0.0, 0.0, 0.0)
+    geo_origin: Vec3 | None = None
+    hover_thrust: float | None = None
+    system_id: int | None = None
+    ros2: str | None = None
+    ros2_commands: bool = False
+    #: Where the report goes when the node ends (None: one JSON line on stdout).
+    report_file: str | None = None
+
+    KIND: typing.ClassVar[str] = "node"
+
+    def __post_init__(self) -> None:
+        _validate(self, "node launch")
+        if self.setpoints not in SETPOINTS:
+            raise LaunchError(f"{self.KIND} launch: 'setpoints' must be one of "
+                              f"{', '.join(SETPOINTS)}, not {self.setpoints!r}")
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise LaunchError(f"{self.KIND} launch: 'duration_s' must be > 0, "
+                              f"not {self.duration_s!r}")
+
+    def to_json(self) -> str:
+        return _to_json(self)
+
+
+@dataclass(frozen=True)
+class SitlLaunch:
+    """A stand-in PX4 process (the flags of ``uavmpc sitl``)."""
+
+    connect: str = "udpout://127.0.0.1:14540"
+    airframe: str = "f550"
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    heading_rad: float = 0.0
+    system_id: int = 1
+    odometry_rate_hz: float = 30.0
+    clock_rate: float = 0.986
+    seed: int = 0
+    estimator_error: bool = True
+    #: The world's ENU origin on the globe; None: no global position at all.
+    geo_origin: Vec3 | None = PX4_SITL_HOME
+    duration_s: float | None = None
+    report_file: str | None = None
+
+    KIND: typing.ClassVar[str] = "sitl"
+
+    def __post_init__(self) -> None:
+        _validate(self, "sitl launch")
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise LaunchError(f"{self.KIND} launch: 'duration_s' must be > 0, "
+                              f"not {self.duration_s!r}")
+
+    def to_json(self) -> str:
+        return _to_json(self)
+
+
+@dataclass(frozen=True)
+class SitlReport:
+    """What a stand-in PX4 reports when it stops."""
+
+    events: list[str] = field(default_factory=list)
+    final_position_m: list[float] = field(default_factory=list)
+    cpu_s: float = 0.0
+    wall_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        _validate(self, "sitl report")
+
+
+#: The launch specifications and the reports, by the ``kind`` their JSON carries.
+_KINDS: dict[str, type[Any]] = {"node": NodeLaunch, "sitl": SitlLaunch}
+_REPORT_KINDS: dict[type[Any], str] = {NodeStats: "node", SitlReport: "sitl"}
+
+T = TypeVar("T")
+
+
+# --- checking a dataclass field by field against its annotations -------------------------
+
+def _describe(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    """``value`` as ``hint`` says (JSON lists become tuples where tuples are due; an integer
+    is a number, kept as it is), or LaunchError naming ``where``."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if hint is Any:
+        return value
+    if origin in (Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        rest = [a for a in args if a is not type(None)]
+        if len(rest) == 1:
+            return _coerce(value, rest[0], where)
+        raise TypeError(f"{where}: unsupported annotation {hint!r}")  # pragma: no cover
+    if hint is type(None):
+        if value is not None:
+            raise LaunchError(f"{where} must be null, not {_describe(value)}")
+        return None
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise LaunchError(f"{where} must be true or false, not {_describe(value)}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise LaunchError(f"{where} must be an integer, not {_describe(value)}")
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise LaunchError(f"{where} must be a number, not {_describe(value)}")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise LaunchError(f"{where} must be a string, not {_describe(value)}")
+        return value
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise LaunchError(f"{where} must be a list, not {_describe(value)}")
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            if len(value) != len(args):
+                raise LaunchError(f"{where} must have {len(args)} items, not {len(value)}")
+            items = [_coerce(v, a, f"{where}[{i}]")
+                     for i, (v, a) in enumerate(zip(value, args, strict=True))]
+        else:
+            items = [_coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise LaunchError(f"{where} must be an object, not {_describe(value)}")
+        return {_coerce(k, args[0], f"{where} key"): _coerce(v, args[1], f"{where}[{k!r}]")
+                for k, v in value.items()}
+    raise TypeError(f"{where}: unsupported annotation {hint!r}")  # pragma: no cover
+
+
+def _validate(obj: Any, what: str) -> None:
+    """Check (and normalise: lists to tuples where tuples are due) every field of the frozen
+    dataclass ``obj``; ``what`` begins the error message."""
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        value = _coerce(getattr(obj, f.name), hints[f.name], f"{what}: {f.name!r}")
+        object.__setattr__(obj, f.name, value)
+
+
+def _from_fields(cls: type[T], data: Any, what: str) -> T:
+    """An instance of the dataclass ``cls`` from a JSON object, every field checked."""
+    if not isinstance(data, dict):
+        raise LaunchError(f"{what}: must be a JSON object, not {_describe(data)}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise LaunchError(f"{what}: unknown field {unknown[0]!r}")
+    missing = [n for n, f in fields.items() if n not in data
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise LaunchError(f"{what}: missing field {missing[0]!r}")
+    hints = typing.get_type_hints(cls)
+    values = {n: _coerce(v, hints[n], f"{what}: {n!r}") for n, v in data.items()}
+    return cls(**values)
+
+
+def _to_json(obj: Any) -> str:
+    return json.dumps({"kind": obj.KIND, **dataclasses.asdict(obj)}, allow_nan=False)
+
+
+def load_launch(source: str | Path) -> NodeLaunch | SitlLaunch:
+    """The launch specification in the JSON file ``source``, every field checked.
+
+    Raises:
+        LaunchError: not JSON, an unknown ``kind``, an unknown or missing field, or a field
+            of the wrong type or value (the message names it).
+        OSError: the file cannot be read."""
+    text = Path(source).read_text()
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise LaunchError(f"launch spec {source}: not JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise LaunchError(f"launch spec {source}: must be a JSON object")
+    kind = data.pop("kind", None)
+    if kind not in _KINDS:
+        raise LaunchError(f"launch spec {source}: 'kind' must be one of "
+                          f"{', '.join(map(repr, _KINDS))}, not {_describe(kind)}")
+    return _from_fields(_KINDS[kind], data, f"{kind} launch")
+
+
+def write_report(path: str | Path, report: Any) -> None:
+    """``report`` (:class:`NodeStats` or :class:`SitlReport`) to ``path`` as one typed JSON
+    object, whole or not at all (written aside, then renamed)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text(json.dumps({"kind": _REPORT_KINDS[type(report)],
+                               "report": dataclasses.asdict(report)}))
+    os.replace(tmp, path)
+
+
+def read_report(path: str | Path, cls: type[T]) -> T:
+    """The report of kind ``cls`` (:class:`NodeStats` or :class:`SitlReport`) a process wrote
+    to ``path``, every field checked.
+
+    Raises:
+        FileNotFoundError: the process wrote none (it was killed, or failed before its end).
+        LaunchError: not a report of that kind, or a field that does not hold."""
+    kind = _REPORT_KINDS[cls]
+    try:
+        data = json.loads(Path(path).read_text())
+    except ValueError as exc:
+        raise LaunchError(f"{kind} report: not JSON ({exc})") from None
+    if not isinstance(data, dict) or data.get("kind") != kind or set(data) != {"kind",
+                                                                               "report"}:
+        raise LaunchError(f'{kind} report: must be {{"kind": "{kind}", "report": {{...}}}}')
+    return _from_fields(cls, data["report"], f"{kind} report")
+
+
+def launch_command(spec_file: str | Path) -> list[str]:
+    """The command line of the process that runs the specification in ``spec_file``."""
+    return [sys.executable, "-m", MODULE, str(spec_file)]
+
+
+# --- the construction, written once -------------------------------------------------------
+
+def load_credentials(prog: str, *, key_file: str | None, identity_file: str | None,
+                     roster_file: str | None, need_roster: bool) -> Any:
+    """(key, identity, roster) from a shared key file, an identity file, a roster file, or
+    None after printing what is wrong (as ``prog``)."""
+    key = identity = roster = None
+    if key_file and identity_file:
+        print(f"{prog}: --key-file or --identity-file, not both", file=sys.stderr)
+        return None
+    try:
+        from uavmpc.comms import auth
+
+        if key_file:
+            key = auth.load_key(key_file)
+        if identity_file:
+            identity = auth.load_identity(identity_file)
+        if need_roster:
+            if (identity is None) != (roster_file is None):
+                print(f"{prog}: --identity-file and --roster go together", file=sys.stderr)
+                return None
+            if roster_file:
+                roster = auth.load_roster(roster_file)
+    except ImportError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+    except ValueError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+    return key, identity, roster
+
+
+def _say_compiling(airframe: Any) -> None:
+    """One line before the kernels load: cold, they compile for about a minute."""
+    print(f"uavmpc node: loading the compiled kernels for {airframe.name} before the link "
+          "opens (the first run after install compiles them: about a minute)",
+          file=sys.stderr, flush=True)
+
+
+def run_node(spec: NodeLaunch) -> int:
+    """Build the node ``spec`` describes and fly it until its duration or SIGINT/SIGTERM;
+    its report goes to ``spec.report_file`` (or stdout). Returns the exit code: 0, 1 if the
+    autopilot never answered, 2 for a bad setting (said in one line on stderr)."""
+    import numpy as np
+
+    from uavmpc.comms.zenoh_link import ZenohTransport
+    from uavmpc.drivers.node import Node, parse_mission
+    from uavmpc.drivers.node import run_node as fly
+    from uavmpc.plant import Airframe
+    from uavmpc.reference import InvalidReferenceError, Reference
+
+    airframe = Airframe.named(spec.airframe)
+    creds = load_credentials("uavmpc node", key_file=spec.key_file,
+                             identity_file=spec.identity_file, roster_file=spec.roster_file,
+                             need_roster=True)
+    if creds is None:
+        return 2
+    key, identity, roster = creds
+    if identity is not None and identity.member_id != spec.uav_id:
+        print(f"uavmpc node: --identity-file is {identity.member_id!r}'s, not "
+              f"{spec.uav_id!r}'s", file=sys.stderr)
+        return 2
+    mission = None
+    try:
+        if spec.mission_file:
+            data = json.loads(Path(spec.mission_file).read_text())
+            mission = Reference(np.asarray(data["times_s"], dtype=float),
+                                np.asarray(data["points"], dtype=float),
+                                bool(data.get("loop", False)))
+        elif spec.goto:
+            mission = parse_mission(json.dumps({"goto": list(spec.goto)}).encode(), time.time())
+    except (OSError, KeyError, ValueError, InvalidReferenceError) as exc:
+        print(f"uavmpc node: bad mission: {exc}", file=sys.stderr)
+        return 2
+    formation_mission = None
+    pair_radius: dict[str, float] = {}
+    if spec.formation_file:
+        from uavmpc.missions.formation import FormationFollower, load_formation
+
+        formation = load_formation(spec.formation_file)
+        if spec.uav_id not in formation.members:
+            print(f"uavmpc node: --formation: {spec.uav_id!r} is not a member of the formation "
+                  f"({', '.join(formation.members)})", file=sys.stderr)
+            return 2
+        pair_radius = formation.pair_radii(spec.uav_id)
+        if spec.uav_id in formation.followers:
+            if mission is not None:
+                print("uavmpc node: a follower flies its slot: no --goto or --mission-file",
+                      file=sys.stderr)
+                return 2
+            formation_mission = FormationFollower(formation, spec.uav_id)
+    vehicle = None
+    lost: tuple[type[Exception], ...] = ()
+    if spec.geo_origin is not None and not spec.mavlink:
+        print("uavmpc node: --geo-origin places a PX4's frame: it needs --mavlink",
+              file=sys.stderr)
+        return 2
+    if spec.mavlink:
+        from uavmpc.drivers.node import warm_up
+        from uavmpc.drivers.px4.vehicle import Px4Vehicle, VehicleLost
+
+        lost = (VehicleLost,)
+        # Compile before the link exists: a first run compiles for a minute, and neither
+        # the autopilot's clock map nor its stream should start before the flight can.
+        _say_compiling(airframe)
+        warm_up(airframe)
+        try:
+            vehicle = Px4Vehicle(spec.mavlink, airframe, setpoints=spec.setpoints,
+                                 system_id=spec.system_id, hover_thrust=spec.hover_thrust,
+                                 origin_m=spec.origin_m, geo_origin=spec.geo_origin)
+        except (ValueError, OSError) as exc:
+            print(f"uavmpc node: --mavlink: {exc}", file=sys.stderr)
+            return 2
+    graph = topics = None
+    if spec.ros2:
+        from uavmpc.comms.ros2 import Ros2Graph, UavTopics
+
+        try:
+            graph = Ros2Graph(spec.ros2, node_name=f"uavmpc_{spec.uav_id.replace('-', '_')}")
+        except (ValueError, OSError) as exc:
+            print(f"uavmpc node: --ros2: {exc}", file=sys.stderr)
+            return 2
+        # With a key, ROS 2 commands would be a way around it (ROS 2 has no signatures here):
+        # they are taken only when asked for.
+        topics = UavTopics(graph, spec.uav_id, commands=(key is None and roster is None)
+                           or spec.ros2_commands)
+    with ZenohTransport(spec.uav_id, swarm=spec.swarm, listen=list(spec.listen),
+                        connect=list(spec.connect)) as transport:
+        node = Node(spec.uav_id, spec.priority, airframe, transport, start_m=spec.start_m,
+                    heading_rad=spec.heading_rad, avoidance=spec.avoidance, key=key,
+                    identity=identity, roster=roster, vehicle=vehicle, ros2=topics,
+                    mission=formation_mission, pair_radius_m=pair_radius)
+        if mission is not None:
+            node.set_mission(mission)
+        try:
+            stats = fly(node, spec.duration_s)
+        except lost as exc:  # the autopilot never answered
+            print(f"uavmpc node: {exc}", file=sys.stderr)
+            return 1
+        finally:
+            if graph is not None:
+                graph.close()
+    _report(spec.report_file, stats)
+    return 0
+
+
+def run_sitl(spec: SitlLaunch) -> int:
+    """Build the stand-in PX4 ``spec`` describes and run it until its duration or
+    SIGINT/SIGTERM; its report goes to ``spec.report_file`` (or stdout). Returns the exit
+    code: 0, or 2 for a bad setting (said in one line on stderr)."""
+    from uavmpc.drivers.px4.sitl import StandInPx4
+    from uavmpc.drivers.px4.sitl import run_sitl as serve
+    from uavmpc.plant import Airframe
+
+    airframe = Airframe.named(spec.airframe)
+    try:
+        sitl = StandInPx4(airframe, spec.connect, position_m=spec.position_m,
+                          heading_rad=spec.heading_rad, system_id=spec.system_id,
+                          odometry_rate_hz=spec.odometry_rate_hz, clock_rate=spec.clock_rate,
+                          seed=spec.seed, estimator_error=spec.estimator_error,
+                          geo_origin_deg=spec.geo_origin)
+    except (ValueError, OSError) as exc:
+        print(f"uavmpc sitl: {exc}", file=sys.stderr)
+        return 2
+    print(f"uavmpc sitl: PX4 stand-in (system {spec.system_id}) on UDP port "
+          f"{sitl.link.local_port}, talking to {sitl.link.address}", file=sys.stderr, flush=True)
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    serve(sitl, spec.duration_s)
+    _report(spec.report_file, SitlReport(
+        events=list(sitl.events), final_position_m=sitl.plant.state().position_m.tolist(),
+        cpu_s=time.process_time() - cpu0, wall_s=time.perf_counter() - wall0))
+    return 0
+
+
+def _report(report_file: str | None, report: Any) -> None:
+    if report_file is not None:
+        write_report(report_file, report)
+    else:
+        print(json.dumps(dataclasses.asdict(report)), flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m uavmpc.drivers.launch SPEC.json``: run the specification's process."""
+    from uavmpc.config import ConfigError
+
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print(f"usage: python -m {MODULE} SPEC.json", file=sys.stderr)
+        return 2
+    try:
+        spec = load_launch(args[0])
+    except (OSError, LaunchError) as exc:
+        print(f"{MODULE}: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return run_node(spec) if isinstance(spec, NodeLaunch) else run_sitl(spec)
+    except ConfigError as exc:
+        print(f"uavmpc: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:
+        if "pip install" not in str(exc):
+            raise
+        print(f"uavmpc: {exc}", file=sys.stderr)  # an optional extra is missing
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
