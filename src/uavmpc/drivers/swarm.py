@@ -1,15 +1,22 @@
 """A scenario flown by one node process per UAV on loopback, watched by a monitor (issue 6).
 
-``uavmpc swarm SCENARIO_OR_FILE`` starts ``uavmpc node`` for every UAV of the scenario (each its
-own process, peer-to-peer over Zenoh on 127.0.0.1, no broker), and a monitor in this process
+``uavmpc swarm SCENARIO_OR_FILE`` starts a node for every UAV of the scenario (each its own
+process, peer-to-peer over Zenoh on 127.0.0.1, no broker), and a monitor in this process
 that subscribes to every state and prediction, records them in the same MCAP format as the
 simulated world, detects collisions and writes the same ``summary.json`` as ``uavmpc run``.
+
+Each process is launched from this tier, never through the application's command line: the
+swarm writes its launch specification (:class:`~uavmpc.drivers.launch.NodeLaunch`, the same
+node ``uavmpc node`` builds) and starts ``python -m uavmpc.drivers.launch SPEC``; the node's
+statistics come back as a checked report (:class:`~uavmpc.drivers.node.NodeStats`) in a file
+of its own, not on its standard output.
 
 Topology: node 0 listens first; every other node and the monitor connect to it (Zenoh's gossip
 completes the mesh). All missions start at a common epoch a few seconds after launch, once the
 peers have found each other.
 
-With ``mavlink=True`` every UAV is a pair of processes: a stand-in PX4 (``uavmpc sitl``) booted
+With ``mavlink=True`` every UAV is a pair of processes: a stand-in PX4 (a
+:class:`~uavmpc.drivers.launch.SitlLaunch`, as ``uavmpc sitl``) booted
 on the ground below the UAV's start, and its node, connected over MAVLink/UDP on 127.0.0.1. The
 node takes off to its start before the epoch, flies the mission, then lands and disarms; the
 monitor keeps watching until every node has landed.
@@ -33,12 +40,11 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -46,7 +52,15 @@ from uavmpc.avoidance import AvoidanceParams
 from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
 from uavmpc.config import ConfigError
-from uavmpc.drivers.node import warm_up
+from uavmpc.drivers.launch import (
+    LaunchError,
+    NodeLaunch,
+    SitlLaunch,
+    SitlReport,
+    launch_command,
+    read_report,
+)
+from uavmpc.drivers.node import NodeStats, warm_up
 from uavmpc.drivers.px4.firmware import (
     DEFAULT_GEO_ORIGIN,
     MAX_INSTANCE,
@@ -85,6 +99,8 @@ LANDING_WAIT_S = 40.0
 #: Longest wait for a PX4 SITL instance to print that it is ready for take-off (≈ 4–6 s alone).
 PX4_READY_TIMEOUT_S = 60.0
 
+R = TypeVar("R", NodeStats, SitlReport)
+
 
 def free_ports(n: int) -> list[int]:
     """``n`` TCP ports free on 127.0.0.1 right now."""
@@ -99,42 +115,33 @@ def free_ports(n: int) -> list[int]:
     return ports
 
 
-def node_command(spec: Any, *, swarm: str, listen: str, connect: list[str],
-                 mission_file: Path | None, avoidance: bool, duration_s: float,
-                 key_file: str | None = None, mavlink: str | None = None,
-                 setpoints: str = "attitude", ros2: str | None = None,
-                 formation_file: Path | None = None,
-                 geo_origin: tuple[float, float, float] | None = None,
-                 system_id: int | None = None) -> list[str]:
-    """The ``uavmpc node`` command line of one UAV of a scenario. ``geo_origin`` (lat [deg],
-    lon [deg], alt [m AMSL] of the world's ENU origin): the autopilot's frame is placed from
-    its GPS_GLOBAL_ORIGIN instead of the ground below the start (``--origin``)."""
-    cmd = [sys.executable, "-m", "uavmpc.apps.cli", "node", "--id", spec.uav_id,
-           "--priority", str(spec.priority), "--airframe", spec.airframe,
-           "--swarm", swarm, "--listen", listen,
-           "--start", *(repr(v) for v in spec.start_m), "--heading", repr(spec.heading_rad),
-           "--duration", repr(duration_s)]
-    if mission_file is not None:
-        cmd += ["--mission-file", str(mission_file)]
-    for ep in connect:
-        cmd += ["--connect", ep]
-    if not avoidance:
-        cmd.append("--no-avoidance")
-    if key_file:
-        cmd += ["--key-file", key_file]
-    if ros2:
-        cmd += ["--ros2", ros2]
-    if formation_file is not None:
-        cmd += ["--formation", str(formation_file)]
-    if mavlink:
-        cmd += ["--mavlink", mavlink, "--setpoints", setpoints]
-        if geo_origin is not None:
-            cmd += ["--geo-origin", *(repr(float(v)) for v in geo_origin)]
-        else:
-            cmd += ["--origin", *(repr(v) for v in (*spec.start_m[:2], 0.0))]
-        if system_id is not None:
-            cmd += ["--system-id", str(system_id)]
-    return cmd
+def node_launch(spec: Any, *, swarm: str, listen: str, connect: list[str],
+                mission_file: Path | None, avoidance: bool, duration_s: float,
+                key_file: str | None = None, mavlink: str | None = None,
+                setpoints: str = "attitude", ros2: str | None = None,
+                formation_file: Path | None = None,
+                geo_origin: tuple[float, float, float] | None = None,
+                system_id: int | None = None,
+                report_file: Path | None = None) -> NodeLaunch:
+    """The node process of one UAV of a scenario. ``geo_origin`` (lat [deg], lon [deg], alt
+    [m AMSL] of the world's ENU origin): the autopilot's frame is placed from its
+    GPS_GLOBAL_ORIGIN instead of the ground below the start (``origin_m``)."""
+    origin = (0.0, 0.0, 0.0)
+    if mavlink and geo_origin is None:
+        origin = (float(spec.start_m[0]), float(spec.start_m[1]), 0.0)
+    return NodeLaunch(
+        uav_id=spec.uav_id, priority=spec.priority, airframe=spec.airframe, swarm=swarm,
+        listen=(listen,), connect=tuple(connect),
+        start_m=tuple(float(v) for v in spec.start_m), heading_rad=float(spec.heading_rad),
+        duration_s=float(duration_s),
+        mission_file=None if mission_file is None else str(mission_file),
+        formation_file=None if formation_file is None else str(formation_file),
+        avoidance=avoidance, key_file=key_file or None, ros2=ros2 or None,
+        mavlink=mavlink or None, setpoints=setpoints, origin_m=origin,
+        geo_origin=(None if not mavlink or geo_origin is None
+                    else tuple(float(v) for v in geo_origin)),
+        system_id=system_id if mavlink else None,
+        report_file=None if report_file is None else str(report_file))
 
 
 def px4_instances(scenario: Scenario, build: Px4SitlBuild, out: Path, *,
@@ -157,12 +164,20 @@ def px4_instances(scenario: Scenario, build: Px4SitlBuild, out: Path, *,
         for i, spec in enumerate(scenario.uavs)}
 
 
-def sitl_command(spec: Any, address: str) -> list[str]:
-    """The ``uavmpc sitl`` command line of the stand-in autopilot of one UAV: on the ground
-    below its start."""
-    return [sys.executable, "-m", "uavmpc.apps.cli", "sitl", "--connect", address,
-            "--airframe", spec.airframe, "--position", repr(spec.start_m[0]),
-            repr(spec.start_m[1]), "0.0", "--heading", repr(spec.heading_rad)]
+def sitl_launch(spec: Any, address: str, report_file: Path | None = None) -> SitlLaunch:
+    """The stand-in autopilot process of one UAV: on the ground below its start."""
+    return SitlLaunch(connect=address, airframe=spec.airframe,
+                      position_m=(float(spec.start_m[0]), float(spec.start_m[1]), 0.0),
+                      heading_rad=float(spec.heading_rad),
+                      report_file=None if report_file is None else str(report_file))
+
+
+def start_process(spec: NodeLaunch | SitlLaunch, spec_file: Path, *,
+                  stderr: Any = subprocess.DEVNULL) -> subprocess.Popen[bytes]:
+    """Write ``spec`` to ``spec_file`` and launch its process (:mod:`uavmpc.drivers.launch`)."""
+    spec_file.write_text(spec.to_json())
+    return subprocess.Popen(launch_command(spec_file), stdout=subprocess.DEVNULL,
+                            stderr=stderr)
 
 
 def _formation_summary(spec: Any, tracks: dict[str, list[tuple[float, np.ndarray]]],
@@ -222,26 +237,37 @@ def _scene(t_s: float, states: dict[str, dict[str, Any]],
     return scene_update(t_s, views, ground=ground), metrics
 
 
-def _last_json_line(p: subprocess.Popen[str], log: Path | None = None) -> dict[str, Any]:
-    """The report a child process printed last (one JSON line), after it ended (asked twice,
-    then killed if it does not within 15 s); if it printed none, its exit code and the end of
-    its error output (``log``) say why."""
+def _end(p: subprocess.Popen[bytes]) -> None:
+    """Wait for a child asked to stop (asked twice, then killed if it does not within 15 s)."""
     try:
-        stdout, _ = p.communicate(timeout=5)
+        p.wait(timeout=5)
     except subprocess.TimeoutExpired:  # still landing: a second request ends it at once
         p.send_signal(signal.SIGINT)
         try:
-            stdout, _ = p.communicate(timeout=15)
+            p.wait(timeout=15)
         except subprocess.TimeoutExpired:
             p.kill()
-            stdout, _ = p.communicate()
-    lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
-    if lines:
-        return json.loads(lines[-1])
-    report: dict[str, Any] = {"exit_code": p.returncode}
+            p.wait()
+
+
+def _report_of(p: subprocess.Popen[bytes], report_file: Path, cls: type[R],
+               log: Path | None = None) -> tuple[R | None, dict[str, Any]]:
+    """The report a child process wrote when it ended (a :class:`NodeStats` or a
+    :class:`SitlReport`, checked field by field) and it as a dictionary; if it wrote none,
+    or one that does not hold, (None, its exit code and the end of its error output
+    (``log``), which say why)."""
+    _end(p)
+    why: dict[str, Any] = {"exit_code": p.returncode}
+    try:
+        report = read_report(report_file, cls)
+        return report, dataclasses.asdict(report)
+    except FileNotFoundError:
+        pass
+    except LaunchError as exc:
+        why["bad_report"] = str(exc)
     if log is not None and log.exists():
-        report["stderr_tail"] = log.read_text(errors="replace").splitlines()[-20:]
-    return report
+        why["stderr_tail"] = log.read_text(errors="replace").splitlines()[-20:]
+    return None, why
 
 
 def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
@@ -314,8 +340,8 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     epoch = time.time() + STARTUP_S + takeoff
     ids = [u.uav_id for u in scenario.uavs]
     goals = {u.uav_id: np.array(u.goal_m) for u in scenario.uavs}
-    procs: dict[str, subprocess.Popen[str]] = {}
-    sitls: dict[str, subprocess.Popen[str]] = {}
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    sitls: dict[str, subprocess.Popen[bytes]] = {}
     at_end: dict[str, np.ndarray] = {}
     tmp = tempfile.TemporaryDirectory(prefix="uavmpc-swarm-")
     try:
@@ -348,6 +374,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     ground = ground_around(scenario.points_m())
     next_scene = -math.inf
     logs = {u: out / f"{u}.node.log" for u in ids}  # each node's error output
+    work = Path(tmp.name)  # each process's launch specification and report
     try:
         for i, spec in enumerate(scenario.uavs):
             mission = Path(tmp.name) / f"{spec.uav_id}.json"
@@ -361,11 +388,12 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                 address = px4s[spec.uav_id].mavlink_address
             elif mavlink:
                 address = f"udp://127.0.0.1:{mav_ports[i]}"
-                sitls[spec.uav_id] = subprocess.Popen(
-                    sitl_command(spec, f"udpout://127.0.0.1:{mav_ports[i]}"),
-                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                sitls[spec.uav_id] = start_process(
+                    sitl_launch(spec, f"udpout://127.0.0.1:{mav_ports[i]}",
+                                work / f"{spec.uav_id}.sitl.report.json"),
+                    work / f"{spec.uav_id}.sitl.json")
             member = formation is not None and spec.uav_id in formation.members
-            cmd = node_command(spec, swarm=swarm, listen=endpoints[i],
+            launch = node_launch(spec, swarm=swarm, listen=endpoints[i],
                                connect=[] if i == 0 else [endpoints[0]],
                                mission_file=None if follower else mission,
                                avoidance=avoidance and spec.avoidance,
@@ -373,10 +401,11 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                                key_file=key_file, mavlink=address, setpoints=setpoints,
                                ros2=ros2, formation_file=formation_file if member else None,
                                geo_origin=geo_origin if real_px4 else None,
-                               system_id=(px4s[spec.uav_id].system_id if real_px4 else None))
+                               system_id=(px4s[spec.uav_id].system_id if real_px4 else None),
+                               report_file=work / f"{spec.uav_id}.node.report.json")
             with open(logs[spec.uav_id], "w") as err:  # the child keeps its own copy
-                procs[spec.uav_id] = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err,
-                                                      text=True)
+                procs[spec.uav_id] = start_process(launch, work / f"{spec.uav_id}.node.json",
+                                                   stderr=err)
         meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
                 "vehicle": ("PX4 SITL (SIH) over MAVLink" if real_px4
                             else "PX4 stand-in over MAVLink" if mavlink else "simulated plant")}
@@ -455,33 +484,37 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
         for p in procs.values():
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
-        node_stats = {uav: _last_json_line(p, logs[uav]) for uav, p in procs.items()}
+        ended = {uav: _report_of(p, work / f"{uav}.node.report.json", NodeStats, logs[uav])
+                 for uav, p in procs.items()}
         for p in sitls.values():  # the stand-ins end after their nodes
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
-        sitl_reports = {uav: _last_json_line(p) for uav, p in sitls.items()}
+        sitl_reports = {uav: _report_of(p, work / f"{uav}.sitl.report.json", SitlReport)[1]
+                        for uav, p in sitls.items()}
         for inst in px4s.values():  # the real PX4s too, each with its process group
             inst.stop()
         px4_reports = {uav: inst.report() for uav, inst in px4s.items()}
         monitor.close()
         tmp.cleanup()
-    sent = sum(s.get("predictions_sent", 0) for s in node_stats.values()) * (n - 1)
-    delivered = sum(s.get("accepted", 0) for s in node_stats.values())
+    stats = {uav: st for uav, (st, _) in ended.items() if st is not None}
+    sent = sum(st.predictions_sent for st in stats.values()) * (n - 1)
+    delivered = sum(st.accepted for st in stats.values())
     uavs = {}
     for uav in ids:
-        st = node_stats.get(uav, {})
-        final = np.array(st.get("final_position_m") or latest.get(uav, [np.nan] * 3))
+        st = stats.get(uav)
+        final = np.array((st.final_position_m if st is not None else None)
+                         or latest.get(uav, [np.nan] * 3))
         judged = at_end.get(uav, final) if mavlink else final
         uavs[uav] = {
             "max_z_offset_m": offsets[uav],
-            "avoidance_active_s": st.get("avoidance_active_s"),
-            "tracking_rmse_m": st.get("tracking_rmse_m"),
+            "avoidance_active_s": st.avoidance_active_s if st is not None else None,
+            "tracking_rmse_m": st.tracking_rmse_m if st is not None else None,
             "reached_goal": (None if formation is not None and uav in formation.followers
                              else bool(np.linalg.norm(judged - goals[uav]) < GOAL_TOLERANCE_M)),
             "mission_end_position_m": np.asarray(judged).tolist(),
             "final_position_m": final.tolist(),
             "last_state": last_state.get(uav, {}),
-            "node": st,
+            "node": ended[uav][1] if uav in ended else {},
         }
         if real_px4:
             uavs[uav]["px4"] = px4_reports.get(uav, {})
