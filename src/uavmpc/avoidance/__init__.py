@@ -10,6 +10,7 @@ from uavmpc.avoidance.proximity import (
 from uavmpc.avoidance.strategy import (
     AvoidanceDecision,
     AvoidanceParams,
+    EncounterStrategy,
     HeightOffsetStrategy,
     ResolutionStrategy,
 )
@@ -17,6 +18,7 @@ from uavmpc.avoidance.strategy import (
 __all__ = [
     "AvoidanceDecision",
     "AvoidanceParams",
+    "EncounterStrategy",
     "HeightOffsetStrategy",
     "ResolutionStrategy",
     "align",

@@ -6,12 +6,17 @@ fly with. :class:`HeightOffsetStrategy` is the reference design's "reshape": the
 yield climbs in steps of Δz until its prediction is clear, the other keeps its altitude and only
 slows down.
 
-Two entry points, one law: :meth:`ResolutionStrategy.update` takes the newest messages (nodes,
-tests, any strategy); a strategy that also has ``decide``, ``finder`` and ``overrides`` (as
-:class:`HeightOffsetStrategy` and its subclasses) is handed its encounters instead by the
-onboard stack and the simulated world (:mod:`uavmpc.avoidance.encounters`), and ``update``
-itself finds them and calls ``decide``: a subclass changes the decision by overriding
-``decide``.
+Two contracts, one law. :class:`ResolutionStrategy` is what every strategy honours: its
+parameters and :meth:`~ResolutionStrategy.update`, which takes the newest messages (nodes, tests,
+any strategy). :class:`EncounterStrategy` is the whole contract of the built-in strategies
+(:class:`HeightOffsetStrategy` and its subclasses): besides ``update`` it finds its encounters
+(``finder``, ``overrides``) and decides from them (``decide``), flies per-pair radii
+(``pair_radius_m``) and an offset ceiling (``limit_offset``). The onboard stack and the simulated
+world check it with ``isinstance`` and hand such a strategy its encounters
+(:mod:`uavmpc.avoidance.encounters`), batched over every UAV in the world; ``update`` itself finds
+them and calls ``decide``: a subclass changes the decision by overriding ``decide``. A strategy
+that is only a :class:`ResolutionStrategy` gets the messages through ``update``, flies no
+per-pair radii (a formation refuses it) and no geofence ceiling.
 
 Note on flags: :attr:`AvoidanceDecision.avoiding` says "currently avoiding" (diagnostics, logs).
 The flag a UAV *broadcasts* (:attr:`~uavmpc.comms.PredictionMessage.avoiding`) means "I run
@@ -24,7 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -103,7 +108,7 @@ class AvoidanceParams:
     horizontal_scale: float = 0.5
     climb_speed_mps: float = 5.0
     climb_accel_mps2: float = 3.0
-    time_reference: str = "stamp"
+    time_reference: Literal["stamp", "receive"] = "stamp"
     climb_lag_s: float = 1.0
     silent_hold_s: float = 10.0
     silent_radius_m: float = 3.0
@@ -192,7 +197,16 @@ class AvoidanceDecision:
 
 @runtime_checkable
 class ResolutionStrategy(Protocol):
-    """The contract of a conflict-resolution strategy (one instance per UAV, may keep state)."""
+    """What every conflict-resolution strategy honours (one instance per UAV, may keep state).
+
+    The onboard stack reads :attr:`params` (the inbox's time reference and message timeout,
+    the cylinder's radius) unless it is given its own, and calls :meth:`update` every
+    avoidance period. The richer contract of the built-in strategies is
+    :class:`EncounterStrategy`.
+    """
+
+    #: The parameters it flies (SI units, see :class:`AvoidanceParams`).
+    params: AvoidanceParams
 
     def update(self, now_s: float, own_id: str, own_priority: int,
                own_prediction_times: np.ndarray, own_prediction_positions: np.ndarray,
@@ -207,6 +221,60 @@ class ResolutionStrategy(Protocol):
                 e.g. the desired trajectory at those times, or the tracker's prediction minus
                 the offset in force.
             others: newest message per sender (may contain stale ones and our own).
+
+        Returns:
+            The z offset (m, ≥ 0) and the limits for the next period.
+        """
+        ...
+
+
+@runtime_checkable
+class EncounterStrategy(ResolutionStrategy, Protocol):
+    """The whole contract of the built-in strategies (:class:`HeightOffsetStrategy`): a
+    :class:`ResolutionStrategy` that decides from encounters found for it, flies per-pair
+    radii and an offset ceiling.
+
+    The onboard stack and the simulated world check it with ``isinstance``: such a strategy
+    gets its encounters from a finder it makes (:meth:`finder`, one per world when every UAV's
+    strategy is one: every UAV is found in one compiled call) instead of the messages, and
+    :meth:`decide` must give what :meth:`update` gives on the same messages (bit for bit).
+    """
+
+    #: Per-pair cylinder radii [m] by the other UAV's id (e.g. the members of this UAV's
+    #: formation); everyone else: ``params.radius_m``. Drivers may add to it before the flight.
+    pair_radius_m: dict[str, float]
+
+    def limit_offset(self, ceiling_m: float) -> None:
+        """Offsets stay at or below ``ceiling_m`` [m] (≥ 0; a geofence's ceiling over the
+        mission flown) as well as ``params.max_offset_m``."""
+        ...
+
+    def finder(self, table: InboxTable, *, use_index: bool | None = True) -> EncounterFinder:
+        """A finder of this strategy's encounters among the messages ``table`` holds (with its
+        parameters; ``use_index`` as :class:`~uavmpc.avoidance.encounters.EncounterFinder`
+        takes it)."""
+        ...
+
+    def overrides(self, table: InboxTable) -> dict[int, float]:
+        """:attr:`pair_radius_m` by ``table``'s columns: column → radius [m], what
+        :meth:`~uavmpc.avoidance.encounters.EncounterFinder.find` takes per receiver."""
+        ...
+
+    def decide(self, now_s: float, own_id: str, own_priority: int,
+               own_prediction_times: np.ndarray, known: Encounters,
+               climbed_m: float | None = None) -> AvoidanceDecision:
+        """Decide for the next period from the encounters.
+
+        Args:
+            now_s, own_id, own_priority: as :meth:`update`.
+            own_prediction_times: (m,) absolute times (s) of our prediction.
+            known: the senders near our prediction (k of them, m points each; fresh, or
+                silent at their last known plans), found by :meth:`finder`.
+            climbed_m: how much of the offset in force the UAV has climbed now [m] (None:
+                all of it).
+
+        Returns:
+            The z offset (m, ≥ 0) and the limits for the next period.
         """
         ...
 
@@ -235,7 +303,8 @@ def _subset(enc: Encounters, keep: np.ndarray) -> Encounters:
 
 
 class HeightOffsetStrategy:
-    """The reference design's reshape (SPEC §5.3), one instance per UAV.
+    """The reference design's reshape (SPEC §5.3), one instance per UAV: an
+    :class:`EncounterStrategy` (the whole contract).
 
     Each :meth:`update`:
 
