@@ -20,7 +20,7 @@ from uavmpc.plant.interface import VehicleState
 from uavmpc.plant.sensors import TargetFix
 from uavmpc.reference import Reference
 
-__all__ = ["Mission", "MissionInput", "MissionOutput"]
+__all__ = ["CommandedMission", "Mission", "MissionInput", "MissionOutput"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,4 +69,17 @@ class Mission(Protocol):
 
     def summary(self) -> dict[str, Any]:
         """What it did, for the run's summary (JSON-serialisable)."""
+        ...
+
+
+@runtime_checkable
+class CommandedMission(Mission, Protocol):
+    """A mission that also takes commands while it flies (a formation follower's shape
+    changes): a node hands it each payload that arrives on ``uavmpc/<swarm>/<sender>/formation``
+    (checked with ``isinstance``; a plain :class:`Mission` hears none)."""
+
+    def command(self, payload: bytes, now_s: float) -> bool:
+        """Take the command ``payload`` (its raw bytes) at ``now_s`` [s, the UAV's clock]:
+        True if it changed the mission, False for a repeat of one already taken; a bad one
+        raises ValueError naming the problem (the node counts it rejected)."""
         ...

@@ -11,7 +11,7 @@ Each backend checks its solver's status; the tracker then checks every returned 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -46,6 +46,7 @@ class QpMatrices(Protocol):
     constraint_matrix: np.ndarray  # (r, m) C
 
 
+@runtime_checkable
 class AxisQpSolver(Protocol):
     """Solves the tracker's QP for one axis, keeping any warm start between calls."""
 
