@@ -26,7 +26,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from uavmpc.avoidance import AvoidanceDecision, AvoidanceParams, ResolutionStrategy
+from uavmpc.avoidance import (
+    AvoidanceDecision,
+    AvoidanceParams,
+    EncounterStrategy,
+    ResolutionStrategy,
+)
 from uavmpc.comms.auth import Identity, Roster, seal, sign
 from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
@@ -310,9 +315,10 @@ class OnboardStack:
             with ``batch``, the batch's).
         position_m, heading_rad, t0_s: the initial virtual-UAV state (usually the UAV's own).
         uav_id, priority: identity on the link (lower priority number = higher priority).
-        avoidance: a resolution strategy (:class:`~uavmpc.avoidance.ResolutionStrategy`), or
-            None to fly without avoidance (the broadcast flag is then down: others treat this
-            UAV as non-cooperative and yield to it).
+        avoidance: a resolution strategy (:class:`~uavmpc.avoidance.ResolutionStrategy`: it
+            is handed the messages; an :class:`~uavmpc.avoidance.EncounterStrategy` is handed
+            its encounters), or None to fly without avoidance (the broadcast flag is then
+            down: others treat this UAV as non-cooperative and yield to it).
         params: the avoidance parameters the inbox applies too (message age, time reference);
             default: the strategy's, else the reference design's.
         key: the swarm's shared key: outgoing predictions are signed, unsigned or forged ones
@@ -364,7 +370,7 @@ class OnboardStack:
                                         row=self.row)
         self.avoidance = avoidance
         if params is None:
-            params = getattr(avoidance, "params", None) or AvoidanceParams()
+            params = avoidance.params if avoidance is not None else AvoidanceParams()
         self.params = params
         if (identity is None) != (roster is None):
             raise ValueError("identities need both this UAV's identity and the roster")
@@ -372,11 +378,15 @@ class OnboardStack:
             raise ValueError(f"identity {identity.member_id!r} cannot sign as {uav_id!r}")
         self.key = key
         self.identity = identity
-        self.inbox = Inbox(uav_id, time_reference=params.time_reference,  # type: ignore[arg-type]
+        self.inbox = Inbox(uav_id, time_reference=params.time_reference,
                            max_age_s=params.timeout_s, key=key, table=inbox_table,
                            row=self.row, roster=roster)
-        self._finder = (avoidance.finder(self.inbox.table)  # type: ignore[attr-defined]
-                        if hasattr(avoidance, "decide") else None)
+        #: The strategy when it decides from encounters found for it (the whole contract,
+        #: :class:`~uavmpc.avoidance.EncounterStrategy`) and its finder; else None (it gets
+        #: the messages through ``update``).
+        self._decider = avoidance if isinstance(avoidance, EncounterStrategy) else None
+        self._finder = (self._decider.finder(self.inbox.table) if self._decider is not None
+                        else None)
         self.nominal_limits = self.tracker.limits
         self.decision: AvoidanceDecision | None = None
         self.broadcast_period_s = float(broadcast_period_s)
@@ -462,14 +472,14 @@ class OnboardStack:
         own = np.empty((1, trk.config.steps, 3))
         climbed = np.empty(1)
         avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own, climbed)
-        if self._finder is None:  # a strategy of its own: hand it the messages
+        if self._decider is None or self._finder is None:  # only ``update``: the messages
             self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times[0],
                                              own[0], self.inbox.latest))
             return
-        overrides = self.avoidance.overrides(self.inbox.table)  # type: ignore[attr-defined]
+        overrides = self._decider.overrides(self.inbox.table)
         enc = self._finder.find(self._idx, times, own, np.array([plan_s]),
                                 np.array([self.params.radius_m]), [overrides])[0]
-        self.apply(self.avoidance.decide(  # type: ignore[attr-defined]
+        self.apply(self._decider.decide(
             plan_s, self.uav_id, self.priority, times[0], enc, climbed_m=float(climbed[0])))
 
     def avoidance_due(self) -> bool:

@@ -28,16 +28,16 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
+from uavmpc.avoidance import AvoidanceParams, EncounterStrategy, HeightOffsetStrategy
 from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
 from uavmpc.geofence import FenceWatch, Geofence, GeofenceError
-from uavmpc.missions.mission import Mission, MissionInput
+from uavmpc.missions.mission import CommandedMission, Mission, MissionInput
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
@@ -195,6 +195,7 @@ class NodeStats:
     vehicle: dict[str, Any] = field(default_factory=dict)
 
 
+@runtime_checkable
 class VehicleDriver(Protocol):
     """What a node flies: it gives the state, takes each tick's target, and has a life cycle
     (:class:`SimulatedVehicle` is always flying; a PX4 vehicle walks offboard → arm → fly →
@@ -358,8 +359,9 @@ class Node:
         self._next_mission_s = 0.0
         # A mission that takes commands (a formation follower's shape changes) hears them on
         # uavmpc/<swarm>/<sender>/formation.
+        self._commanded = mission if isinstance(mission, CommandedMission) else None
         self._mission_commands = (transport.subscribe("*/formation", maxlen=16)
-                                  if callable(getattr(mission, "command", None)) else None)
+                                  if self._commanded is not None else None)
         self._ros2_ticks = 0
         self._missions = transport.subscribe(f"{uav_id}/mission", maxlen=16)
         self._pending_mission: Reference | None = None
@@ -543,11 +545,10 @@ class Node:
     def _step_mission(self, now: float, state: VehicleState) -> None:
         assert self.mission is not None and self.stack is not None
         self._next_mission_s = now + self.mission.period_s
-        if self._mission_commands is not None:
+        if self._mission_commands is not None and self._commanded is not None:
             for _key, payload in self._mission_commands.drain(4):
                 try:
-                    self.mission.command(  # type: ignore[attr-defined]
-                        self._open_command(payload, FORMATION_CHANNEL), now)
+                    self._commanded.command(self._open_command(payload, FORMATION_CHANNEL), now)
                 except ValueError:
                     self.stats.missions_rejected += 1
         out = self.mission.step(MissionInput(now, state, False, self.stack.inbox.latest))
@@ -587,9 +588,8 @@ class Node:
     def _limit_ceiling(self, ref: Reference) -> None:
         """With a geofence, the avoidance climbs no higher than its ceiling over ``ref``."""
         if self.geofence is not None and self.stack is not None \
-                and self.stack.avoidance is not None:
-            self.stack.avoidance.limit_offset(  # type: ignore[attr-defined]
-                self.geofence.offset_ceiling_m(ref.points[:, 2]))
+                and isinstance(self.stack.avoidance, EncounterStrategy):
+            self.stack.avoidance.limit_offset(self.geofence.offset_ceiling_m(ref.points[:, 2]))
 
     def _set_checked(self, ref: Reference) -> None:
         """:meth:`set_mission`, counting a refusal by the geofence as such."""

@@ -27,7 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy, ResolutionStrategy
+from uavmpc.avoidance import (
+    AvoidanceParams,
+    EncounterStrategy,
+    HeightOffsetStrategy,
+    ResolutionStrategy,
+)
 from uavmpc.avoidance.encounters import heard_from_all
 from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.link import SimulatedLink
@@ -428,11 +433,10 @@ class World:
             if spec.uav_id not in flying_alone:
                 resolver = strategy(params)
                 if formation is not None and spec.uav_id in formation.members:
-                    if not hasattr(resolver, "pair_radius_m"):
+                    if not isinstance(resolver, EncounterStrategy):
                         raise ConfigError(f"formation: the strategy {type(resolver).__name__} "
                                           "has no per-pair radii for the members")
-                    resolver.pair_radius_m.update(  # type: ignore[attr-defined]
-                        formation.pair_radii(spec.uav_id))
+                    resolver.pair_radius_m.update(formation.pair_radii(spec.uav_id))
             stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
                                  t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
                                  avoidance=resolver, params=params,
@@ -497,19 +501,24 @@ class World:
         if self.geofence is not None:
             self.fence_watches = [FenceWatch(self.geofence) for _ in self.uavs]
             for u, spec in zip(self.uavs, scenario.uavs, strict=True):
-                if u.stack.avoidance is not None and hasattr(u.stack.avoidance, "limit_offset"):
+                if isinstance(u.stack.avoidance, EncounterStrategy):
                     u.stack.avoidance.limit_offset(
                         self.geofence.offset_ceiling_m(spec.mission.points[:, 2]))
-        # One finder for the whole world when every UAV decides from encounters (the strategy
-        # has :meth:`~uavmpc.avoidance.HeightOffsetStrategy.decide`); else each UAV plans alone.
-        deciders = [u.stack.avoidance for u in self.uavs if u.stack.avoidance is not None]
+        # One finder for the whole world when every UAV decides from encounters (its strategy
+        # is an :class:`~uavmpc.avoidance.EncounterStrategy`); else each UAV plans alone.
+        strategies = [u.stack.avoidance for u in self.uavs if u.stack.avoidance is not None]
+        #: Per UAV: its strategy when the world finds its encounters (else None).
+        self._deciders: list[EncounterStrategy | None] = [None] * len(self.uavs)
         self._finder = None
-        if deciders and all(hasattr(d, "decide") for d in deciders):
+        if strategies and all(isinstance(d, EncounterStrategy) for d in strategies):
+            self._deciders = [u.stack.avoidance if isinstance(u.stack.avoidance,
+                                                              EncounterStrategy)
+                              else None for u in self.uavs]
             # Every stack flies the world's parameters: the first one's finder is everyone's.
-            self._finder = deciders[0].finder(self.inboxes, use_index=index)
-        self._overrides = [u.stack.avoidance.overrides(self.inboxes)  # type: ignore[union-attr]
-                           if self._finder is not None and u.stack.avoidance is not None
-                           else {} for u in self.uavs]
+            first = next(d for d in self._deciders if d is not None)
+            self._finder = first.finder(self.inboxes, use_index=index)
+        self._overrides = [d.overrides(self.inboxes) if d is not None else {}
+                           for d in self._deciders]
         self._radius = np.full(n, params.radius_m)
         self._next_round_s = -math.inf
         self._next_emit_s = -math.inf
@@ -727,8 +736,8 @@ class World:
         if now >= self.link.next_due_s:
             self._deliver(now)
         for u in self._missions:
-            if now >= u.next_mission_s - 1e-9:
-                u.next_mission_s = now + u.mission.period_s  # type: ignore[union-attr]
+            if now >= u.next_mission_s - 1e-9 and u.mission is not None:
+                u.next_mission_s = now + u.mission.period_s
                 self._step_mission(u, now)
                 self._next_round_s = -math.inf  # the mission may have changed who plans
         if self._unlaunched:
@@ -821,7 +830,9 @@ class World:
                                       [self._overrides[i] for i in due.tolist()])
             for j, i in enumerate(due.tolist()):
                 stack = self.uavs[i].stack
-                stack.apply(stack.avoidance.decide(  # type: ignore[union-attr]
+                decider = self._deciders[i]
+                assert decider is not None  # planning: a strategy, and the world finds for it
+                stack.apply(decider.decide(
                     float(plan_s[j]), stack.uav_id, stack.priority, times[j], found[j],
                     climbed_m=float(climbed[j])))
                 if stack.decision is not None and stack.decision.yielding_to:
@@ -999,7 +1010,7 @@ class World:
                 u.mission = None
             ref = Reference.goto(*back, float(heading_of(self.plants.x[i, 6:10])),
                                  start_s=self.t_s + u.clock_offset_s)
-            if u.stack.avoidance is not None and hasattr(u.stack.avoidance, "limit_offset"):
+            if isinstance(u.stack.avoidance, EncounterStrategy):
                 u.stack.avoidance.limit_offset(self.geofence.offset_ceiling_m(back[2:3]))
             u.stack.set_mission(ref)
 
