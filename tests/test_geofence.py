@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from waiting import wait_until
 
 from uavmpc.config import ConfigError
 from uavmpc.geofence import Geofence, GeofenceError
@@ -127,6 +128,7 @@ def test_bad_volumes_name_the_problem() -> None:
     assert fence.margin_m == 0.5 and fence.contains(np.array([5.0, 5.0, 10.0]))
 
 
+@pytest.mark.realtime
 def test_a_node_refuses_missions_outside_and_flies_back_in() -> None:
     """Over Zenoh on loopback: a node that starts outside its volume flies back in and holds;
     a mission outside is refused and counted, one inside is flown."""
@@ -154,10 +156,14 @@ def test_a_node_refuses_missions_outside_and_flies_back_in() -> None:
     thread = threading.Thread(target=node.run, args=(11.0,), daemon=True)
     thread.start()
     try:
-        deadline = time.time() + 120.0  # the first flight after an edit compiles the kernels
-        while not states.drain() and time.time() < deadline:
-            time.sleep(0.05)
-        time.sleep(6.0)
+        # the first flight after an edit compiles the kernels: it may take long to start
+        wait_until(states.drain, 120.0, "the node's first state")
+
+        def holding_inside() -> bool:
+            at = node.vehicle.plant.state().position_m
+            return node.stats.geofence["holding"] and np.linalg.norm(at - [2.0, 0.0, 5.0]) < 0.5
+
+        wait_until(holding_inside, 20.0, "the node to fly back inside the fence and hold")
         held = node.vehicle.plant.state().position_m.copy()
         assert node.stats.geofence["breaches"] == 1 and node.stats.geofence["holding"]
         for goal in ([10.0, 0.0, 40.0, 0.0], [10.0, 0.0, 5.0, 0.0]):  # above the ceiling, fine

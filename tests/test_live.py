@@ -10,6 +10,7 @@ import struct
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 import jsonschema
 import numpy as np
@@ -21,12 +22,16 @@ from uavmpc.drivers.swarm import free_ports
 from uavmpc.drivers.world import World
 from uavmpc.view.live import LiveView
 
+pytestmark = pytest.mark.realtime  # flies on the wall clock
+
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode: u32 subscription id, u64 log time [ns], payload
 
 
-async def _watch(url: str, seconds: float, *, leave_abruptly: bool = False) -> dict:
-    """Connect, subscribe to every advertised channel, and decode what arrives."""
+async def _watch(url: str, seconds: float, *, leave_abruptly: bool = False,
+                 until: Callable[[dict], bool] | None = None) -> dict:
+    """Connect, subscribe to every advertised channel, and decode what arrives for
+    ``seconds``, or until ``until(got)`` holds."""
     got: dict[str, list[tuple[int, dict]]] = {}
     async with websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None) as ws:
         assert ws.subprotocol == SUBPROTOCOL
@@ -52,6 +57,8 @@ async def _watch(url: str, seconds: float, *, leave_abruptly: bool = False) -> d
             payload = json.loads(frame[13:])
             validators[sid].validate(payload)
             got.setdefault(subs[sid]["topic"], []).append((log_ns, payload))
+            if until is not None and until(got):
+                break
         if leave_abruptly:  # no close handshake: the socket just goes away
             ws.transport.abort()
     return got
@@ -61,14 +68,14 @@ def test_a_client_receives_the_scene_while_a_run_flies_and_clients_do_not_distur
         tmp_path) -> None:
     port = free_ports(1)[0]
     run = subprocess.Popen([sys.executable, "-m", "uavmpc.apps.cli", "run",
-                            "swap_through_static", "--duration", "12", "--realtime", "2",
+                            "swap_through_static", "--duration", "12", "--realtime", "1",
                             "--out", str(tmp_path), "--live", str(port)],
                            stdout=subprocess.PIPE, text=True)
     try:
         assert run.stdout is not None
         first = run.stdout.readline()
         assert f"live view on ws://127.0.0.1:{port}" in first, first
-        time.sleep(1.0)  # a client that connects late…
+        # a client that connects once the flight is under way…
         got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 2.0))
         # …one that leaves without a word, and one more after it
         asyncio.run(_watch(f"ws://127.0.0.1:{port}", 0.5, leave_abruptly=True))
@@ -77,9 +84,9 @@ def test_a_client_receives_the_scene_while_a_run_flies_and_clients_do_not_distur
     finally:
         run.kill()
     scenes = got["/scene"]
-    # 2 s of a flight at twice real time: 40 updates at 10 Hz of its clock (half of them at
-    # least on a loaded machine), consecutive, each decoded and valid
-    assert len(scenes) >= 20 and len(got["/metrics"]) >= 20
+    # 2 s of a flight in real time: 20 updates at 10 Hz of its clock (half of them at least on
+    # a loaded machine), consecutive, each decoded and valid
+    assert len(scenes) >= 10 and len(got["/metrics"]) >= 10
     t = np.array([ns for ns, _ in scenes]) * 1e-9
     assert np.all(np.diff(t) > 0) and np.median(np.diff(t)) == pytest.approx(0.1, abs=1e-6)
     ids = {e["id"] for e in scenes[-1][1]["entities"]}
@@ -114,6 +121,11 @@ def test_a_busy_port_and_a_missing_extra_are_one_line_errors(tmp_path) -> None:
     assert "pip install 'uavmpc[viz]'" in out.stdout
 
 
+def _yielding(scene: dict, entity: str) -> bool:
+    return any(e["id"] == entity and e["metadata"][0]["value"] == "yielding"
+               for e in scene["entities"] if e["cylinders"])
+
+
 def test_a_swarm_of_node_processes_is_watched_live_as_its_monitor_hears_it(tmp_path) -> None:
     port = free_ports(1)[0]
     swarm = subprocess.Popen([sys.executable, "-m", "uavmpc.apps.cli", "swarm",
@@ -129,19 +141,19 @@ def test_a_swarm_of_node_processes_is_watched_live_as_its_monitor_hears_it(tmp_p
             if any(e["cylinders"] for _, m in first.get("/scene", [])
                    for e in m["entities"]):
                 break
-        time.sleep(2.0)  # they meet from ~2 s after the start on
-        got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 4.0))
+        # they meet from ~2 s after the start on: watch until uav3 climbs over both
+        got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 15.0, until=lambda g: len(
+            g.get("/scene", [])) >= 10 and _yielding(g["/scene"][-1][1], "uav3/cylinder")))
         assert swarm.wait(120) == 0
     finally:
         swarm.kill()
     scenes = [m for _, m in got["/scene"]]
-    # 10 Hz of the wall clock: 40 in 4 s, a quarter of them at least on a busy machine
     assert len(scenes) >= 10
     t = np.array([ns for ns, _ in got["/scene"]]) * 1e-9
     assert np.median(np.diff(t)) == pytest.approx(0.1, abs=0.05)
     cylinders = [{e["id"]: e["metadata"][0]["value"] for e in s["entities"] if e["cylinders"]}
                  for s in scenes]
     assert set(cylinders[-1]) == {"uav1/cylinder", "uav2/cylinder", "uav3/cylinder"}
-    assert any(c["uav3/cylinder"] == "yielding" for c in cylinders)  # it climbs over both
+    assert any(c.get("uav3/cylinder") == "yielding" for c in cylinders)  # it climbs over both
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert not summary["collisions"]

@@ -17,8 +17,11 @@ import time
 from typing import Any
 
 import pytest
+from waiting import wait_until
 
 mavlink = pytest.importorskip("pymavlink.dialects.v20.common")
+
+pytestmark = pytest.mark.realtime  # flies on the wall clock
 
 _GOAL = (3.0, 0.0, 3.0)
 
@@ -78,6 +81,7 @@ class _Relay:
         self.stop = threading.Event()
         self.setpoints_after_cut: list[float] = []
         self.modes: list[tuple[float, int, bool]] = []  # (time, PX4 main mode, armed)
+        self.height_m = 0.0  # PX4's estimate, from its ODOMETRY (NED: up is −z)
         self.cut_at: float | None = None
         self.restored_at: float | None = None
         self._parse_up = mavlink.MAVLink(None)
@@ -99,6 +103,8 @@ class _Relay:
                 if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1:
                     self.modes.append((time.time(), (m.custom_mode >> 16) & 0xFF,
                                        bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)))
+                elif m.get_type() == "ODOMETRY":
+                    self.height_m = -float(m.z)
             self.node_side.sendto(data, self.node_addr)
 
     def _up(self) -> None:  # node → PX4
@@ -115,6 +121,11 @@ class _Relay:
                 continue
             self.px4_side.sendto(data, self.px4_addr)
 
+    def last_setpoint_s(self) -> float:
+        """When the node's last setpoint crossed since the cut (the cut's time if none did)."""
+        assert self.cut_at is not None
+        return self.setpoints_after_cut[-1] if self.setpoints_after_cut else self.cut_at
+
     def close(self) -> None:
         self.stop.set()
         for t in self._threads:
@@ -127,14 +138,6 @@ def _free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def _wait(condition, timeout_s: float, what: str) -> None:
-    t_end = time.time() + timeout_s
-    while not condition():
-        if time.time() > t_end:
-            pytest.fail(f"not within {timeout_s:g} s: {what}")
-        time.sleep(0.05)
 
 
 @pytest.fixture(scope="module")
@@ -166,16 +169,17 @@ def flights(px4_sitl_build, tmp_path_factory) -> dict[str, Any]:
                           str(_GOAL[2]), "0", "--duration", "15"),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         offboard = 6
-        _wait(lambda: any(m == offboard and armed for _, m, armed in relay.modes), 90.0,
-              "PX4 armed in offboard")
-        time.sleep(3.0)  # let it climb: the cut happens in the air
+        wait_until(lambda: any(m == offboard and armed for _, m, armed in relay.modes), 90.0,
+                   "PX4 armed in offboard")
+        wait_until(lambda: relay.height_m > 2.0, 30.0, "the climb: the cut happens in the air")
         relay.cut_at = time.time()
         relay.cut.set()
-        _wait(lambda: any(t > relay.cut_at and m != offboard for t, m, _ in relay.modes), 10.0,
-              "PX4 leaves offboard after the stream is cut")
+        wait_until(lambda: any(t > relay.cut_at and m != offboard for t, m, _ in relay.modes),
+                   10.0, "PX4 leaves offboard after the stream is cut")
         # The node hears the same HEARTBEAT: the link is whole again once it has stopped (a
         # setpoint it sent before it heard would bring PX4 back by PX4's own design).
-        time.sleep(1.5)
+        wait_until(lambda: time.time() - relay.last_setpoint_s() > 0.5, 10.0,
+                   "the node to stop commanding")
         relay.cut.clear()
         relay.restored_at = time.time()
         reports = {name: _report(p, 150.0) for name, p in procs.items()}

@@ -24,6 +24,7 @@ pytest.importorskip("mcap_ros2")
 
 import zenoh
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
+from waiting import wait_until
 
 from uavmpc import scenarios
 from uavmpc.comms import ros2
@@ -31,6 +32,8 @@ from uavmpc.comms.zenoh_link import ZenohTransport
 from uavmpc.drivers.node import Node
 from uavmpc.drivers.swarm import free_ports, run_swarm
 from uavmpc.plant import Airframe
+
+pytestmark = pytest.mark.realtime  # flies on the wall clock
 
 # From rmw_zenoh's docs/design.md (its talker example, ROS_DOMAIN_ID 2).
 TALKER_TOKEN = ("@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
@@ -136,8 +139,13 @@ def test_a_node_on_the_graph_is_found_followed_decoded_and_commanded() -> None:
     obs = Observer(endpoint)
     try:
         thread.start()
-        time.sleep(2.0)
-        tokens = obs.tokens()
+
+        def announced() -> list[str] | None:  # the graph, once the node's last topic is on it
+            now = obs.tokens()
+            return now if any("/MP/" in t and "uavmpc_uav1" in t and "%avoidance" in t
+                              for t in now) else None
+
+        tokens = wait_until(announced, 30.0, "the node's publishers on the graph")
         nodes = [t for t in tokens if "/NN/" in t]
         assert any(t.endswith("/NN/%/%/uavmpc_uav1") for t in nodes), tokens
         pubs = [t for t in tokens if "/MP/" in t and "uavmpc_uav1" in t]
@@ -329,8 +337,12 @@ def test_the_simulated_world_in_real_time_is_on_the_graph_and_takes_goals() -> N
                 target=lambda: result.update(r=world.run(7.0, realtime=1.0, on_log=mirror)),
                 daemon=True)
             thread.start()
-            time.sleep(1.0)
-            tokens = [t for t in obs.tokens() if "/MP/" in t and "%pose/" in t]
+
+            def poses() -> list[str] | None:
+                now = [t for t in obs.tokens() if "/MP/" in t and "%pose/" in t]
+                return now if len(now) >= 3 else None
+
+            tokens = wait_until(poses, 30.0, "the world's three pose publishers on the graph")
             assert len(tokens) == 3 and all("/uavmpc_world/" in t for t in tokens)
             obs.follow(next(t for t in tokens if "%uav1%pose" in t))
             goal_type = "geometry_msgs/msg/PoseStamped"
