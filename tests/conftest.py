@@ -16,6 +16,25 @@ def fly(tracker: MpcTracker, ticks: int) -> np.ndarray:
     return out
 
 
+def pytest_xdist_auto_num_workers(config) -> int:
+    """``-n auto``: one worker per core, at most four. Many tests fly in real time and start
+    processes of their own (nodes, PX4): more workers than that would starve them."""
+    return max(1, min(os.cpu_count() or 1, 4))
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
+def pytest_collection_modifyitems(items) -> None:
+    """The real-time tests run one after another on one worker, beside the computing ones on
+    the others: two real-time flights at once (a swarm is a dozen processes) would starve
+    each other on a small machine, and the real PX4's instances have fixed UDP ports
+    (14540 + instance). A test that boots the real PX4 is a real-time one."""
+    for item in items:
+        if "px4_sitl_build" in item.fixturenames:
+            item.add_marker(pytest.mark.realtime)
+        if item.get_closest_marker("realtime") is not None:
+            item.add_marker(pytest.mark.xdist_group("realtime"))
+
+
 @pytest.fixture
 def tracker() -> MpcTracker:
     return MpcTracker(position_m=(0.0, 0.0, 10.0))

@@ -63,6 +63,7 @@ def test_bad_limits_are_rejected_naming_the_field(field: str, value: object) -> 
         DynamicLimits(**{field: value})
 
 
+@pytest.mark.slow
 def test_tracker_keeps_its_reference_and_state_after_bad_input() -> None:
     tracker = MpcTracker(position_m=(0.0, 0.0, 10.0))
     good = Reference.goto(20.0, 0.0, 10.0)
@@ -149,6 +150,7 @@ def test_a_bad_estimate_is_refused_by_name_and_changes_nothing() -> None:
     assert stack.report().ticks == 2
 
 
+@pytest.mark.slow
 def test_batch_rows_out_of_range_are_refused() -> None:
     from uavmpc.tracker import TrackerBatch
 

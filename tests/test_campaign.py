@@ -66,6 +66,7 @@ def test_trial_seeds_are_derived_from_the_campaign_seed() -> None:
     assert trial_seeds(5, 2) == tuple(int(x) for x in child.generate_state(2, np.uint32))
 
 
+@pytest.mark.slow
 def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) -> None:
     r = run_campaign(tmp_path, avoidance=False, trials=3, cap_s=40.0, workers=1, **SMALL)
     recs = sorted(load_trials(tmp_path, 0).values(), key=lambda x: x["index"])
@@ -88,6 +89,7 @@ def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) ->
     assert res.collisions[0].t == x["first_collision_s"]
 
 
+@pytest.mark.slow
 def test_with_avoidance_no_collision(tmp_path: Path) -> None:
     r = run_campaign(tmp_path, avoidance=True, trials=3, trial_s=20.0, workers=1, **SMALL)
     assert r["trials"] == 3 and r["collisions"] == 0
@@ -163,6 +165,7 @@ def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
                      **SMALL)
 
 
+@pytest.mark.slow
 def test_hours_stop_rule(tmp_path: Path) -> None:
     r = run_campaign(tmp_path, avoidance=True, hours=50.0 / 3600.0, trial_s=20.0, workers=1,
                      **SMALL)
@@ -227,6 +230,7 @@ def test_bad_parameters(tmp_path: Path, kw: dict, match: str) -> None:
         run_campaign(tmp_path, **{"progress": False, **kw})
 
 
+@pytest.mark.slow
 def test_same_seed_same_report_with_1_or_2_workers(tmp_path: Path) -> None:
     kw = dict(avoidance=False, trials=4, cap_s=20.0, seed=11, **SMALL)
     one = run_campaign(tmp_path / "one", workers=1, **kw)
@@ -252,6 +256,7 @@ def local_ray():
     ray.shutdown()  # do not keep a Ray instance on the 2 cores for the rest of the session
 
 
+@pytest.mark.slow
 def test_ray_path_on_a_local_ray_instance_gives_the_same_report(tmp_path: Path,
                                                                 local_ray) -> None:
     r = run_campaign(tmp_path / "ray", avoidance=False, trials=3, cap_s=10.0,
@@ -293,6 +298,7 @@ FOUND_BY_CAMPAIGNS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("index", "loss", "latency_s", "duration_s", "story"),
                          FOUND_BY_CAMPAIGNS, ids=[f"trial-{t[0]}" for t in FOUND_BY_CAMPAIGNS])
 def test_collisions_found_by_the_24_hour_campaigns_no_longer_happen(

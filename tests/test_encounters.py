@@ -216,6 +216,7 @@ def test_a_table_grows_for_new_senders_and_longer_messages() -> None:
         assert got.points == 40 + 8 * j and got.positions_m[0, 0] == j
 
 
+@pytest.mark.slow
 def test_a_world_flown_with_the_index_equals_the_same_world_flown_all_pairs() -> None:
     """A dense 30-UAV random walk (several UAVs climbing at once), 20 s."""
     def fly(index: bool):

@@ -277,6 +277,7 @@ BOUNDS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["rtk", "single"])
 def test_observer_beats_raw_gnss_and_is_consistent(preset: str) -> None:
     """Matched filter, 200 UAVs × 300 s on the test trajectory.

@@ -92,6 +92,7 @@ def test_waypoints_reached_counts_misses() -> None:
     assert waypoints_reached(sc, res.t_s, still)[0] < due
 
 
+@pytest.mark.slow
 def test_a_campaign_with_faults_records_them_and_counts_goals(tmp_path) -> None:
     spec = FaultSpec(clock_offset_s=0.5, time_reference="receive", burst_len=3.0,
                      non_cooperative=1, silent=1)
@@ -124,6 +125,7 @@ def test_the_fault_flags_reach_a_run(tmp_path, capsys) -> None:
     assert "--burst-loss needs a loss rate" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_campaign_flies_the_avoidance_file_it_is_given(tmp_path, capsys) -> None:
     """A coarser estimate needs a larger cylinder: ``--avoidance-file`` flies its table in
     every trial, records it with the campaign, and a bad field is named before any trial."""

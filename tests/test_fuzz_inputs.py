@@ -507,6 +507,7 @@ def test_scenario_schema_probe_finds_the_fields(schema: Schema) -> None:
     assert "loss" in schema.link and "points" in schema.trajectory
 
 
+@pytest.mark.slow
 def test_generated_scenarios_load_or_name_the_field(schema: Schema) -> None:
     fz = Fuzz(seed=20240601)
     tally = Tally()
@@ -602,6 +603,7 @@ def _mutate_text(fz: Fuzz, text: bytes) -> bytes:
     return b"\n".join(lines)
 
 
+@pytest.mark.slow
 def test_mutated_builtin_scenarios_load_or_name_the_field(schema: Schema,
                                                           tmp_path: Path) -> None:
     fz = Fuzz(seed=7)

@@ -97,6 +97,7 @@ def test_the_entry_point_refuses_a_bad_spec_in_one_line(tmp_path: Path) -> None:
     assert "'priority' must be an integer" in line
 
 
+@pytest.mark.realtime
 def test_the_entry_point_flies_a_node_and_writes_its_report(tmp_path: Path) -> None:
     spec = NodeLaunch(uav_id="solo", priority=1, listen=(f"tcp/127.0.0.1:{free_ports(1)[0]}",),
                       goto=(2.0, 0.0, 5.0, 0.0), duration_s=2.0,

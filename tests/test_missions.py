@@ -371,6 +371,7 @@ def test_target_fixes_come_at_their_rate_with_their_noise_and_dropouts() -> None
         TargetSensor(lambda t: np.zeros(3), dropout=1.0)
 
 
+@pytest.mark.realtime
 def test_node_processes_refuse_scenarios_whose_missions_only_the_world_runs(tmp_path) -> None:
     from uavmpc.drivers.swarm import run_swarm
 
@@ -379,6 +380,7 @@ def test_node_processes_refuse_scenarios_whose_missions_only_the_world_runs(tmp_
             run_swarm(scenarios.load(name), tmp_path)
 
 
+@pytest.mark.realtime
 def test_a_formation_of_node_processes_over_zenoh(tmp_path) -> None:
     """The same follower mission in real node processes: slots from the leader's plans as they
     arrive over Zenoh, a shape change on the swarm's wall clock."""

@@ -1,6 +1,7 @@
 """Invariants of the virtual UAV over wild references, states and limit changes (hypothesis)."""
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -52,6 +53,7 @@ def _vaw(s: np.ndarray, tau: float) -> np.ndarray:
     return np.stack([s[:, 1], s[:, 2], s[:, 1] + tau * s[:, 2]], 1)
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data(), limits=limits_st)
 def test_virtual_uav_never_leaves_its_limits(data: st.DataObject, limits: DynamicLimits) -> None:

@@ -28,6 +28,7 @@ def test_scenario_collides_without_avoidance(name: str) -> None:
     assert all(u["max_z_offset_m"] == 0.0 for u in s["uavs"].values())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", scenarios.CONFLICTS)
 @pytest.mark.parametrize("link", [None, LinkSettings(latency_s=0.2, jitter_s=0.02, loss=0.3)],
                          ids=["ideal-link", "30%-loss-200ms"])
@@ -92,6 +93,7 @@ def test_bad_messages_are_dropped_counted_and_change_nothing() -> None:
         assert "intruder" not in u.stack.inbox.latest
 
 
+@pytest.mark.slow
 def test_same_seed_same_flight_and_log_is_readable(tmp_path) -> None:
     out = tmp_path / "run"
     assert main(["run", "converge_center", "--seed", "7", "--duration", "25", "--loss", "0.3",

@@ -14,6 +14,8 @@ from uavmpc.comms.link import Inbox, Transport
 from uavmpc.comms.message import PredictionMessage, encode
 from uavmpc.comms.zenoh_link import ZenohTransport
 
+pytestmark = pytest.mark.realtime  # flies on the wall clock
+
 KEY = b"k" * 32
 PROBE = b"probe"
 
