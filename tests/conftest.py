@@ -22,17 +22,16 @@ def pytest_xdist_auto_num_workers(config) -> int:
     return max(1, min(os.cpu_count() or 1, 4))
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
-def pytest_collection_modifyitems(items) -> None:
+def pytest_itemcollected(item) -> None:
     """The real-time tests run one after another on one worker, beside the computing ones on
     the others: two real-time flights at once (a swarm is a dozen processes) would starve
     each other on a small machine, and the real PX4's instances have fixed UDP ports
-    (14540 + instance). A test that boots the real PX4 is a real-time one."""
-    for item in items:
-        if "px4_sitl_build" in item.fixturenames:
-            item.add_marker(pytest.mark.realtime)
-        if item.get_closest_marker("realtime") is not None:
-            item.add_marker(pytest.mark.xdist_group("realtime"))
+    (14540 + instance). A test that boots the real PX4 is a real-time one. (Marked here, as
+    each test is collected: xdist reads the groups in its own collection hook.)"""
+    if "px4_sitl_build" in item.fixturenames:
+        item.add_marker(pytest.mark.realtime)
+    if item.get_closest_marker("realtime") is not None:
+        item.add_marker(pytest.mark.xdist_group("realtime"))
 
 
 @pytest.fixture
