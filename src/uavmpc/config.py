@@ -12,9 +12,12 @@ import sys
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")  # a dataclass type
 
 _FLOAT_MAX = sys.float_info.max
 
@@ -127,5 +130,5 @@ def from_table(cls: type[T], table: Any, prefix: str) -> T:
     ones are errors naming ``prefix.field``; the dataclass validates the values."""
     if not isinstance(table, dict):
         raise ConfigError(f"{prefix}: must be a table")
-    reject_unknown(table, {f.name for f in dataclasses.fields(cls)}, prefix)  # type: ignore[arg-type]
+    reject_unknown(table, {f.name for f in dataclasses.fields(cls)}, prefix)
     return cls(**table)

@@ -97,7 +97,8 @@ def kernel(fn: F | None = None, /, **options: Any) -> Any:
         saved = numba.config.CACHE_DIR
         numba.config.CACHE_DIR = CACHE_DIR
         try:
-            return numba.njit(cache=True, **options)(f)  # type: ignore[no-any-return]
+            compiled: F = numba.njit(cache=True, **options)(f)  # numba is untyped
+            return compiled
         finally:
             numba.config.CACHE_DIR = saved
 
@@ -115,7 +116,8 @@ def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
     bind again when one is replaced by another of a different type.
     """
     signature = tuple(numba.typeof(a) for a in args)
-    return dispatcher.compile(signature)  # type: ignore[no-any-return]
+    compiled: Callable[..., Any] = dispatcher.compile(signature)
+    return compiled
 
 
 #: Whether :func:`cycle_count` reads a hardware counter here: x86's time-stamp counter, which

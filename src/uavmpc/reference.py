@@ -8,7 +8,8 @@ bad reference is rejected with a message naming the problem before it can reach 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -50,6 +51,10 @@ class Reference:
     times_s: np.ndarray
     points: np.ndarray
     loop: bool = False
+    # Derived in __post_init__ (not arguments): the knots, their points and the uniform period.
+    _knots: np.ndarray = field(init=False, repr=False)
+    _values: np.ndarray = field(init=False, repr=False)
+    _uniform_period: float = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         times = _as_float_array(self.times_s, "times_s")
@@ -221,17 +226,17 @@ class Reference:
     @property
     def knots_s(self) -> np.ndarray:
         """(K,) the sampling knots: ``times_s``, plus the closing knot of a looping reference."""
-        return self._knots  # type: ignore[attr-defined,no-any-return]
+        return self._knots
 
     @property
     def values(self) -> np.ndarray:
         """(K, 4) the points at :attr:`knots_s`."""
-        return self._values  # type: ignore[attr-defined,no-any-return]
+        return self._values
 
     @property
     def uniform_period_s(self) -> float:
         """The knot spacing when it is uniform (sampling is then O(1)), else 0."""
-        return self._uniform_period  # type: ignore[attr-defined,no-any-return]
+        return self._uniform_period
 
     def sample(self, t_s: np.ndarray) -> np.ndarray:
         """Linear interpolation at the times ``t_s`` (K,) → (K, 4); holds the end points."""
@@ -306,9 +311,9 @@ def _as_float_array(value: object, name: str) -> np.ndarray:
         raise InvalidReferenceError(f"{name} is not numeric: {exc}") from None
 
 
-def _finite_scalar(value: object, name: str) -> float:
+def _finite_scalar(value: Any, name: str) -> float:
     try:
-        out = float(value)  # type: ignore[arg-type]
+        out = float(value)
     except OverflowError:  # float() of an integer beyond the float range
         raise InvalidReferenceError(f"{name} must be finite, got {describe(value)} (beyond "
                                     "the float range)") from None

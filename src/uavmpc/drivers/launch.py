@@ -29,9 +29,12 @@ import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar, Union
+from typing import TYPE_CHECKING, Any, TypeVar, Union
 
 from uavmpc.drivers.node import NodeStats
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 __all__ = ["LaunchError", "NodeLaunch", "SitlLaunch", "SitlReport", "launch_command",
            "load_credentials", "load_launch", "read_report", "run_node", "run_sitl",
@@ -147,7 +150,7 @@ class SitlReport:
 _KINDS: dict[str, type[Any]] = {"node": NodeLaunch, "sitl": SitlLaunch}
 _REPORT_KINDS: dict[type[Any], str] = {NodeStats: "node", SitlReport: "sitl"}
 
-T = TypeVar("T")
+T = TypeVar("T", bound="DataclassInstance")  # a dataclass type
 
 
 # --- checking a dataclass field by field against its annotations -------------------------
@@ -223,7 +226,7 @@ def _from_fields(cls: type[T], data: Any, what: str) -> T:
     """An instance of the dataclass ``cls`` from a JSON object, every field checked."""
     if not isinstance(data, dict):
         raise LaunchError(f"{what}: must be a JSON object, not {_describe(data)}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise LaunchError(f"{what}: unknown field {unknown[0]!r}")

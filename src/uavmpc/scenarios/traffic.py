@@ -331,9 +331,11 @@ def trip_times(result: Any, scenario: TrafficScenario) -> dict[str, float | None
     """Per UAV: its trip time, from its scheduled departure to its first arrival within
     :data:`ARRIVAL_TOLERANCE_M` of its goal [s] (None if it never came that close)."""
     arrive = arrival_times(result, scenario)
-    return {u.uav_id: (None if arrive[u.uav_id] is None
-                       else float(arrive[u.uav_id]) - scenario.departures_s[i])  # type: ignore[arg-type]
-            for i, u in enumerate(scenario.uavs)}
+    trips: dict[str, float | None] = {}
+    for u, departure_s in zip(scenario.uavs, scenario.departures_s, strict=True):
+        at_s = arrive[u.uav_id]
+        trips[u.uav_id] = None if at_s is None else at_s - departure_s
+    return trips
 
 
 def airborne_counts(result: Any, scenario: TrafficScenario) -> np.ndarray:
@@ -357,7 +359,7 @@ def traffic_outcome(result: Any, scenario: TrafficScenario) -> dict[str, Any]:
     closest = float(np.min(result.min_distance_m)) if n > 1 and len(result.t_s) else None
     nominal = dict(zip((u.uav_id for u in scenario.uavs), scenario.nominal_trip_s,
                        strict=True))
-    delay = [trips[k] - nominal[k] for k in trips if trips[k] is not None]  # type: ignore[operator]
+    delay = [t - nominal[k] for k, t in trips.items() if t is not None]
     return {
         "uavs": n,
         "area_side_m": scenario.area_side_m,

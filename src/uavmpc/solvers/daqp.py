@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from uavmpc.solvers.contract import QpMatrices, QpResult
@@ -18,7 +20,7 @@ class DaqpSolver:
         self._daqp = daqp
         self._model = model
         self._iter_limit = iter_limit
-        self._qp: object | None = None
+        self._qp: Any = None  # a daqp.Model once set up (daqp has no type hints)
 
     def solve(self, f: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> QpResult:
         if self._qp is None:
@@ -30,8 +32,8 @@ class DaqpSolver:
             self._qp = qp
         else:
             # Updating only f and bounds keeps the previous working set: the warm start.
-            self._qp.update(f=f, bupper=upper, blower=lower)  # type: ignore[attr-defined]
-        u, _, flag, info = self._qp.solve()  # type: ignore[attr-defined]
+            self._qp.update(f=f, bupper=upper, blower=lower)
+        u, _, flag, info = self._qp.solve()
         iterations = int(info.get("iterations", 0))
         if flag != 1:
             self._qp = None  # a failed workspace is not a good warm start

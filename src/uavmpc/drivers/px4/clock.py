@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Any
 
 import numpy as np
 
@@ -105,7 +106,7 @@ class ClockMap:
         if not self._round_trips:
             self._fit()
 
-    def _trim(self, samples: deque, now_s: float) -> None:  # type: ignore[type-arg]
+    def _trim(self, samples: deque[Any], now_s: float) -> None:
         while samples and samples[0][1] < now_s - self.window_s:
             samples.popleft()
 
