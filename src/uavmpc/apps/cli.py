@@ -582,17 +582,17 @@ def _bench(args: argparse.Namespace) -> int:
     raise AssertionError(args.what)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="uavmpc",
-        description="Multi-UAV MPC tracking, control and collision avoidance.",
-    )
-    sub = parser.add_subparsers(dest="command", required=True)
+def _add_demo_parser(sub: Any) -> None:
+    """Add ``uavmpc demo``: the swap-through scenario with its defaults."""
     demo = sub.add_parser(
         "demo", help="three UAVs swap through a hovering one, with collision avoidance")
     demo.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(func=_demo)
+
+
+def _add_run_parser(sub: Any) -> None:
+    """Add ``uavmpc run``: a scenario's overrides, ROS 2 and live view, and the faults."""
     run = sub.add_parser("run", help="fly a scenario (built-in name or TOML file)")
     run.add_argument("scenario", help="swap_through_static, converge_center, traffic (generated: "
                                       "--uavs, --seed), or a .toml file")
@@ -621,6 +621,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_fault_arguments(run)
     run.set_defaults(func=_run)
+
+
+def _add_node_parser(sub: Any) -> None:
+    """Add ``uavmpc node``: one UAV's identity, peers, mission, keys and autopilot link."""
     node = sub.add_parser("node", help="one UAV's onboard stack in real time over Zenoh")
     node.add_argument("--id", required=True, help="UAV id ([A-Za-z0-9_-], ≤ 32)")
     node.add_argument("--priority", type=int, required=True, help="lower = higher priority")
@@ -673,6 +677,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="--ros2 with --key-file: take goals and trajectories from ROS 2 anyway "
                            "(they are not signed)")
     node.set_defaults(func=_node)
+
+
+def _add_sitl_parser(sub: Any) -> None:
+    """Add ``uavmpc sitl``: the stand-in PX4's link, boot state, rates and estimator."""
     sitl = sub.add_parser("sitl", help="a stand-in PX4 autopilot (our plant) on MAVLink/UDP")
     sitl.add_argument("--connect", default="udpout://127.0.0.1:14540",
                       help="where its MAVLink goes (default udpout://127.0.0.1:14540, as PX4 "
@@ -697,6 +705,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="no global position (no GPS_GLOBAL_ORIGIN, GLOBAL_POSITION_INT)")
     sitl.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     sitl.set_defaults(func=_sitl)
+
+
+def _add_swarm_parser(sub: Any) -> None:
+    """Add ``uavmpc swarm``: one node process per UAV, simulated or on (stand-in) PX4s."""
     swarm = sub.add_parser("swarm", help="a scenario as one node process per UAV on loopback")
     swarm.add_argument("scenario", help="swap_through_static, converge_center or a TOML file")
     swarm.add_argument("--out", default="out/swarm", help="output folder (default out/swarm)")
@@ -727,11 +739,19 @@ def build_parser() -> argparse.ArgumentParser:
                             "ws://127.0.0.1:PORT while it flies (default port 8765; pip "
                             "install 'uavmpc[viz]')")
     swarm.set_defaults(func=_swarm)
+
+
+def _add_file_reference_parser(sub: Any) -> None:
+    """Add ``uavmpc file-reference``: where the Markdown reference goes."""
     ref = sub.add_parser("file-reference",
                          help="the reference of the scenario and airframe files, from their "
                               "loaders (Markdown)")
     ref.add_argument("--out", default=None, help="write it here (default: print it)")
     ref.set_defaults(func=_file_reference)
+
+
+def _add_formation_shape_parser(sub: Any) -> None:
+    """Add ``uavmpc formation-shape``: the shape, when, and how it is sealed."""
     shape = sub.add_parser("formation-shape",
                            help="tell a formation's followers (node processes) to change shape")
     shape.add_argument("shape", help="line or square")
@@ -744,6 +764,10 @@ def build_parser() -> argparse.ArgumentParser:
     shape.add_argument("--key-file", help="seal the command with the swarm's shared key")
     shape.add_argument("--identity-file", help="seal the command as this operator")
     shape.set_defaults(func=_formation_shape)
+
+
+def _add_mission_parser(sub: Any) -> None:
+    """Add ``uavmpc mission``: the goal, its recipient, and how it is sealed."""
     mission = sub.add_parser("mission", help="send one UAV node a mission over Zenoh (sealed "
                                              "with a key or an operator's identity)")
     mission.add_argument("--to", required=True, help="the UAV's id")
@@ -755,6 +779,10 @@ def build_parser() -> argparse.ArgumentParser:
     mission.add_argument("--key-file", help="seal with the swarm's shared key")
     mission.add_argument("--identity-file", help="seal as this operator (uavmpc keygen)")
     mission.set_defaults(func=_mission)
+
+
+def _add_keygen_parser(sub: Any) -> None:
+    """Add ``uavmpc keygen``: the member's id, role and where its files go."""
     keygen = sub.add_parser("keygen", help="a new Ed25519 identity and its roster entry "
                                            "(pip install 'uavmpc[auth]')")
     keygen.add_argument("member_id", metavar="ID", help="a UAV's or an operator's id")
@@ -763,16 +791,28 @@ def build_parser() -> argparse.ArgumentParser:
     keygen.add_argument("--roster", default=None,
                         help="the roster to add it to (default DIR/roster.toml)")
     keygen.set_defaults(func=_keygen)
+
+
+def _add_export_bag_parser(sub: Any) -> None:
+    """Add ``uavmpc export-bag``: the run folder and the bag folder."""
     bag = sub.add_parser("export-bag", help="a run's flight.mcap as a rosbag2 (ROS 2 types, "
                                             "CDR, MCAP storage)")
     bag.add_argument("run_dir", help="a folder written by uavmpc run, demo or swarm")
     bag.add_argument("--out", default=None, help="bag folder (default RUN_DIR/rosbag2)")
     bag.add_argument("--overwrite", action="store_true", help="replace an existing bag folder")
     bag.set_defaults(func=_export_bag)
+
+
+def _add_tracker_demo_parser(sub: Any) -> None:
+    """Add ``uavmpc tracker-demo``: output folder and simulated time."""
     tdemo = sub.add_parser("tracker-demo", help="the virtual UAV flies a 50 m step; plot it")
     tdemo.add_argument("--out", default="out/tracker-demo", help="output folder")
     tdemo.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
     tdemo.set_defaults(func=_tracker_demo)
+
+
+def _add_track_parser(sub: Any) -> None:
+    """Add ``uavmpc track``: airframe, wind and output folder."""
     track = sub.add_parser(
         "track", help="one UAV flies a demanding reference in closed loop; figure + summary")
     track.add_argument("--airframe", default="f550",
@@ -782,6 +822,10 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--seed", type=int, default=0, help="seed of the wind gusts")
     track.add_argument("--out", default="out/track", help="output folder (default out/track)")
     track.set_defaults(func=_track)
+
+
+def _add_bench_parser(sub: Any) -> None:
+    """Add ``uavmpc bench``: which benchmark and its sizes."""
     bench = sub.add_parser("bench", help="benchmarks; the last line printed is JSON")
     bench.add_argument("what", choices=["tracker", "loop", "world", "px4", "ros2"],
                        help="tracker: one MpcTracker vs Clarabel; loop: the full one-UAV loop; "
@@ -800,6 +844,28 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``uavmpc`` parser with every sub-command."""
+    parser = argparse.ArgumentParser(
+        prog="uavmpc",
+        description="Multi-UAV MPC tracking, control and collision avoidance.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    _add_demo_parser(sub)
+    _add_run_parser(sub)
+    _add_node_parser(sub)
+    _add_sitl_parser(sub)
+    _add_swarm_parser(sub)
+    _add_file_reference_parser(sub)
+    _add_formation_shape_parser(sub)
+    _add_mission_parser(sub)
+    _add_keygen_parser(sub)
+    _add_export_bag_parser(sub)
+    _add_tracker_demo_parser(sub)
+    _add_track_parser(sub)
+    _add_bench_parser(sub)
     from uavmpc.apps.campaign import build_parser_campaign
 
     build_parser_campaign(sub)
