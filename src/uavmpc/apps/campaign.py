@@ -673,6 +673,57 @@ def run_campaign(
     """
     from uavmpc.scenarios import LinkSettings
 
+    _check_campaign_size(hours=hours, trials=trials, uavs=uavs, seed=seed, wind=wind,
+                         lengths=(("trial_s", trial_s), ("cap_s", cap_s), ("area_m", area_m),
+                                  ("height_m", height_m)))
+    link = LinkSettings.from_dict({"loss": loss, "latency_s": latency, "jitter_s": jitter})
+    fault_fields, avoidance_table = _check_faults_and_avoidance(faults, avoidance_params,
+                                                                uavs=uavs, link_loss=link.loss)
+    workers = _check_launch_logs_workers(launch_check_s, logs, workers, trial_s=trial_s)
+    length = float(trial_s if avoidance else cap_s)
+    params = _campaign_parameters(
+        uavs=uavs, area_m=area_m, height_m=height_m, avoidance=avoidance, seed=seed, link=link,
+        wind=wind, length=length, fault_fields=fault_fields, avoidance_table=avoidance_table,
+        launch_check_s=launch_check_s)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _check_parameters(out, params)
+    done = load_trials(out, seed)
+
+    def job(i: int) -> TrialJob:
+        return trial_job(params, i)
+
+    target_s = None if hours is None else float(hours) * 3600.0
+    wall0 = time.perf_counter()
+    executor = _executor(done, trials, target_s, ray_address=ray_address, workers=workers)
+    if executor is not None:
+        before = len(done)
+        try:
+            _execute(out, job, done, trials, target_s, length, executor, _Progress(progress))
+        finally:  # also when interrupted: the time was spent on this campaign
+            with open(out / RUNS_FILE, "a") as f:
+                _append(f, {"wall_s": time.perf_counter() - wall0,
+                            "new_trials": len(done) - before, "workers": workers,
+                            "ray": ray_address})
+    selected, complete = _selected(done, trials, target_s)
+    assert complete
+    return _write_report(out, selected, params, _campaign_wall_s(out, wall0), job, logs)
+
+
+def _write_report(out: Path, selected: list[dict[str, Any]], params: dict[str, Any],
+                  wall_s: float, job: Callable[[int], TrialJob], logs: int) -> dict[str, Any]:
+    """Write the selected trials' report, figures, flight logs and page to ``out``."""
+    report = aggregate(selected, params, wall_s)
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    (out / "report.md").write_text(report_markdown(report))
+    _figures(out, selected, report)
+    _write_html(out, report, selected, _flight_logs(out, selected, job, logs))
+    return report
+
+
+def _check_campaign_size(*, hours: float | None, trials: int | None, uavs: int, seed: int,
+                         wind: float, lengths: tuple[tuple[str, float], ...]) -> None:
+    """Raise a CampaignError for a size, seed, length or wind out of range."""
     if (hours is None) == (trials is None):
         raise CampaignError("give exactly one of hours (--hours) or trials (--trials)")
     if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int)
@@ -684,17 +735,21 @@ def run_campaign(
         raise CampaignError(f"uavs: must be an integer in [2, 1000], got {uavs!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise CampaignError(f"seed: must be a non-negative integer, got {seed!r}")
-    for name, v in (("trial_s", trial_s), ("cap_s", cap_s), ("area_m", area_m),
-                    ("height_m", height_m)):
+    for name, v in lengths:
         if not (math.isfinite(v) and v > 0):
             raise CampaignError(f"{name}: must be > 0, got {v}")
     if not (math.isfinite(wind) and wind >= 0):
         raise CampaignError(f"wind: must be ≥ 0, got {wind}")
-    link = LinkSettings.from_dict({"loss": loss, "latency_s": latency, "jitter_s": jitter})
+
+
+def _check_faults_and_avoidance(faults: FaultSpec | None,
+                                avoidance_params: dict[str, Any] | None, *, uavs: int,
+                                link_loss: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The active fault fields and the avoidance table, checked against the campaign."""
     fault_fields = (faults or FaultSpec()).active()
     if faults is not None:
         faults.check_uavs(uavs)
-        if faults.burst_len and not link.loss:
+        if faults.burst_len and not link_loss:
             raise CampaignError("burst loss needs a loss rate: give --loss P with --burst-loss")
     avoidance_table = dict(avoidance_params or {})
     if avoidance_table:
@@ -705,6 +760,12 @@ def run_campaign(
                 and "time_reference" in avoidance_table:
             raise CampaignError("time_reference: give it once, in the avoidance file or as "
                                 "--time-reference")
+    return fault_fields, avoidance_table
+
+
+def _check_launch_logs_workers(launch_check_s: float | None, logs: int, workers: int | None,
+                               *, trial_s: float) -> int:
+    """Check the launch check, logs and workers; the workers (default: one per CPU)."""
     if launch_check_s is not None and not (math.isfinite(launch_check_s)
                                            and 0.0 <= launch_check_s <= trial_s):
         raise CampaignError(f"launch check: must be a time in [0, trial_s] [s], got "
@@ -715,8 +776,14 @@ def run_campaign(
         workers = os.cpu_count() or 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise CampaignError(f"workers: must be an integer ≥ 1, got {workers!r}")
+    return workers
 
-    length = float(trial_s if avoidance else cap_s)
+
+def _campaign_parameters(*, uavs: int, area_m: float, height_m: float, avoidance: bool,
+                         seed: int, link: Any, wind: float, length: float,
+                         fault_fields: dict[str, Any], avoidance_table: dict[str, Any],
+                         launch_check_s: float | None) -> dict[str, Any]:
+    """The parameters that define a campaign's trials (stored in its campaign.json)."""
     params = {
         "scenario": "random_walk", "uavs": uavs, "area_m": float(area_m),
         "height_m": float(height_m), "avoidance": bool(avoidance), "seed": seed,
@@ -731,44 +798,26 @@ def run_campaign(
         params["avoidance_params"] = avoidance_table
     if launch_check_s is not None:
         params["launch_check_s"] = float(launch_check_s)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    _check_parameters(out, params)
-    done = load_trials(out, seed)
+    return params
 
-    def job(i: int) -> TrialJob:
-        return trial_job(params, i)
 
-    target_s = None if hours is None else float(hours) * 3600.0
-    wall0 = time.perf_counter()
+def _executor(done: dict[int, dict[str, Any]], trials: int | None, target_s: float | None, *,
+              ray_address: str | None, workers: int) -> Any:
+    """Where the missing trials run (Ray, here or a pool); None when none is missing."""
     if _selected(done, trials, target_s)[1]:
-        executor = None
-    elif ray_address is not None:
-        executor = _Ray(ray_address)
-    elif workers == 1:
-        executor = _Serial()
-    else:
-        executor = _Pool(workers)
-    if executor is not None:
-        before = len(done)
-        try:
-            _execute(out, job, done, trials, target_s, length, executor, _Progress(progress))
-        finally:  # also when interrupted: the time was spent on this campaign
-            with open(out / RUNS_FILE, "a") as f:
-                _append(f, {"wall_s": time.perf_counter() - wall0,
-                            "new_trials": len(done) - before, "workers": workers,
-                            "ray": ray_address})
-    selected, complete = _selected(done, trials, target_s)
-    assert complete
+        return None
+    if ray_address is not None:
+        return _Ray(ray_address)
+    if workers == 1:
+        return _Serial()
+    return _Pool(workers)
+
+
+def _campaign_wall_s(out: Path, wall0: float) -> float:
+    """The wall time spent on the campaign over all its runs so far."""
     runs = out / RUNS_FILE
-    wall = (sum(json.loads(line)["wall_s"] for line in runs.read_text().splitlines()
+    return (sum(json.loads(line)["wall_s"] for line in runs.read_text().splitlines()
                 if line.strip()) if runs.exists() else time.perf_counter() - wall0)
-    report = aggregate(selected, params, wall)
-    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
-    (out / "report.md").write_text(report_markdown(report))
-    _figures(out, selected, report)
-    _write_html(out, report, selected, _flight_logs(out, selected, job, logs))
-    return report
 
 
 def _flight_logs(out: Path, selected: list[dict[str, Any]], job: Callable[[int], TrialJob],
