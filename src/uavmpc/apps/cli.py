@@ -16,22 +16,12 @@ import numpy as np
 MAX_LOGGED_UAVS = 50
 
 
-def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
-                  duration: float | None, loss: float | None, latency: float | None,
-                  wind: float = 0.0, ros2: str | None = None,
-                  realtime: float | None = None, uavs: int | None = None,
-                  cruise_heights: tuple[float, ...] | None = None,
-                  faults: Any = None, launch_check: float | None = None,
-                  live_port: int | None = None) -> dict:
-    import contextlib
-    import dataclasses
-
+def _load_run_scenario(scenario: str, *, seed: int, duration: float | None,
+                       uavs: int | None,
+                       cruise_heights: tuple[float, ...] | None) -> tuple[Any, Any]:
+    """The scenario to fly, and the traffic module when it is the generated traffic."""
     from uavmpc import scenarios
-    from uavmpc.apps.plots import close_figure, plot_side_and_3d, plot_world
-    from uavmpc.drivers.world import COLLISION_DISTANCE_M, GROUND_VEHICLE_ID, World
-    from uavmpc.log import FlightRecorder
 
-    traffic_mod = None
     if scenario == "traffic":  # generated, not a file: built from --uavs and --seed
         from uavmpc.scenarios import traffic as traffic_mod
 
@@ -39,8 +29,17 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                                  duration_s=duration,
                                  cruise_heights_m=cruise_heights or
                                  traffic_mod.DEFAULT_CRUISE_HEIGHTS_M)
-    else:
-        sc = scenarios.load(scenario)
+        return sc, traffic_mod
+    return scenarios.load(scenario), None
+
+
+def _run_link_and_faults(sc: Any, *, seed: int, duration: float | None, loss: float | None,
+                         latency: float | None, faults: Any) -> tuple[Any, Any, Any]:
+    """The scenario, its link with the overrides checked, and the faults drawn (or None)."""
+    import dataclasses
+
+    from uavmpc import scenarios
+
     link = sc.link
     if loss is not None:
         link = dataclasses.replace(link, loss=loss)
@@ -48,7 +47,6 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
         link = dataclasses.replace(link, latency_s=latency)
     drawn = None
     if faults is not None and faults.active():
-        from uavmpc.drivers.world import world_faults
         from uavmpc.scenarios.faults import draw_faults
 
         if faults.burst_len:
@@ -61,48 +59,41 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
         drawn = draw_faults(faults, [u.uav_id for u in sc.uavs],
                             sc.duration_s if duration is None else duration, 0.0, seed)
     link = scenarios.LinkSettings.from_dict(dataclasses.asdict(link))  # validate overrides
-    out.mkdir(parents=True, exist_ok=True)
-    meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
-            "latency_s": link.latency_s}
-    objects = (GROUND_VEHICLE_ID,) if sc.ground_vehicle is not None else ()
-    # A flight log of hundreds of UAVs is gigabytes (poses at 20 Hz, every prediction) and
-    # costs more than the flight: above MAX_LOGGED_UAVS only the summary and figures.
-    logged = len(sc.uavs) <= MAX_LOGGED_UAVS
-    if not logged:
-        print(f"{len(sc.uavs)} UAVs: no flight.mcap (logs are written up to {MAX_LOGGED_UAVS} "
-              "UAVs)")
-    with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
-          if logged else contextlib.nullcontext()) as rec:
-        world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
-                      recorder=rec, launch_check_s=launch_check,
-                      **(world_faults(drawn) if drawn is not None else {}))
-        with contextlib.ExitStack() as around:
-            mirror = live = None
-            if ros2 is not None:
-                from uavmpc.comms.ros2 import Ros2Graph
-                from uavmpc.drivers.ros2 import WorldOnRos2
+    return sc, link, drawn
 
-                graph = around.enter_context(Ros2Graph(ros2, node_name="uavmpc_world"))
-                mirror = WorldOnRos2(graph, [u.uav_id for u in sc.uavs])
-            if live_port is not None:
-                from uavmpc.view.live import LiveView
 
-                live = around.enter_context(LiveView(port=live_port))
-                print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
-            if (mirror is not None or live is not None) and realtime is None:
-                realtime = 1.0  # watched: at the pace of the wall clock
-            result = world.run(duration, realtime=realtime, on_log=mirror,
-                               on_scene=live.publish if live is not None else None)
-    summary = result.summary()
-    summary["link"] = dataclasses.asdict(link)
-    summary["flight_log"] = "flight.mcap" if logged else None
-    if drawn is not None:
-        summary["faults"] = drawn.summary()
-    if traffic_mod is not None:
-        summary["traffic"] = traffic_mod.traffic_outcome(result, sc)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+def _fly_world(world: Any, sc: Any, *, duration: float | None, ros2: str | None,
+               realtime: float | None, live_port: int | None) -> Any:
+    """Fly ``world``, mirrored on ROS 2 and served to a live view if asked; its result."""
+    import contextlib
+
+    with contextlib.ExitStack() as around:
+        mirror = live = None
+        if ros2 is not None:
+            from uavmpc.comms.ros2 import Ros2Graph
+            from uavmpc.drivers.ros2 import WorldOnRos2
+
+            graph = around.enter_context(Ros2Graph(ros2, node_name="uavmpc_world"))
+            mirror = WorldOnRos2(graph, [u.uav_id for u in sc.uavs])
+        if live_port is not None:
+            from uavmpc.view.live import LiveView
+
+            live = around.enter_context(LiveView(port=live_port))
+            print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
+        if (mirror is not None or live is not None) and realtime is None:
+            realtime = 1.0  # watched: at the pace of the wall clock
+        return world.run(duration, realtime=realtime, on_log=mirror,
+                         on_scene=live.publish if live is not None else None)
+
+
+def _save_run_figures(result: Any, sc: Any, summary: dict, out: Path, *, avoidance: bool,
+                      traffic: bool) -> list[str]:
+    """Draw a run's figures into ``out``; their file names."""
+    from uavmpc.apps.plots import close_figure, plot_side_and_3d, plot_world
+    from uavmpc.drivers.world import COLLISION_DISTANCE_M
+
     title = f"{sc.name} ({'with' if avoidance else 'without'} avoidance)"
-    if traffic_mod is not None:  # hundreds of paths: no per-UAV legend, decimated traces
+    if traffic:  # hundreds of paths: no per-UAV legend, decimated traces
         from uavmpc.apps.plots import plot_min_distance_trace, plot_traffic
 
         figs = (*plot_traffic(result, sc, title),
@@ -129,7 +120,56 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     for fig, name in zip(figs, names, strict=True):
         fig.savefig(out / name, dpi=110)
         close_figure(fig)  # hundreds of UAVs' lines: free them now, not at exit
-    summary["figures"] = names
+    return names
+
+
+def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
+                  duration: float | None, loss: float | None, latency: float | None,
+                  wind: float = 0.0, ros2: str | None = None,
+                  realtime: float | None = None, uavs: int | None = None,
+                  cruise_heights: tuple[float, ...] | None = None,
+                  faults: Any = None, launch_check: float | None = None,
+                  live_port: int | None = None) -> dict:
+    """Fly a scenario; write its summary, flight log and figures to ``out``; the summary."""
+    import contextlib
+    import dataclasses
+
+    # matplotlib (Agg) before the flight, not after it: a missing one fails before the flight
+    import uavmpc.apps.plots  # noqa: F401
+    from uavmpc.drivers.world import GROUND_VEHICLE_ID, World, world_faults
+    from uavmpc.log import FlightRecorder
+
+    sc, traffic_mod = _load_run_scenario(scenario, seed=seed, duration=duration, uavs=uavs,
+                                         cruise_heights=cruise_heights)
+    sc, link, drawn = _run_link_and_faults(sc, seed=seed, duration=duration, loss=loss,
+                                           latency=latency, faults=faults)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
+            "latency_s": link.latency_s}
+    objects = (GROUND_VEHICLE_ID,) if sc.ground_vehicle is not None else ()
+    # A flight log of hundreds of UAVs is gigabytes (poses at 20 Hz, every prediction) and
+    # costs more than the flight: above MAX_LOGGED_UAVS only the summary and figures.
+    logged = len(sc.uavs) <= MAX_LOGGED_UAVS
+    if not logged:
+        print(f"{len(sc.uavs)} UAVs: no flight.mcap (logs are written up to {MAX_LOGGED_UAVS} "
+              "UAVs)")
+    with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
+          if logged else contextlib.nullcontext()) as rec:
+        world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
+                      recorder=rec, launch_check_s=launch_check,
+                      **(world_faults(drawn) if drawn is not None else {}))
+        result = _fly_world(world, sc, duration=duration, ros2=ros2, realtime=realtime,
+                            live_port=live_port)
+    summary = result.summary()
+    summary["link"] = dataclasses.asdict(link)
+    summary["flight_log"] = "flight.mcap" if logged else None
+    if drawn is not None:
+        summary["faults"] = drawn.summary()
+    if traffic_mod is not None:
+        summary["traffic"] = traffic_mod.traffic_outcome(result, sc)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    summary["figures"] = _save_run_figures(result, sc, summary, out, avoidance=avoidance,
+                                           traffic=traffic_mod is not None)
     return summary
 
 
@@ -275,30 +315,17 @@ def _sitl(args: argparse.Namespace) -> int:
         geo_origin=None if args.no_geo else tuple(args.geo_origin), duration_s=args.duration))
 
 
-def _swarm(args: argparse.Namespace) -> int:
-    import contextlib
-
-    from uavmpc import scenarios
-    from uavmpc.drivers.swarm import run_swarm
-    from uavmpc.drivers.world import COLLISION_DISTANCE_M
-
-    out = Path(args.out)
-
-    def draw(t_s: list[float], d_m: list[float]) -> None:
-        from uavmpc.apps.plots import plot_min_distance_trace
-
-        plot_min_distance_trace(t_s, d_m, COLLISION_DISTANCE_M).savefig(
-            out / "min_distance.png", dpi=110)
-
-    build = None
+def _swarm_preflight(args: argparse.Namespace) -> tuple[Any, Any] | None:
+    """The PX4 SITL build and its geo origin (or None, None); None after printing an error."""
     if args.px4_sitl is not None and args.mavlink:
         print("uavmpc swarm: --px4-sitl and --mavlink are exclusive: --px4-sitl flies real PX4 "
               "instances, --mavlink the stand-ins", file=sys.stderr)
-        return 2
+        return None
     if args.geo_origin is not None and args.px4_sitl is None:
         print("uavmpc swarm: --geo-origin needs --px4-sitl (it places the real PX4s' homes)",
               file=sys.stderr)
-        return 2
+        return None
+    build = geo_origin = None
     if args.px4_sitl is not None:
         from uavmpc.drivers.px4.firmware import DEFAULT_GEO_ORIGIN, Px4SitlBuild
         from uavmpc.drivers.px4.frames import enu_to_geodetic
@@ -308,7 +335,7 @@ def _swarm(args: argparse.Namespace) -> int:
             enu_to_geodetic([0.0, 0.0, 0.0], geo_origin)
         except ValueError as exc:
             print(f"uavmpc swarm: --geo-origin: {exc}", file=sys.stderr)
-            return 2
+            return None
         build = Px4SitlBuild.locate(args.px4_sitl)  # a ConfigError names what is missing
     if args.mavlink or build is not None:
         import uavmpc.drivers.px4.dialect  # noqa: F401  (fail early if pymavlink is missing)
@@ -316,26 +343,15 @@ def _swarm(args: argparse.Namespace) -> int:
         from uavmpc.comms.ros2 import Ros2Codec
 
         Ros2Codec()  # fail early, in one line, if the ros2 extra is missing
-    with contextlib.ExitStack() as around:
-        live = None
-        if args.live is not None:
-            from uavmpc.view.live import LiveView
+    return build, geo_origin
 
-            try:
-                live = around.enter_context(LiveView(port=args.live))
-            except (OSError, ValueError) as exc:
-                print(f"uavmpc swarm: --live: {exc}", file=sys.stderr)
-                return 2
-            print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
-        s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
-                      duration_s=args.duration, key_file=args.key_file, on_trace=draw,
-                      mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2,
-                      live=live, px4_sitl=build, px4_first_instance=args.px4_first_instance,
-                      **({"geo_origin": geo_origin} if build is not None else {}))
+
+def _print_swarm_summary(s: dict, out: Path, *, build: Any, mavlink: bool) -> None:
+    """Print a swarm run's verdict, a line per node and the formation error."""
     verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
     closest = s["min_distance_m"]
     via = (" each flying a real PX4 SITL (SIH) over MAVLink" if build is not None
-           else " each flying a PX4 stand-in over MAVLink" if args.mavlink else "")
+           else " each flying a PX4 stand-in over MAVLink" if mavlink else "")
     print(f"{s['scenario']} as {len(s['uavs'])} node processes over Zenoh{via}: {verdict}; "
           f"closest approach {closest if closest is None else round(closest, 2)} m")
     for uav, u in s["uavs"].items():
@@ -359,6 +375,45 @@ def _swarm(args: argparse.Namespace) -> int:
         print(f"  formation error (from {s['formation']['measured_from_s']:g} s): rms "
               f"{fe['rms']:.2f} m, max {fe['max']:.2f} m (rms/max: {per})")
     print(f"wrote {out}/summary.json, flight.mcap, min_distance.png, <id>.node.log")
+
+
+def _swarm(args: argparse.Namespace) -> int:
+    """``uavmpc swarm``: fly a scenario as one node process per UAV and print the outcome."""
+    import contextlib
+
+    from uavmpc import scenarios
+    from uavmpc.drivers.swarm import run_swarm
+    from uavmpc.drivers.world import COLLISION_DISTANCE_M
+
+    out = Path(args.out)
+
+    def draw(t_s: list[float], d_m: list[float]) -> None:
+        from uavmpc.apps.plots import plot_min_distance_trace
+
+        plot_min_distance_trace(t_s, d_m, COLLISION_DISTANCE_M).savefig(
+            out / "min_distance.png", dpi=110)
+
+    checked = _swarm_preflight(args)
+    if checked is None:
+        return 2
+    build, geo_origin = checked
+    with contextlib.ExitStack() as around:
+        live = None
+        if args.live is not None:
+            from uavmpc.view.live import LiveView
+
+            try:
+                live = around.enter_context(LiveView(port=args.live))
+            except (OSError, ValueError) as exc:
+                print(f"uavmpc swarm: --live: {exc}", file=sys.stderr)
+                return 2
+            print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
+        s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
+                      duration_s=args.duration, key_file=args.key_file, on_trace=draw,
+                      mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2,
+                      live=live, px4_sitl=build, px4_first_instance=args.px4_first_instance,
+                      **({"geo_origin": geo_origin} if build is not None else {}))
+    _print_swarm_summary(s, out, build=build, mavlink=args.mavlink)
     return 0
 
 
