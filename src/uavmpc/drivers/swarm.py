@@ -44,7 +44,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -85,6 +85,9 @@ from uavmpc.view.scene import (
     scene_update,
     state_of,
 )
+
+if TYPE_CHECKING:  # Zenoh loads only when a swarm flies
+    from uavmpc.comms.zenoh_link import ZenohTransport
 
 #: Seconds from launch to the common mission start (discovery takes ≈ 1 s; numba loads ≈ 1 s).
 STARTUP_S = 4.0
@@ -270,6 +273,359 @@ def _report_of(p: subprocess.Popen[bytes], report_file: Path, cls: type[R],
     return None, why
 
 
+def _check_flyable(scenario: Scenario, mavlink: bool, px4_sitl: Px4SitlBuild | None) -> None:
+    """Refuse what node processes cannot fly, and the two kinds of vehicle at once."""
+    if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
+        what = ", ".join(k for k, v in (("[landing]", scenario.landing),
+                                         ("[ground_vehicle]", scenario.ground_vehicle),
+                                         ("[limits]", scenario.limits)) if v)
+        raise ConfigError(f"{scenario.name}: {what} need the simulated world; node processes "
+                          f"do not run them yet (fly it with: uavmpc run {scenario.name})")
+    if mavlink and px4_sitl is not None:
+        raise ConfigError("--px4-sitl and --mavlink are exclusive: --px4-sitl flies real PX4 "
+                          "instances, --mavlink the stand-ins")
+
+
+def _stop_px4s(px4s: dict[str, Px4Instance]) -> None:
+    """Stop every real PX4 instance, each with its process group (harmless if not started)."""
+    for inst in px4s.values():
+        inst.stop()
+
+
+def _start_px4s(scenario: Scenario, build: Px4SitlBuild, out: Path,
+                geo_origin: tuple[float, float, float],
+                first_instance: int) -> dict[str, Px4Instance]:
+    """Start one real PX4 SITL instance per UAV; if one fails, none is left running."""
+    px4s = px4_instances(scenario, build, out, geo_origin=geo_origin,
+                         first_instance=first_instance)
+    try:
+        for inst in px4s.values():
+            inst.start()
+    except BaseException:
+        _stop_px4s(px4s)
+        raise
+    return px4s
+
+
+def _warm_up(scenario: Scenario, px4s: dict[str, Px4Instance]) -> None:
+    """Load every airframe's kernels and wait for every PX4 to be ready for take-off."""
+    # Compile the kernels once here, into the cache every node loads them from, before the
+    # clock of the mission starts.
+    try:
+        for name in sorted({u.airframe for u in scenario.uavs}):
+            warm_up(Airframe.named(name))
+        for inst in px4s.values():
+            inst.wait_ready(PX4_READY_TIMEOUT_S)
+    except BaseException:
+        _stop_px4s(px4s)
+        raise
+
+
+@dataclasses.dataclass(frozen=True)
+class _Options:
+    """The options of one :func:`run_swarm`, resolved, as its processes and summary need them."""
+
+    avoidance: bool
+    duration: float
+    epoch: float
+    key_file: str | None
+    mavlink: bool
+    real_px4: bool
+    setpoints: str
+    ros2: str | None
+    geo_origin: tuple[float, float, float]
+
+
+@dataclasses.dataclass
+class _Ended:
+    """What the swarm's processes reported when they ended."""
+
+    nodes: dict[str, tuple[NodeStats | None, dict[str, Any]]]
+    sitls: dict[str, dict[str, Any]]
+
+
+@dataclasses.dataclass
+class _Fleet:
+    """The swarm's child processes (nodes, stand-in PX4s, real PX4s) and where they write."""
+
+    work: Path  # each process's launch specification and report
+    logs: dict[str, Path]  # each node's error output
+    px4s: dict[str, Px4Instance]
+    nodes: dict[str, subprocess.Popen[bytes]] = dataclasses.field(default_factory=dict)
+    sitls: dict[str, subprocess.Popen[bytes]] = dataclasses.field(default_factory=dict)
+
+    def start_standin(self, spec: Any, port: int) -> str:
+        """Start the stand-in PX4 of ``spec`` on UDP ``port``; its address for the node."""
+        self.sitls[spec.uav_id] = start_process(
+            sitl_launch(spec, f"udpout://127.0.0.1:{port}",
+                        self.work / f"{spec.uav_id}.sitl.report.json"),
+            self.work / f"{spec.uav_id}.sitl.json")
+        return f"udp://127.0.0.1:{port}"
+
+    def start_node(self, launch: NodeLaunch) -> None:
+        """Start the node process of ``launch``, its error output in its log."""
+        with open(self.logs[launch.uav_id], "w") as err:  # the child keeps its own copy
+            self.nodes[launch.uav_id] = start_process(
+                launch, self.work / f"{launch.uav_id}.node.json", stderr=err)
+
+    def stop(self) -> _Ended:
+        """Stop every process (the nodes, then the stand-ins, then the real PX4s) and gather
+        their reports; whatever interrupts this, nothing is left running."""
+        try:
+            for p in self.nodes.values():
+                if p.poll() is None:
+                    p.send_signal(signal.SIGINT)
+            ended = {uav: _report_of(p, self.work / f"{uav}.node.report.json", NodeStats,
+                                     self.logs[uav])
+                     for uav, p in self.nodes.items()}
+            for p in self.sitls.values():  # the stand-ins end after their nodes
+                if p.poll() is None:
+                    p.send_signal(signal.SIGINT)
+            sitl_reports = {uav: _report_of(p, self.work / f"{uav}.sitl.report.json",
+                                            SitlReport)[1]
+                            for uav, p in self.sitls.items()}
+        finally:
+            for p in [*self.nodes.values(), *self.sitls.values()]:
+                if p.poll() is None:  # only when interrupted while waiting for them
+                    p.kill()
+                    p.wait()
+            _stop_px4s(self.px4s)  # the real PX4s too, each with its process group
+        return _Ended(ended, sitl_reports)
+
+
+def _mission_file(spec: Any, work: Path, epoch: float, follower: bool) -> Path | None:
+    """Write the mission of ``spec`` on the wall clock of ``epoch``; None for a follower."""
+    if follower:  # a follower's trajectory comes from its slot only
+        return None
+    mission = work / f"{spec.uav_id}.json"
+    mission.write_text(json.dumps({
+        "times_s": (spec.mission.times_s + epoch).tolist(),
+        "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
+    return mission
+
+
+def _formation_file(scenario: Scenario, work: Path, epoch: float) -> Path | None:
+    """Write the formation's table (its shape changes on the wall clock of the epoch)."""
+    if scenario.formation is None:
+        return None
+    path = work / "formation.json"
+    path.write_text(json.dumps(formation_table(scenario.formation, epoch)))
+    return path
+
+
+def _start_fleet(fleet: _Fleet, scenario: Scenario, opts: _Options, *, swarm: str,
+                 endpoints: list[str], mav_ports: list[int]) -> None:
+    """Start every UAV's node, each after its stand-in PX4 when it flies one."""
+    formation = scenario.formation
+    formation_file = _formation_file(scenario, fleet.work, opts.epoch)
+    for i, spec in enumerate(scenario.uavs):
+        follower = formation is not None and spec.uav_id in formation.followers
+        mission = _mission_file(spec, fleet.work, opts.epoch, follower)
+        address = None
+        if opts.real_px4:
+            address = fleet.px4s[spec.uav_id].mavlink_address
+        elif opts.mavlink:
+            address = fleet.start_standin(spec, mav_ports[i])
+        member = formation is not None and spec.uav_id in formation.members
+        fleet.start_node(node_launch(
+            spec, swarm=swarm, listen=endpoints[i],
+            connect=[] if i == 0 else [endpoints[0]], mission_file=mission,
+            avoidance=opts.avoidance and spec.avoidance,
+            duration_s=opts.duration + (opts.epoch - time.time()) + 1.0,
+            key_file=opts.key_file, mavlink=address, setpoints=opts.setpoints,
+            ros2=opts.ros2, formation_file=formation_file if member else None,
+            geo_origin=opts.geo_origin if opts.real_px4 else None,
+            system_id=(fleet.px4s[spec.uav_id].system_id if opts.real_px4 else None),
+            report_file=fleet.work / f"{spec.uav_id}.node.report.json"))
+
+
+class _Monitor:
+    """What the monitor hears from the nodes and measures: every state and plan recorded,
+    collisions and each pair's closest approach, the scene for the live view."""
+
+    def __init__(self, transport: ZenohTransport, scenario: Scenario, epoch: float,
+                 auth_key: bytes | None, kill_at_s: dict[str, float] | None,
+                 live: LiveSink | None) -> None:
+        """Subscribe to every state and prediction on ``transport``."""
+        self.states = transport.subscribe("*/state", maxlen=100_000)
+        self.predictions = transport.subscribe("*/prediction", maxlen=10_000)
+        self.ids = [u.uav_id for u in scenario.uavs]
+        self.epoch = epoch
+        self.auth_key = auth_key
+        self.kills = dict(kill_at_s or {})
+        self.live = live
+        self.latest: dict[str, np.ndarray] = {}
+        self.last_state: dict[str, dict[str, Any]] = {}
+        self.at_end: dict[str, np.ndarray] = {}
+        self.offsets: dict[str, float] = dict.fromkeys(self.ids, 0.0)
+        self.collisions: list[dict[str, Any]] = []
+        self.in_contact: set[tuple[str, str]] = set()
+        self.closest: dict[tuple[str, str], float] = {}  # each pair's closest approach [m]
+        self.min_d = math.inf
+        self.trace_t: list[float] = []
+        self.trace_d: list[float] = []
+        self.tracks: dict[str, list[tuple[float, np.ndarray]]] = {u: [] for u in self.ids}
+        self.plans: dict[str, tuple[float, np.ndarray]] = {}  # id → (wall time heard, plan)
+        self.prm = AvoidanceParams.from_dict(dict(scenario.avoidance))
+        self.ground = ground_around(scenario.points_m())
+        self.next_scene = -math.inf
+
+    def watch(self, rec: FlightRecorder, nodes: dict[str, subprocess.Popen[bytes]],
+              end: float, landing_end: float) -> None:
+        """Watch until ``end``, then while a node still runs (landing) until ``landing_end``."""
+        while time.time() < end or (
+                time.time() < landing_end and any(p.poll() is None for p in nodes.values())):
+            if time.time() >= end and not self.at_end:
+                self.at_end.update({u: p.copy() for u, p in self.latest.items()})
+            self.hear_states(rec)
+            self.hear_predictions(rec)
+            now = time.time()
+            self.kill_due(nodes, now)
+            self.measure(nodes, now)
+            if now >= self.next_scene:
+                self.show(rec, now)
+            time.sleep(0.005)
+
+    def hear_states(self, rec: FlightRecorder) -> None:
+        """Record every state received since the last call (malformed ones are skipped)."""
+        for topic, payload in self.states.drain():
+            uav = topic.split("/")[-2]
+            try:
+                s = json.loads(payload)
+                p = np.array(s["p"], dtype=float)
+            except (ValueError, KeyError, TypeError):
+                continue
+            if uav not in self.offsets or p.shape != (3,) or not np.all(np.isfinite(p)):
+                continue
+            self.latest[uav] = p
+            self.last_state[uav] = s
+            self.tracks[uav].append((float(s["t"]), p))
+            self.offsets[uav] = max(self.offsets[uav], float(s.get("z_offset", 0.0)))
+            rec.pose(uav, "state", float(s["t"]), p, float(s.get("heading", 0.0)))
+            rec.pose(uav, "command", float(s["t"]), np.array(s["cmd"]), 0.0)
+            rec.status(uav, float(s["t"]), z_offset_m=float(s.get("z_offset", 0.0)),
+                       avoiding=bool(s.get("avoiding", False)),
+                       conflicts=list(s.get("conflicts", [])),
+                       yielding_to=list(s.get("yielding_to", [])))
+
+    def hear_predictions(self, rec: FlightRecorder) -> None:
+        """Record every plan received since the last call (unverifiable ones are skipped)."""
+        for _key, payload in self.predictions.drain():
+            try:
+                msg = decode(verify(payload, self.auth_key) if self.auth_key is not None
+                             else payload)
+            except InvalidMessageError:
+                continue
+            rec.prediction(msg.uav_id, msg.stamp_s, msg.positions_m,
+                           np.zeros(msg.positions_m.shape[0]))
+            self.plans[msg.uav_id] = (time.time(), msg.positions_m)
+
+    def kill_due(self, nodes: dict[str, subprocess.Popen[bytes]], now: float) -> None:
+        """SIGKILL every node whose time in ``kill_at_s`` has come."""
+        for uav, t_kill in list(self.kills.items()):
+            if now >= self.epoch + t_kill:
+                nodes[uav].kill()
+                self.latest.pop(uav, None)  # a dead UAV is no longer watched for collisions
+                del self.kills[uav]
+
+    def measure(self, nodes: dict[str, subprocess.Popen[bytes]], now: float) -> None:
+        """Pairwise distances once every live UAV has been heard: collisions, closest."""
+        alive = [u for u in self.ids if nodes[u].poll() is None or u in self.latest]
+        if not (now >= self.epoch and all(u in self.latest for u in alive) and len(alive) > 1):
+            return
+        d_now = math.inf
+        watched = [u for u in self.ids if u in self.latest]
+        for a in range(len(watched)):
+            for b in range(a + 1, len(watched)):
+                d = float(np.linalg.norm(self.latest[watched[a]] - self.latest[watched[b]]))
+                d_now = min(d_now, d)
+                pair = (watched[a], watched[b])
+                self.closest[pair] = min(self.closest.get(pair, math.inf), d)
+                if d < COLLISION_DISTANCE_M and pair not in self.in_contact:
+                    self.in_contact.add(pair)
+                    self.collisions.append({"t": now - self.epoch, "a": pair[0],
+                                            "b": pair[1], "distance_m": d})
+                elif d >= COLLISION_DISTANCE_M:
+                    self.in_contact.discard(pair)
+        self.min_d = min(self.min_d, d_now)
+        self.trace_t.append(now - self.epoch)
+        self.trace_d.append(d_now)
+
+    def show(self, rec: FlightRecorder, now: float) -> None:
+        """Record the scene and the metrics, and send them to the live view."""
+        self.next_scene = now + SCENE_PERIOD_S
+        t_rel = max(0.0, now - self.epoch)
+        d_last = (self.trace_d[-1] if self.trace_d and self.trace_t[-1] == now - self.epoch
+                  else None)
+        scene, metrics = _scene(t_rel, self.last_state, self.plans, now, self.prm,
+                                self.ground, d_last)
+        rec.scene(t_rel, scene)
+        rec.metrics(t_rel, metrics)
+        if self.live is not None:
+            self.live.publish(t_rel, scene, metrics)
+
+
+def _uav_summary(uav: str, goal: np.ndarray, follower: bool, monitor: _Monitor,
+                 ended: _Ended, px4_reports: dict[str, dict[str, Any]],
+                 opts: _Options) -> dict[str, Any]:
+    """One UAV's entry of the summary, from its node's report and what the monitor heard."""
+    st = ended.nodes[uav][0] if uav in ended.nodes else None
+    final = np.array((st.final_position_m if st is not None else None)
+                     or monitor.latest.get(uav, [np.nan] * 3))
+    judged = monitor.at_end.get(uav, final) if opts.mavlink else final
+    entry = {
+        "max_z_offset_m": monitor.offsets[uav],
+        "avoidance_active_s": st.avoidance_active_s if st is not None else None,
+        "tracking_rmse_m": st.tracking_rmse_m if st is not None else None,
+        "reached_goal": (None if follower
+                         else bool(np.linalg.norm(judged - goal) < GOAL_TOLERANCE_M)),
+        "mission_end_position_m": np.asarray(judged).tolist(),
+        "final_position_m": final.tolist(),
+        "last_state": monitor.last_state.get(uav, {}),
+        "node": ended.nodes[uav][1] if uav in ended.nodes else {},
+    }
+    if opts.real_px4:
+        entry["px4"] = px4_reports.get(uav, {})
+    elif opts.mavlink:
+        entry["sitl"] = ended.sitls.get(uav, {})
+    return entry
+
+
+def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ended,
+             px4_sitl: Px4SitlBuild | None,
+             px4_reports: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The run's summary (``summary.json``), the same keys as ``uavmpc run`` writes."""
+    stats = [st for st, _ in ended.nodes.values() if st is not None]
+    sent = sum(st.predictions_sent for st in stats) * (len(scenario.uavs) - 1)
+    delivered = sum(st.accepted for st in stats)
+    formation = scenario.formation
+    uavs = {u.uav_id: _uav_summary(
+        u.uav_id, np.array(u.goal_m),
+        formation is not None and u.uav_id in formation.followers,
+        monitor, ended, px4_reports, opts) for u in scenario.uavs}
+    summary = {
+        "scenario": scenario.name, "avoidance": opts.avoidance, "duration_s": opts.duration,
+        "transport": "zenoh (peer to peer, 127.0.0.1)",
+        "vehicles": (f"real PX4 SITL firmware with SIH over MAVLink/UDP, {opts.setpoints} "
+                     "setpoints" if opts.real_px4 else
+                     f"PX4 stand-ins over MAVLink/UDP, {opts.setpoints} setpoints"
+                     if opts.mavlink else "simulated plants in the nodes"),
+        "collisions": monitor.collisions,
+        "min_distance_m": monitor.min_d if math.isfinite(monitor.min_d) else None,
+        "closest_by_pair_m": {f"{a}-{b}": round(d, 3)
+                              for (a, b), d in sorted(monitor.closest.items())},
+        "uavs": uavs,
+        "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
+    }
+    if px4_sitl is not None:
+        summary["px4_sitl"] = {"build": str(px4_sitl.root),
+                               "geo_origin": list(opts.geo_origin)}
+    if formation is not None:
+        summary.update(_formation_summary(formation, monitor.tracks, opts.epoch,
+                                          opts.duration))
+    return summary
+
+
 def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               duration_s: float | None = None, key_file: str | None = None,
               kill_at_s: dict[str, float] | None = None,
@@ -295,15 +651,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     the first instance number); excludes ``mavlink``."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
-    if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
-        what = ", ".join(k for k, v in (("[landing]", scenario.landing),
-                                         ("[ground_vehicle]", scenario.ground_vehicle),
-                                         ("[limits]", scenario.limits)) if v)
-        raise ConfigError(f"{scenario.name}: {what} need the simulated world; node processes "
-                          f"do not run them yet (fly it with: uavmpc run {scenario.name})")
-    if mavlink and px4_sitl is not None:
-        raise ConfigError("--px4-sitl and --mavlink are exclusive: --px4-sitl flies real PX4 "
-                          "instances, --mavlink the stand-ins")
+    _check_flyable(scenario, mavlink, px4_sitl)
     real_px4 = px4_sitl is not None
     mavlink = mavlink or real_px4  # the nodes fly over MAVLink either way
     duration = scenario.duration_s if duration_s is None else float(duration_s)
@@ -316,228 +664,38 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
     px4s: dict[str, Px4Instance] = {}
     if px4_sitl is not None:  # they boot while the kernels load
-        px4s = px4_instances(scenario, px4_sitl, out, geo_origin=geo_origin,
-                             first_instance=px4_first_instance)
-        try:
-            for inst in px4s.values():
-                inst.start()
-        except BaseException:
-            for inst in px4s.values():
-                inst.stop()
-            raise
-    # Compile the kernels once here, into the cache every node loads them from, before the
-    # clock of the mission starts.
-    try:
-        for name in sorted({u.airframe for u in scenario.uavs}):
-            warm_up(Airframe.named(name))
-        for inst in px4s.values():
-            inst.wait_ready(PX4_READY_TIMEOUT_S)
-    except BaseException:
-        for inst in px4s.values():
-            inst.stop()
-        raise
+        px4s = _start_px4s(scenario, px4_sitl, out, geo_origin, px4_first_instance)
+    _warm_up(scenario, px4s)
     takeoff = PX4_TAKEOFF_S if real_px4 else TAKEOFF_S if mavlink else 0.0
-    epoch = time.time() + STARTUP_S + takeoff
+    opts = _Options(avoidance=avoidance, duration=duration,
+                    epoch=time.time() + STARTUP_S + takeoff, key_file=key_file,
+                    mavlink=mavlink, real_px4=real_px4, setpoints=setpoints, ros2=ros2,
+                    geo_origin=geo_origin)
     ids = [u.uav_id for u in scenario.uavs]
-    goals = {u.uav_id: np.array(u.goal_m) for u in scenario.uavs}
-    procs: dict[str, subprocess.Popen[bytes]] = {}
-    sitls: dict[str, subprocess.Popen[bytes]] = {}
-    at_end: dict[str, np.ndarray] = {}
-    tmp = tempfile.TemporaryDirectory(prefix="uavmpc-swarm-")
-    try:
-        monitor = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
-                                 connect=[endpoints[0]], max_pending=4096)
-    except BaseException:
-        for inst in px4s.values():
-            inst.stop()
-        raise
-    states = monitor.subscribe("*/state", maxlen=100_000)
-    predictions = monitor.subscribe("*/prediction", maxlen=10_000)
-    latest: dict[str, np.ndarray] = {}
-    last_state: dict[str, dict[str, Any]] = {}
-    kills = dict(kill_at_s or {})
-    offsets: dict[str, float] = dict.fromkeys(ids, 0.0)
-    collisions: list[dict[str, Any]] = []
-    in_contact: set[tuple[str, str]] = set()
-    closest: dict[tuple[str, str], float] = {}  # each pair's closest approach [m]
-    min_d = math.inf
-    trace_t: list[float] = []
-    trace_d: list[float] = []
-    formation = scenario.formation
-    formation_file = None
-    if formation is not None:  # its shape changes on the wall clock of the epoch
-        formation_file = Path(tmp.name) / "formation.json"
-        formation_file.write_text(json.dumps(formation_table(formation, epoch)))
-    tracks: dict[str, list[tuple[float, np.ndarray]]] = {u: [] for u in ids}
-    plans: dict[str, tuple[float, np.ndarray]] = {}  # id → (wall time heard, its plan)
-    prm = AvoidanceParams.from_dict(dict(scenario.avoidance))
-    ground = ground_around(scenario.points_m())
-    next_scene = -math.inf
-    logs = {u: out / f"{u}.node.log" for u in ids}  # each node's error output
-    work = Path(tmp.name)  # each process's launch specification and report
-    try:
-        for i, spec in enumerate(scenario.uavs):
-            mission = Path(tmp.name) / f"{spec.uav_id}.json"
-            follower = formation is not None and spec.uav_id in formation.followers
-            if not follower:  # a follower's trajectory comes from its slot only
-                mission.write_text(json.dumps({
-                    "times_s": (spec.mission.times_s + epoch).tolist(),
-                    "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
-            address = None
-            if real_px4:
-                address = px4s[spec.uav_id].mavlink_address
-            elif mavlink:
-                address = f"udp://127.0.0.1:{mav_ports[i]}"
-                sitls[spec.uav_id] = start_process(
-                    sitl_launch(spec, f"udpout://127.0.0.1:{mav_ports[i]}",
-                                work / f"{spec.uav_id}.sitl.report.json"),
-                    work / f"{spec.uav_id}.sitl.json")
-            member = formation is not None and spec.uav_id in formation.members
-            launch = node_launch(spec, swarm=swarm, listen=endpoints[i],
-                               connect=[] if i == 0 else [endpoints[0]],
-                               mission_file=None if follower else mission,
-                               avoidance=avoidance and spec.avoidance,
-                               duration_s=duration + (epoch - time.time()) + 1.0,
-                               key_file=key_file, mavlink=address, setpoints=setpoints,
-                               ros2=ros2, formation_file=formation_file if member else None,
-                               geo_origin=geo_origin if real_px4 else None,
-                               system_id=(px4s[spec.uav_id].system_id if real_px4 else None),
-                               report_file=work / f"{spec.uav_id}.node.report.json")
-            with open(logs[spec.uav_id], "w") as err:  # the child keeps its own copy
-                procs[spec.uav_id] = start_process(launch, work / f"{spec.uav_id}.node.json",
-                                                   stderr=err)
-        meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
-                "vehicle": ("PX4 SITL (SIH) over MAVLink" if real_px4
-                            else "PX4 stand-in over MAVLink" if mavlink else "simulated plant")}
-        with FlightRecorder(out / "flight.mcap", ids, meta) as rec:
-            end = epoch + duration
-            landing_end = end + (LANDING_WAIT_S if mavlink else 0.0)
-            while time.time() < end or (
-                    time.time() < landing_end
-                    and any(p.poll() is None for p in procs.values())):
-                if time.time() >= end and not at_end:
-                    at_end.update({u: p.copy() for u, p in latest.items()})
-                for topic, payload in states.drain():
-                    uav = topic.split("/")[-2]
-                    try:
-                        s = json.loads(payload)
-                        p = np.array(s["p"], dtype=float)
-                    except (ValueError, KeyError, TypeError):
-                        continue
-                    if uav not in offsets or p.shape != (3,) or not np.all(np.isfinite(p)):
-                        continue
-                    latest[uav] = p
-                    last_state[uav] = s
-                    tracks[uav].append((float(s["t"]), p))
-                    offsets[uav] = max(offsets[uav], float(s.get("z_offset", 0.0)))
-                    rec.pose(uav, "state", float(s["t"]), p, float(s.get("heading", 0.0)))
-                    rec.pose(uav, "command", float(s["t"]), np.array(s["cmd"]), 0.0)
-                    rec.status(uav, float(s["t"]), z_offset_m=float(s.get("z_offset", 0.0)),
-                               avoiding=bool(s.get("avoiding", False)),
-                               conflicts=list(s.get("conflicts", [])),
-                               yielding_to=list(s.get("yielding_to", [])))
-                for _key, payload in predictions.drain():
-                    try:
-                        msg = decode(verify(payload, auth_key) if auth_key is not None else payload)
-                    except InvalidMessageError:
-                        continue
-                    rec.prediction(msg.uav_id, msg.stamp_s, msg.positions_m,
-                                   np.zeros(msg.positions_m.shape[0]))
-                    plans[msg.uav_id] = (time.time(), msg.positions_m)
-                now = time.time()
-                for uav, t_kill in list(kills.items()):
-                    if now >= epoch + t_kill:
-                        procs[uav].kill()
-                        latest.pop(uav, None)  # a dead UAV is no longer watched for collisions
-                        del kills[uav]
-                alive = [u for u in ids if procs[u].poll() is None or u in latest]
-                if now >= epoch and all(u in latest for u in alive) and len(alive) > 1:
-                    d_now = math.inf
-                    watched = [u for u in ids if u in latest]
-                    for a in range(len(watched)):
-                        for b in range(a + 1, len(watched)):
-                            pa, pb = latest[watched[a]], latest[watched[b]]
-                            d = float(np.linalg.norm(pa - pb))
-                            d_now = min(d_now, d)
-                            pair = (watched[a], watched[b])
-                            closest[pair] = min(closest.get(pair, math.inf), d)
-                            if d < COLLISION_DISTANCE_M and pair not in in_contact:
-                                in_contact.add(pair)
-                                collisions.append({"t": now - epoch, "a": pair[0],
-                                                   "b": pair[1], "distance_m": d})
-                            elif d >= COLLISION_DISTANCE_M:
-                                in_contact.discard(pair)
-                    min_d = min(min_d, d_now)
-                    trace_t.append(now - epoch)
-                    trace_d.append(d_now)
-                if now >= next_scene:
-                    next_scene = now + SCENE_PERIOD_S
-                    t_rel = max(0.0, now - epoch)
-                    d_last = trace_d[-1] if trace_d and trace_t[-1] == now - epoch else None
-                    scene, metrics = _scene(t_rel, last_state, plans, now, prm, ground, d_last)
-                    rec.scene(t_rel, scene)
-                    rec.metrics(t_rel, metrics)
-                    if live is not None:
-                        live.publish(t_rel, scene, metrics)
-                time.sleep(0.005)
-    finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        ended = {uav: _report_of(p, work / f"{uav}.node.report.json", NodeStats, logs[uav])
-                 for uav, p in procs.items()}
-        for p in sitls.values():  # the stand-ins end after their nodes
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        sitl_reports = {uav: _report_of(p, work / f"{uav}.sitl.report.json", SitlReport)[1]
-                        for uav, p in sitls.items()}
-        for inst in px4s.values():  # the real PX4s too, each with its process group
-            inst.stop()
-        px4_reports = {uav: inst.report() for uav, inst in px4s.items()}
-        monitor.close()
-        tmp.cleanup()
-    stats = {uav: st for uav, (st, _) in ended.items() if st is not None}
-    sent = sum(st.predictions_sent for st in stats.values()) * (n - 1)
-    delivered = sum(st.accepted for st in stats.values())
-    uavs = {}
-    for uav in ids:
-        st = stats.get(uav)
-        final = np.array((st.final_position_m if st is not None else None)
-                         or latest.get(uav, [np.nan] * 3))
-        judged = at_end.get(uav, final) if mavlink else final
-        uavs[uav] = {
-            "max_z_offset_m": offsets[uav],
-            "avoidance_active_s": st.avoidance_active_s if st is not None else None,
-            "tracking_rmse_m": st.tracking_rmse_m if st is not None else None,
-            "reached_goal": (None if formation is not None and uav in formation.followers
-                             else bool(np.linalg.norm(judged - goals[uav]) < GOAL_TOLERANCE_M)),
-            "mission_end_position_m": np.asarray(judged).tolist(),
-            "final_position_m": final.tolist(),
-            "last_state": last_state.get(uav, {}),
-            "node": ended[uav][1] if uav in ended else {},
-        }
-        if real_px4:
-            uavs[uav]["px4"] = px4_reports.get(uav, {})
-        elif mavlink:
-            uavs[uav]["sitl"] = sitl_reports.get(uav, {})
-    summary = {
-        "scenario": scenario.name, "avoidance": avoidance, "duration_s": duration,
-        "transport": "zenoh (peer to peer, 127.0.0.1)",
-        "vehicles": (f"real PX4 SITL firmware with SIH over MAVLink/UDP, {setpoints} setpoints"
-                     if real_px4 else
-                     f"PX4 stand-ins over MAVLink/UDP, {setpoints} setpoints" if mavlink
-                     else "simulated plants in the nodes"),
-        "collisions": collisions,
-        "min_distance_m": min_d if math.isfinite(min_d) else None,
-        "closest_by_pair_m": {f"{a}-{b}": round(d, 3) for (a, b), d in sorted(closest.items())},
-        "uavs": uavs,
-        "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
-    }
-    if px4_sitl is not None:
-        summary["px4_sitl"] = {"build": str(px4_sitl.root), "geo_origin": list(geo_origin)}
-    if formation is not None:
-        summary.update(_formation_summary(formation, tracks, epoch, duration))
+    with tempfile.TemporaryDirectory(prefix="uavmpc-swarm-") as tmp:
+        fleet = _Fleet(Path(tmp), {u: out / f"{u}.node.log" for u in ids}, px4s)
+        transport: ZenohTransport | None = None
+        try:
+            transport = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
+                                       connect=[endpoints[0]], max_pending=4096)
+            monitor = _Monitor(transport, scenario, opts.epoch, auth_key, kill_at_s, live)
+            _start_fleet(fleet, scenario, opts, swarm=swarm, endpoints=endpoints,
+                         mav_ports=mav_ports)
+            meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
+                    "vehicle": ("PX4 SITL (SIH) over MAVLink" if real_px4
+                                else "PX4 stand-in over MAVLink" if mavlink
+                                else "simulated plant")}
+            with FlightRecorder(out / "flight.mcap", ids, meta) as rec:
+                end = opts.epoch + opts.duration
+                monitor.watch(rec, fleet.nodes, end,
+                              end + (LANDING_WAIT_S if mavlink else 0.0))
+        finally:
+            ended = fleet.stop()
+            if transport is not None:
+                transport.close()
+    px4_reports = {uav: inst.report() for uav, inst in px4s.items()}
+    summary = _summary(scenario, opts, monitor, ended, px4_sitl, px4_reports)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    if trace_t and on_trace is not None:
-        on_trace(trace_t, trace_d)
+    if monitor.trace_t and on_trace is not None:
+        on_trace(monitor.trace_t, monitor.trace_d)
     return summary
