@@ -33,7 +33,7 @@ from uavmpc.avoidance import (
     HeightOffsetStrategy,
     ResolutionStrategy,
 )
-from uavmpc.avoidance.encounters import heard_from_all
+from uavmpc.avoidance.encounters import EncounterFinder, heard_from_all
 from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.comms.message import InvalidMessageError
@@ -62,7 +62,7 @@ from uavmpc.plant.kernels import fly_target
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
-from uavmpc.scenarios import LinkSettings, Scenario
+from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 from uavmpc.scenarios.faults import Faults
 from uavmpc.tracker import DynamicLimits, TrackerConfig
 from uavmpc.tracker.kernels import make_scratch
@@ -292,6 +292,58 @@ def world_faults(faults: Faults) -> dict[str, Any]:
             "gnss": None if faults.spec.gnss == "none" else faults.spec.gnss}
 
 
+def _flying_alone(scenario: Scenario, avoidance: bool,
+                  non_cooperative: Iterable[str]) -> tuple[str, ...]:
+    """The ids of the UAVs that fly without avoidance, in the scenario's order: every one
+    when ``avoidance`` is off, else those the scenario or ``non_cooperative`` names."""
+    if isinstance(non_cooperative, str):  # its characters would be taken for ids
+        raise ValueError(f"non_cooperative: an iterable of UAV ids, not the string "
+                         f"{non_cooperative!r}")
+    listed = set(non_cooperative)
+    unknown = sorted(str(x) for x in listed - {u.uav_id for u in scenario.uavs})
+    if unknown:
+        raise ValueError(f"non_cooperative: {', '.join(map(repr, unknown))} not UAVs of "
+                         f"the scenario {scenario.name!r}")
+    return tuple(u.uav_id for u in scenario.uavs
+                 if not (avoidance and u.avoidance and u.uav_id not in listed))
+
+
+def _with_scenario_limits(config: TrackerConfig | None,
+                          scenario: Scenario) -> TrackerConfig | None:
+    """``config`` (default: the packaged one) with the scenario's limits over its own; as
+    given when the scenario sets none."""
+    if not scenario.limits:
+        return config
+    base = config if config is not None else TrackerConfig.from_toml()
+    limits = DynamicLimits.from_dict({**dataclasses.asdict(base.limits), **scenario.limits})
+    return dataclasses.replace(base, limits=limits)
+
+
+def _strategy_of(uav_id: str, strategy: Callable[[AvoidanceParams], ResolutionStrategy],
+                 params: AvoidanceParams, formation: Any) -> ResolutionStrategy:
+    """A new strategy for ``uav_id``; a formation member's flies the members' pair radii."""
+    resolver = strategy(params)
+    if formation is not None and uav_id in formation.members:
+        if not isinstance(resolver, EncounterStrategy):
+            raise ConfigError(f"formation: the strategy {type(resolver).__name__} "
+                              "has no per-pair radii for the members")
+        resolver.pair_radius_m.update(formation.pair_radii(uav_id))
+    return resolver
+
+
+def _silent_times(scenario: Scenario, silent_from_s: Mapping[str, float] | None
+                  ) -> dict[str, float]:
+    """UAV id → when its radio goes silent [s], checked against the scenario."""
+    silent = dict(silent_from_s or {})
+    unknown = sorted(set(silent) - {u.uav_id for u in scenario.uavs})
+    if unknown:
+        raise ValueError(f"silent_from_s: {', '.join(map(repr, unknown))} not UAVs of "
+                         f"the scenario {scenario.name!r}")
+    if not all(math.isfinite(float(t)) for t in silent.values()):
+        raise ValueError(f"silent_from_s: times must be finite, got {silent!r}")
+    return {k: float(v) for k, v in silent.items()}
+
+
 class World:
     """A scenario flown by its UAVs.
 
@@ -354,19 +406,9 @@ class World:
     ) -> None:
         self.scenario = scenario
         self.avoidance = avoidance
-        if isinstance(non_cooperative, str):  # its characters would be taken for ids
-            raise ValueError(f"non_cooperative: an iterable of UAV ids, not the string "
-                             f"{non_cooperative!r}")
-        listed = set(non_cooperative)
-        unknown = sorted(str(x) for x in listed - {u.uav_id for u in scenario.uavs})
-        if unknown:
-            raise ValueError(f"non_cooperative: {', '.join(map(repr, unknown))} not UAVs of "
-                             f"the scenario {scenario.name!r}")
         #: The ids of the UAVs flying without avoidance (all of them when ``avoidance`` is
         #: off), in the scenario's order.
-        self.non_cooperative: tuple[str, ...] = tuple(
-            u.uav_id for u in scenario.uavs
-            if not (avoidance and u.avoidance and u.uav_id not in listed))
+        self.non_cooperative = _flying_alone(scenario, avoidance, non_cooperative)
         flying_alone = set(self.non_cooperative)
         self.seed = seed
         self.recorder = recorder
@@ -393,11 +435,7 @@ class World:
         if offsets.shape != (n,) or not np.all(np.isfinite(offsets)):
             raise ValueError(f"clock_offsets_s: need {n} finite offsets [s], got "
                              f"{clock_offsets_s!r}")
-        if scenario.limits:
-            base = tracker_config if tracker_config is not None else TrackerConfig.from_toml()
-            limits = DynamicLimits.from_dict({**dataclasses.asdict(base.limits),
-                                              **scenario.limits})
-            tracker_config = dataclasses.replace(base, limits=limits)
+        tracker_config = _with_scenario_limits(tracker_config, scenario)
         #: The records of every UAV's numbers, one row each: their stacks' and their plants'.
         self.onboard = OnboardBatch(tracker_config, n)
         #: The ground vehicle carrying the landing deck, when the scenario has one.
@@ -420,50 +458,15 @@ class World:
         self.launches: dict[str, dict[str, Any]] = {}
         period = self.onboard.tracker.config.first_step_s
         for i, spec in enumerate(scenario.uavs):
-            af = airframes[spec.airframe]
             wind = None
             if wind_mps > 0.0:
                 wind = Wind(mean_mps=(wind_mps, 0.0, 0.0), gust_sigma_mps=0.3 * wind_mps,
                             seed=seed * 1000 + i)
-            plant = Multirotor(af, position_m=spec.start_m, yaw_rad=spec.heading_rad, wind=wind,
-                               rotors_at_hover=spec.start_m[2] > 0.0, rows=self.plants, row=i)
-            # Each UAV broadcasts at its own phase, spread over the period.
-            off = float(offsets[i])
-            resolver = None
-            if spec.uav_id not in flying_alone:
-                resolver = strategy(params)
-                if formation is not None and spec.uav_id in formation.members:
-                    if not isinstance(resolver, EncounterStrategy):
-                        raise ConfigError(f"formation: the strategy {type(resolver).__name__} "
-                                          "has no per-pair radii for the members")
-                    resolver.pair_radius_m.update(formation.pair_radii(spec.uav_id))
-            stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
-                                 t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
-                                 avoidance=resolver, params=params,
-                                 broadcast_phase_s=broadcast_phase(i, n), batch=self.onboard,
-                                 row=i, inbox_table=self.inboxes)
-            reference = spec.mission
-            if off:
-                reference = Reference(reference.times_s + off, reference.points, reference.loop)
-            u = WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, off)
-            held = (launch_check_s is not None and n > 1 and resolver is not None
-                    and scenario.landing is None
-                    and not (formation is not None and spec.uav_id in formation.followers))
-            if held:
-                # Hover where it starts; the mission waits for the link (:meth:`_launch`).
-                self._unlaunched[i] = reference
-                reference = Reference.goto(*spec.start_m, spec.heading_rad, start_s=off)
-            stack.set_mission(reference)
-            if scenario.landing is not None and scenario.landing[0] == spec.uav_id:
-                u.mission = LandingMission(scenario.landing[1])
-                car = scenario.ground_vehicle
-                assert car is not None  # the scenario's validation saw to it
-                ts = scenario.target_sensor
-                u.sensor = TargetSensor(lambda t, car=car: car.state(t).position_m,
-                                        rate_hz=ts.rate_hz, sigma_m=ts.sigma_m,
-                                        dropout=ts.dropout, seed=seed * 1000 + 500 + i)
-            elif formation is not None and spec.uav_id in formation.followers:
-                u.mission = FormationFollower(formation, spec.uav_id)
+            resolver = (None if spec.uav_id in flying_alone
+                        else _strategy_of(spec.uav_id, strategy, params, formation))
+            u = self._add_uav(i, spec, airframes[spec.airframe], wind, float(offsets[i]),
+                              resolver)
+            self._attach_mission(u, i, spec)
             self.uavs.append(u)
             self._positions[spec.uav_id] = np.array(spec.start_m, dtype=float)
         self.t_s = 0.0
@@ -480,15 +483,8 @@ class World:
             obs = ObserverParams.preset(gnss) if isinstance(gnss, str) else gnss
             self.estimator = FleetEstimator(obs, n, period, seed)
         self._no_estimate = np.zeros((0, 6))
-        silent = dict(silent_from_s or {})
-        unknown = sorted(set(silent) - {u.uav_id for u in self.uavs})
-        if unknown:
-            raise ValueError(f"silent_from_s: {', '.join(map(repr, unknown))} not UAVs of "
-                             f"the scenario {scenario.name!r}")
-        if not all(math.isfinite(float(t)) for t in silent.values()):
-            raise ValueError(f"silent_from_s: times must be finite, got {silent!r}")
         #: UAV id → when its radio goes silent [s]; and how many broadcasts it swallowed.
-        self.silent_from_s = {k: float(v) for k, v in silent.items()}
+        self.silent_from_s = _silent_times(scenario, silent_from_s)
         self._ground: dict[str, Any] | None = None  # the scene's ground, made once
         self._next_scene_s = -math.inf
         self.silenced = 0
@@ -504,19 +500,7 @@ class World:
                 if isinstance(u.stack.avoidance, EncounterStrategy):
                     u.stack.avoidance.limit_offset(
                         self.geofence.offset_ceiling_m(spec.mission.points[:, 2]))
-        # One finder for the whole world when every UAV decides from encounters (its strategy
-        # is an :class:`~uavmpc.avoidance.EncounterStrategy`); else each UAV plans alone.
-        strategies = [u.stack.avoidance for u in self.uavs if u.stack.avoidance is not None]
-        #: Per UAV: its strategy when the world finds its encounters (else None).
-        self._deciders: list[EncounterStrategy | None] = [None] * len(self.uavs)
-        self._finder = None
-        if strategies and all(isinstance(d, EncounterStrategy) for d in strategies):
-            self._deciders = [u.stack.avoidance if isinstance(u.stack.avoidance,
-                                                              EncounterStrategy)
-                              else None for u in self.uavs]
-            # Every stack flies the world's parameters: the first one's finder is everyone's.
-            first = next(d for d in self._deciders if d is not None)
-            self._finder = first.finder(self.inboxes, use_index=index)
+        self._deciders, self._finder = self._world_finder(index)
         self._overrides = [d.overrides(self.inboxes) if d is not None else {}
                            for d in self._deciders]
         self._radius = np.full(n, params.radius_m)
@@ -529,6 +513,62 @@ class World:
         self._phase_wall_s = [0.0, 0.0, 0.0]
         #: The compiled tick's cycle counts in the current run (see :func:`world_tick`).
         self._cycles = np.zeros(4 if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
+
+    def _add_uav(self, i: int, spec: UavSpec, af: Airframe, wind: Wind | None, off: float,
+                 resolver: ResolutionStrategy | None) -> WorldUav:
+        """Row ``i``: its plant and its stack on the world's rows, clock offset ``off`` [s],
+        flying its mission (held at its start when the launch check holds it)."""
+        scenario, n = self.scenario, len(self.scenario.uavs)
+        plant = Multirotor(af, position_m=spec.start_m, yaw_rad=spec.heading_rad, wind=wind,
+                           rotors_at_hover=spec.start_m[2] > 0.0, rows=self.plants, row=i)
+        # Each UAV broadcasts at its own phase, spread over the period.
+        stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
+                             t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
+                             avoidance=resolver, params=self.params,
+                             broadcast_phase_s=broadcast_phase(i, n), batch=self.onboard,
+                             row=i, inbox_table=self.inboxes)
+        reference = spec.mission
+        if off:
+            reference = Reference(reference.times_s + off, reference.points, reference.loop)
+        formation = scenario.formation
+        held = (self.launch_check_s is not None and n > 1 and resolver is not None
+                and scenario.landing is None
+                and not (formation is not None and spec.uav_id in formation.followers))
+        if held:
+            # Hover where it starts; the mission waits for the link (:meth:`_launch`).
+            self._unlaunched[i] = reference
+            reference = Reference.goto(*spec.start_m, spec.heading_rad, start_s=off)
+        stack.set_mission(reference)
+        return WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, off)
+
+    def _attach_mission(self, u: WorldUav, i: int, spec: UavSpec) -> None:
+        """The mission beside ``u``'s program, if the scenario gives it one: the landing (and
+        its sensor of the car) or a formation follower's slot."""
+        scenario, formation, seed = self.scenario, self.scenario.formation, self.seed
+        if scenario.landing is not None and scenario.landing[0] == spec.uav_id:
+            u.mission = LandingMission(scenario.landing[1])
+            car = scenario.ground_vehicle
+            assert car is not None  # the scenario's validation saw to it
+            ts = scenario.target_sensor
+            u.sensor = TargetSensor(lambda t, car=car: car.state(t).position_m,
+                                    rate_hz=ts.rate_hz, sigma_m=ts.sigma_m,
+                                    dropout=ts.dropout, seed=seed * 1000 + 500 + i)
+        elif formation is not None and spec.uav_id in formation.followers:
+            u.mission = FormationFollower(formation, spec.uav_id)
+
+    def _world_finder(self, index: bool | None
+                      ) -> tuple[list[EncounterStrategy | None], EncounterFinder | None]:
+        """Per UAV, its strategy when the world finds its encounters (else None), and the one
+        finder for the whole world: only when every UAV with a strategy decides from
+        encounters (an :class:`~uavmpc.avoidance.EncounterStrategy`); else each plans alone."""
+        strategies = [u.stack.avoidance for u in self.uavs if u.stack.avoidance is not None]
+        if not (strategies and all(isinstance(d, EncounterStrategy) for d in strategies)):
+            return [None] * len(self.uavs), None
+        deciders = [u.stack.avoidance if isinstance(u.stack.avoidance, EncounterStrategy)
+                    else None for u in self.uavs]
+        # Every stack flies the world's parameters: the first one's finder is everyone's.
+        first = next(d for d in deciders if d is not None)
+        return deciders, first.finder(self.inboxes, use_index=index)
 
     def run(self, duration_s: float | None = None, *, realtime: float | None = None,
             on_log: Callable[[World], None] | None = None,
