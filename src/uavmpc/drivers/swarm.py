@@ -311,14 +311,10 @@ def _warm_up(scenario: Scenario, px4s: dict[str, Px4Instance]) -> None:
     """Load every airframe's kernels and wait for every PX4 to be ready for take-off."""
     # Compile the kernels once here, into the cache every node loads them from, before the
     # clock of the mission starts.
-    try:
-        for name in sorted({u.airframe for u in scenario.uavs}):
-            warm_up(Airframe.named(name))
-        for inst in px4s.values():
-            inst.wait_ready(PX4_READY_TIMEOUT_S)
-    except BaseException:
-        _stop_px4s(px4s)
-        raise
+    for name in sorted({u.airframe for u in scenario.uavs}):
+        warm_up(Airframe.named(name))
+    for inst in px4s.values():
+        inst.wait_ready(PX4_READY_TIMEOUT_S)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -662,20 +658,20 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     ports = free_ports(n + 1)
     mav_ports = free_ports(n) if mavlink and not real_px4 else []
     endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
-    px4s: dict[str, Px4Instance] = {}
-    if px4_sitl is not None:  # they boot while the kernels load
-        px4s = _start_px4s(scenario, px4_sitl, out, geo_origin, px4_first_instance)
-    _warm_up(scenario, px4s)
-    takeoff = PX4_TAKEOFF_S if real_px4 else TAKEOFF_S if mavlink else 0.0
-    opts = _Options(avoidance=avoidance, duration=duration,
-                    epoch=time.time() + STARTUP_S + takeoff, key_file=key_file,
-                    mavlink=mavlink, real_px4=real_px4, setpoints=setpoints, ros2=ros2,
-                    geo_origin=geo_origin)
     ids = [u.uav_id for u in scenario.uavs]
     with tempfile.TemporaryDirectory(prefix="uavmpc-swarm-") as tmp:
-        fleet = _Fleet(Path(tmp), {u: out / f"{u}.node.log" for u in ids}, px4s)
+        fleet = _Fleet(Path(tmp), {u: out / f"{u}.node.log" for u in ids}, {})
         transport: ZenohTransport | None = None
         try:
+            if px4_sitl is not None:  # they boot while the kernels load
+                fleet.px4s = _start_px4s(scenario, px4_sitl, out, geo_origin,
+                                         px4_first_instance)
+            _warm_up(scenario, fleet.px4s)
+            takeoff = PX4_TAKEOFF_S if real_px4 else TAKEOFF_S if mavlink else 0.0
+            opts = _Options(avoidance=avoidance, duration=duration,
+                            epoch=time.time() + STARTUP_S + takeoff, key_file=key_file,
+                            mavlink=mavlink, real_px4=real_px4, setpoints=setpoints,
+                            ros2=ros2, geo_origin=geo_origin)
             transport = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
                                        connect=[endpoints[0]], max_pending=4096)
             monitor = _Monitor(transport, scenario, opts.epoch, auth_key, kill_at_s, live)
@@ -693,7 +689,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
             ended = fleet.stop()
             if transport is not None:
                 transport.close()
-    px4_reports = {uav: inst.report() for uav, inst in px4s.items()}
+    px4_reports = {uav: inst.report() for uav, inst in fleet.px4s.items()}
     summary = _summary(scenario, opts, monitor, ended, px4_sitl, px4_reports)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if monitor.trace_t and on_trace is not None:
