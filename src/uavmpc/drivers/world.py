@@ -641,15 +641,7 @@ class World:
                     on_log(self)
             if (self.recorder is not None or on_scene is not None) \
                     and self.t_s >= self._next_scene_s - 1e-9:
-                self._next_scene_s = self.t_s + SCENE_PERIOD_S
-                views = self.views()
-                scene = self.scene(views)
-                metrics = self.metrics(float(dmin[k]) if n > 1 else None, views)
-                if self.recorder is not None:
-                    self.recorder.scene(self.t_s, scene)
-                    self.recorder.metrics(self.t_s, metrics)
-                if on_scene is not None:
-                    on_scene(self.t_s, scene, metrics)
+                self._show(float(dmin[k]) if n > 1 else None, on_scene)
             if realtime is not None:
                 ahead = (k + 1) * self.period_s / realtime - (time.perf_counter() - wall0)
                 if ahead > 0.0:
@@ -658,9 +650,36 @@ class World:
         cycles_per_s = (cycle_count() - cycles0) / wall if HAS_CYCLE_COUNTER and wall > 0 else 0.0
         for i, u in enumerate(self.uavs):
             self._positions[u.uav_id] = pos[ticks - 1, i].copy()
+        st = self.link.stats
+        messages = {"sent": st.sent, "delivered": st.delivered,
+                    "dropped": st.dropped + st.dropped_range, "published": st.published}
+        result = WorldResult(self.scenario.name, self.seed, self.avoidance,
+                             ticks * self.period_s, ids, t_log, pos, zoff, dmin, collisions,
+                             self._outcomes(pos[-1]), messages, wall)
+        if members.size:
+            result.traces["members_avoiding"] = members_avoiding
+        self._add_extras(result, cycles_per_s)
+        self._applications(result)
+        return result
+
+    def _show(self, min_distance_m: float | None,
+              on_scene: Callable[[float, dict[str, Any], dict[str, Any]], None] | None) -> None:
+        """The 3-D scene and the metrics now, to the log and to ``on_scene``."""
+        self._next_scene_s = self.t_s + SCENE_PERIOD_S
+        views = self.views()
+        scene = self.scene(views)
+        metrics = self.metrics(min_distance_m, views)
+        if self.recorder is not None:
+            self.recorder.scene(self.t_s, scene)
+            self.recorder.metrics(self.t_s, metrics)
+        if on_scene is not None:
+            on_scene(self.t_s, scene, metrics)
+
+    def _outcomes(self, final_m: np.ndarray) -> dict[str, UavOutcome]:
+        """Per UAV, how its flight ended, from its program's report and its last position
+        ``final_m`` (N, 3) [m]."""
         per_uav = {}
-        for i, u in enumerate(self.uavs):
-            final = pos[-1, i]
+        for u, final in zip(self.uavs, final_m, strict=True):
             rep = u.stack.report()
             per_uav[u.uav_id] = UavOutcome(
                 max_z_offset_m=rep.max_z_offset_m, avoidance_active_s=rep.avoidance_active_s,
@@ -671,14 +690,11 @@ class World:
                 max_limit_excess=rep.max_limit_excess, tracker_fallbacks=rep.tracker_fallbacks,
                 messages_rejected=rep.messages_rejected_total,
                 yielded_to={k: [round(a, 3), round(b, 3)] for k, (a, b) in u.yielded_to.items()})
-        st = self.link.stats
-        messages = {"sent": st.sent, "delivered": st.delivered,
-                    "dropped": st.dropped + st.dropped_range, "published": st.published}
-        result = WorldResult(self.scenario.name, self.seed, self.avoidance,
-                             ticks * self.period_s, ids, t_log, pos, zoff, dmin, collisions,
-                             per_uav, messages, wall)
-        if members.size:
-            result.traces["members_avoiding"] = members_avoiding
+        return per_uav
+
+    def _add_extras(self, result: WorldResult, cycles_per_s: float) -> None:
+        """What only some runs have: where a batched run's time went, the geofence, the
+        launch check, who flew without avoidance."""
         if self.batched:
             # Where a batched run's wall time went: the numbers of a scale benchmark.
             result.extra["wall_s_by_phase"] = dict(zip(
@@ -702,8 +718,6 @@ class World:
             # Who flew without avoidance while the others avoided (with ``avoidance`` off,
             # the summary's "avoidance": false already says everyone did).
             result.extra["non_cooperative"] = list(self.non_cooperative)
-        self._applications(result)
-        return result
 
     def _applications(self, result: WorldResult) -> None:
         """The field applications' outcomes (landing, formation) into the result."""
