@@ -10,6 +10,7 @@ import dataclasses
 import math
 import sys
 import tomllib
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -132,3 +133,18 @@ def from_table(cls: type[T], table: Any, prefix: str) -> T:
         raise ConfigError(f"{prefix}: must be a table")
     reject_unknown(table, {f.name for f in dataclasses.fields(cls)}, prefix)
     return cls(**table)
+
+
+def exit_code_of(run: Callable[[], int]) -> int:
+    """``run()``'s exit code; a configuration error, or an optional extra not installed, is one
+    line on stderr and exit code 2 instead of a traceback (the CLI's rule, and this module's)."""
+    try:
+        return int(run())
+    except ConfigError as exc:
+        print(f"uavmpc: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:
+        if "pip install" not in str(exc):
+            raise
+        print(f"uavmpc: {exc}", file=sys.stderr)  # an optional extra is missing
+        return 2

@@ -928,7 +928,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from uavmpc.config import ConfigError
+    from uavmpc.config import exit_code_of
 
     args = build_parser().parse_args(argv)
     duration = getattr(args, "duration", 1.0)
@@ -938,16 +938,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "ticks", 1) < 1:
         print("uavmpc: --ticks must be ≥ 1", file=sys.stderr)
         return 2
-    try:
-        return int(args.func(args))
-    except ConfigError as exc:
-        print(f"uavmpc: {exc}", file=sys.stderr)
-        return 2
-    except ImportError as exc:
-        if "pip install" not in str(exc):
-            raise
-        print(f"uavmpc: {exc}", file=sys.stderr)  # an optional extra is missing
-        return 2
+    return exit_code_of(lambda: args.func(args))
 
 
 if __name__ == "__main__":

@@ -480,8 +480,6 @@ def _report(report_file: str | None, report: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m uavmpc.drivers.launch SPEC.json``: run the specification's process."""
-    from uavmpc.config import ConfigError
-
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
         print(f"usage: python -m {MODULE} SPEC.json", file=sys.stderr)
@@ -491,16 +489,10 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, LaunchError) as exc:
         print(f"{MODULE}: {exc}", file=sys.stderr)
         return 2
-    try:
-        return run_node(spec) if isinstance(spec, NodeLaunch) else run_sitl(spec)
-    except ConfigError as exc:
-        print(f"uavmpc: {exc}", file=sys.stderr)
-        return 2
-    except ImportError as exc:
-        if "pip install" not in str(exc):
-            raise
-        print(f"uavmpc: {exc}", file=sys.stderr)  # an optional extra is missing
-        return 2
+    from uavmpc.config import exit_code_of
+
+    return exit_code_of(lambda: run_node(spec) if isinstance(spec, NodeLaunch)
+                        else run_sitl(spec))
 
 
 if __name__ == "__main__":
