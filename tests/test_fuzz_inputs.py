@@ -6,8 +6,8 @@ Targets, at least :data:`N_CASES` cases each, from seeded generators (determinis
 1. scenario TOML: (a) documents generated from the loader's own schema with random types and
    values, (b) the built-in scenario files mutated (keys deleted, duplicated, swapped, values
    replaced, bytes flipped, text truncated);
-2. mission messages (:func:`~uavmpc.drivers.node.parse_mission`) and sealed missions through a
-   :class:`~uavmpc.comms.auth.CommandGate`, in shared-key and in roster (Ed25519) mode;
+2. mission messages (:func:`~uavmpc.missions.format.mission_from_json`) and sealed missions
+   through a :class:`~uavmpc.comms.auth.CommandGate`, in shared-key and in roster (Ed25519) mode;
 3. key, identity and roster files, their content and their modes.
 
 Each fuzz loop records every case that breaks the contract under a signature (exception type
@@ -55,7 +55,7 @@ from uavmpc.comms.auth import (
 )
 from uavmpc.comms.message import InvalidMessageError
 from uavmpc.config import ConfigError
-from uavmpc.drivers.node import parse_mission
+from uavmpc.missions.format import mission_from_json
 from uavmpc.missions.landing import LandingParams
 from uavmpc.plant import Airframe
 from uavmpc.reference import InvalidReferenceError, Reference
@@ -660,22 +660,29 @@ def test_known_scenario_crash_reproducer(sig: str, schema: Schema, tmp_path: Pat
 
 # --------------------------------------------------------------------------- missions
 NOW_S = 1.7e9
-MISSION_KEYS = ("goto", "points", "sample_period_s", "start_s", "loop")
 
 
 def gen_mission(fz: Fuzz) -> dict[str, Any]:
     r = fz.rng
     fz.rate = r.choice((0.0, 0.02, 0.1, 0.3, 0.8))
-    kind = r.choice(("goto", "goto", "points", "points", "both", "none"))
+    kind = r.choice(("goto", "goto", "trajectory", "trajectory", "path", "both", "none"))
     d: dict[str, Any] = {}
     if kind in ("goto", "both"):
         d["goto"] = fz.maybe(lambda: fz.vec(4, -100.0, 100.0))
-    if kind in ("points", "both"):
-        d["points"] = fz.maybe(lambda: [fz.maybe(lambda: fz.vec(4, -100.0, 100.0))
-                                        for _ in range(r.choice((1, 2, 3, 10, 100, 0)))])
-    d.update(fz.table({"sample_period_s": lambda: fz.u(0.01, 1.0),
-                       "start_s": lambda: NOW_S + fz.u(-5.0, 60.0),
-                       "loop": lambda: r.random() < 0.5}, 0.4))
+    if kind in ("trajectory", "both"):
+        t = {"points": fz.maybe(lambda: [fz.maybe(lambda: fz.vec(4, -100.0, 100.0))
+                                         for _ in range(r.choice((1, 2, 3, 10, 100, 0)))])}
+        t.update(fz.table({"sample_period_s": lambda: fz.u(0.01, 1.0),
+                           "start_s": lambda: NOW_S + fz.u(-5.0, 60.0),
+                           "loop": lambda: r.random() < 0.5}, 0.4))
+        d["trajectory"] = fz.maybe(lambda: t)
+    if kind == "path":
+        t = {"waypoints": fz.maybe(lambda: [fz.maybe(lambda: fz.vec(3, -100.0, 100.0))
+                                            for _ in range(r.choice((2, 3, 10, 1, 0)))]),
+             "speed_mps": fz.maybe(lambda: fz.u(0.1, 20.0))}
+        t.update(fz.table({"sample_period_s": lambda: fz.u(0.01, 1.0),
+                           "start_s": lambda: NOW_S + fz.u(-5.0, 60.0)}, 0.4))
+        d["path"] = fz.maybe(lambda: t)
     return d
 
 
@@ -685,7 +692,8 @@ def gen_mission_payload(fz: Fuzz) -> bytes:
     if x < 0.08:
         return r.randbytes(r.randrange(64))
     if x < 0.18:  # JSON-ish token soup
-        tokens = ("{", "}", "[", "]", ",", ":", '"goto"', '"points"', '"start_s"', '"loop"',
+        tokens = ("{", "}", "[", "]", ",", ":", '"goto"', '"trajectory"', '"path"', '"points"',
+                  '"waypoints"', '"start_s"', '"loop"', '"times_s"', '"speed_mps"',
                   '"sample_period_s"', "NaN", "Infinity", "-Infinity", "1e400", "0", "-1",
                   "1.5", "true", "null", '"x"', " ", '"\\u0000"', '"\\ud800"', "9" * 400)
         return "".join(r.choice(tokens) for _ in range(r.randrange(1, 30))).encode()
@@ -694,9 +702,14 @@ def gen_mission_payload(fz: Fuzz) -> bytes:
         return text.encode(r.choice(("utf-8", "utf-8", "utf-8", "utf-16", "utf-32")))
     if x < 0.97:
         base = r.choice(({"goto": [1.0, 2.0, 5.0, 0.5]},
-                         {"points": [[0, 0, 5, 0], [1, 0, 5, 0], [2, 0, 5, 0.1]],
-                          "sample_period_s": 0.5, "start_s": NOW_S, "loop": True},
-                         {"points": [[0.0, 0.0, 5.0, 0.0]]}))
+                         {"trajectory": {"points": [[0, 0, 5, 0], [1, 0, 5, 0], [2, 0, 5, 0.1]],
+                                         "sample_period_s": 0.5, "start_s": NOW_S,
+                                         "loop": True}},
+                         {"trajectory": {"points": [[0, 0, 5, 0], [1, 0, 5, 0]],
+                                         "times_s": [NOW_S, NOW_S + 1.0]}},
+                         {"path": {"waypoints": [[0, 0, 5], [10, 0, 5], [10, 10, 6]],
+                                   "speed_mps": 2.0}},
+                         {"trajectory": {"points": [[0.0, 0.0, 5.0, 0.0]]}}))
         return fz.mutate_bytes(json.dumps(base).encode())
     extreme = r.randrange(5)  # sizes and depths that break naive decoders
     if extreme == 0:
@@ -705,11 +718,12 @@ def gen_mission_payload(fz: Fuzz) -> bytes:
     if extreme == 1:
         return b'{"goto": [1' + b"0" * r.choice((310, 4200, 5000)) + b", 0, 0, 0]}"
     if extreme == 2:
-        return b'{"points": [[0, 0, 5, 0]], "start_s": 1' + b"0" * r.choice((20, 400)) + b"}"
+        return (b'{"trajectory": {"points": [[0, 0, 5, 0]], "start_s": 1'
+                + b"0" * r.choice((20, 400)) + b"}}")
     if extreme == 3:
-        return json.dumps({"points": [[0, 0, 5, 0]], "sample_period_s": r.choice(
+        return json.dumps({"trajectory": {"points": [[0, 0, 5, 0]], "sample_period_s": r.choice(
             (1e308, 5e307, 1e-320, 1e6, 3600.0)), "start_s": r.choice((1e308, NOW_S)),
-            "loop": True}).encode()
+            "loop": True}}).encode()
     return json.dumps({"goto": [0, 0, 5, 0], "x" * r.randrange(1, 300): "ü" * 100}).encode()
 
 
@@ -722,7 +736,7 @@ def _reference_problems(ref: Reference) -> list[str]:
 
 def check_mission(tally: Tally, payload: bytes) -> str:
     try:
-        ref = parse_mission(payload, NOW_S)
+        ref = mission_from_json(payload, NOW_S)
     except InvalidReferenceError as exc:
         if not str(exc).startswith("mission"):
             tally.fail("InvalidReferenceError not naming the mission", payload, str(exc))
@@ -749,20 +763,26 @@ def test_mission_messages_parse_or_name_the_problem() -> None:
 
 
 @pytest.mark.parametrize(("payload", "needle"), [
-    (b'{"goto": [1, 2, 3, 0], "points": [[0, 0, 0, 0]]}', "one of"),
-    (b'{"goto": [1, 2, 3, 0], "sample_periods": 1}', "sample_periods"),
-    (b'{"goto": [1, 2, 3, 0], "start_s": "now"}', "start_s"),
+    (b'{"goto": [1, 2, 3, 0], "trajectory": {"points": [[0, 0, 0, 0]]}}', "one of"),
+    (b'{"points": [[0, 0, 0, 0]]}', r"points: unknown field"),
+    (b'{"trajectory": {"points": [[0, 0, 0, 0]], "sample_periods": 1}}', "sample_periods"),
+    (b'{"trajectory": {"points": [[0, 0, 0, 0]], "start_s": "now"}}', "start_s"),
     (b'{"goto": [1, 2, true, 0]}', r"goto\[2\]"),
     (b'{"goto": [1, 2, null, 0]}', r"goto\[2\]"),
-    (b'{"points": [[0, 0, 0, 0], [0, 0, 0]]}', r"points\[1\]"),
-    (b'{"points": [[0, 0, 0, 0]], "loop": "no"}', "loop"),
-    (b'{"points": [[0, 0, 0, 0]], "sample_period_s": 1e308, "loop": true}', "sample_period_s"),
+    (b'{"trajectory": {"points": [[0, 0, 0, 0], [0, 0, 0]]}}', r"points\[1\]"),
+    (b'{"trajectory": {"points": [[0, 0, 0, 0]], "loop": "no"}}', "loop"),
+    (b'{"trajectory": {"points": [[0, 0, 0, 0]], "sample_period_s": 1e308, "loop": true}}',
+     "sample_period_s"),
+    (b'{"trajectory": {"points": [[0, 0, 0, 0]], "times_s": [1, 2]}}', "2 stamps for 1"),
+    (b'{"path": {"waypoints": [[0, 0, 0]], "speed_mps": 1}}', "waypoints"),
+    (b'{"path": {"waypoints": [[0, 0, 0], [1, 0, 0]], "speed_mps": -1}}', "speed_mps"),
+    (b'{"path": {"waypoints": [[0, 0, 0], [1, 0, 0]]}}', "speed_mps"),
     (b'{"goto": ' + b"[" * 100_000 + b"]" * 100_000 + b"}", "nested"),
 ])
 def test_mission_errors_name_the_field(payload: bytes, needle: str) -> None:
     # Hand-picked cases the fuzz loop only meets by chance: the error names the field.
     with pytest.raises(InvalidReferenceError, match=rf"^mission.*{needle}"):
-        parse_mission(payload, NOW_S)
+        mission_from_json(payload, NOW_S)
 
 
 # --------------------------------------------------------------------------- sealed
@@ -865,7 +885,7 @@ def test_sealed_missions_only_genuine_unseen_ones_pass(mode: str) -> None:
         last[out.signer_id] = out.seq
         accepted_before.append(msg)
         try:  # what the node does next with it
-            parse_mission(out.data, clock[0])
+            mission_from_json(out.data, clock[0])
         except InvalidReferenceError:
             pass
         except Exception as exc:

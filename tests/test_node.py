@@ -180,7 +180,8 @@ def test_missions_over_the_network_are_validated() -> None:
 
     with _Flight(duration_s=12.0) as f:
         bad = [b"not json", b"[]", json.dumps({"goto": [1, 2]}).encode(),
-               b'{"goto": [1, 2, NaN, 0]}', json.dumps({"points": [[0, 0, 0]]}).encode()]
+               b'{"goto": [1, 2, NaN, 0]}', json.dumps({"points": [[0, 0, 5, 0]]}).encode(),
+               json.dumps({"trajectory": {"points": [[0, 0, 0]]}}).encode()]
         for payload in bad:
             f.other.send("uav1", "mission", payload)
         wait_until(lambda: f.node.stats.missions_rejected == len(bad), 5.0,

@@ -482,14 +482,18 @@ def _command_sealer(args: argparse.Namespace, prog: str) -> Any:
 
 def _mission(args: argparse.Namespace) -> int:
     from uavmpc.comms.zenoh_link import ZenohTransport
-    from uavmpc.drivers.node import parse_mission
+    from uavmpc.missions.format import mission_from_table, read_mission
 
-    payload = json.dumps({"goto": args.goto}).encode()
-    try:
-        parse_mission(payload, time.time())  # the node would refuse it: say so here
+    try:  # checked as the node will check it: what it would refuse is not sent
+        if args.file is None:
+            table: dict[str, Any] = {"goto": args.goto}
+            mission_from_table(table, "--goto", time.time())
+        else:
+            table, _ = read_mission(args.file, time.time())
     except ValueError as exc:
         print(f"uavmpc mission: {exc}", file=sys.stderr)
         return 2
+    payload = json.dumps(table).encode()
     seal_for = _command_sealer(args, "uavmpc mission")
     if seal_for is None:
         return 2
@@ -497,7 +501,8 @@ def _mission(args: argparse.Namespace) -> int:
         time.sleep(0.5)  # discovery; once only: a sealed mission sent again is a replay
         transport.send(args.to, "mission", seal_for(payload, f"{args.to}/mission"))
         time.sleep(0.2)
-    print(f"sent: goto {args.goto} to {args.to!r} in swarm {args.swarm!r}")
+    what = f"goto {args.goto}" if args.file is None else f"the mission of {args.file}"
+    print(f"sent: {what} to {args.to!r} in swarm {args.swarm!r}")
     return 0
 
 
@@ -692,7 +697,8 @@ def _add_node_parser(sub: Any) -> None:
     node.add_argument("--heading", type=float, default=0.0, help="start heading [rad]")
     node.add_argument("--goto", type=float, nargs=4, metavar=("X", "Y", "Z", "HEADING"),
                       help="initial mission: fly to this point")
-    node.add_argument("--mission-file", help="initial mission: JSON {times_s, points, loop}")
+    node.add_argument("--mission-file", help="initial mission: a TOML or JSON file with one of "
+                                             "goto, trajectory or path (times on Unix time)")
     node.add_argument("--formation", metavar="FILE",
                       help="fly as a member of this formation (a [formation] table, TOML or "
                            "JSON): a follower flies its slot along the leader's plans")
@@ -826,8 +832,12 @@ def _add_mission_parser(sub: Any) -> None:
     mission = sub.add_parser("mission", help="send one UAV node a mission over Zenoh (sealed "
                                              "with a key or an operator's identity)")
     mission.add_argument("--to", required=True, help="the UAV's id")
-    mission.add_argument("--goto", type=float, nargs=4, required=True,
-                         metavar=("X", "Y", "Z", "HEADING"), help="fly to this point (ENU, rad)")
+    what = mission.add_mutually_exclusive_group(required=True)
+    what.add_argument("--goto", type=float, nargs=4, metavar=("X", "Y", "Z", "HEADING"),
+                      help="fly to this point (ENU, rad)")
+    what.add_argument("--file", metavar="MISSION",
+                      help="fly the mission of this TOML or JSON file: one of goto, trajectory "
+                           "or path (the mission format of docs/reference/files.md)")
     mission.add_argument("--swarm", default="default", help="swarm name (key prefix)")
     mission.add_argument("--connect", action="append", help="a node's endpoint")
     mission.add_argument("--id", default="ground", help="this sender's id (default ground)")

@@ -60,8 +60,10 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("uavs[].path", "start_s"): "when it sets off [s] (default 0)",
     ("uavs[].path", "sample_period_s"): "spacing of the sampled trajectory [s] (default 0.2)",
     ("uavs[].trajectory", "points"): "[[x, y, z, heading], ...] one per sample",
-    ("uavs[].trajectory", "sample_period_s"): "time between points [s], > 0",
+    ("uavs[].trajectory", "sample_period_s"): "time between points [s], ≥ 0.001 (default 0.2)",
     ("uavs[].trajectory", "start_s"): "time of the first point [s] (default 0)",
+    ("uavs[].trajectory", "times_s"): "instead of sample_period_s and start_s: each point's "
+                                      "time [s], increasing",
     ("uavs[].trajectory", "loop"): "start again after the last point (default false)",
     ("ground_vehicle", "speed_kmh"): "the car's speed [km/h], > 0",
     ("ground_vehicle", "track_length_m"): "the figure eight's length [m] (default 90)",
@@ -315,7 +317,15 @@ def reference_markdown() -> str:
         "frame; a field's unit is in its name where it has one. A field a loader does not "
         "know is an error naming it, as is a value out of its bounds.\n\n"
         "Scenario files: see `src/uavmpc/scenarios/*.toml` for examples. Airframe files: "
-        "`src/uavmpc/data/airframes/*.toml`.\n")
+        "`src/uavmpc/data/airframes/*.toml`.\n\n"
+        "**The mission format.** A UAV's `goto`, `trajectory` or `path` (exactly one; the "
+        "`[uavs[]]` table and the two tables below) is the one mission format, whatever the "
+        "source: a mission sent to a node (`uavmpc mission --goto …` or `--file mission.toml`"
+        ", as JSON over the network), `uavmpc node --mission-file`, the files a swarm hands "
+        "its nodes, and a ROS 2 goal or trajectory are each turned into such a table and "
+        "checked by the one validator (`uavmpc.missions.format`). Times are on the UAV's "
+        "clock: 0 is the scenario's start; for a node, Unix time, and a missing `start_s` "
+        "means now. A go-to that waits for a time is a trajectory of one point.\n")
     parts = [head]
     for name, rows in reference_tables().items():
         title = ("scenario: top level" if name == "" else

@@ -340,13 +340,13 @@ def run_node(spec: NodeLaunch) -> int:
     """Build the node ``spec`` describes and fly it until its duration or SIGINT/SIGTERM;
     its report goes to ``spec.report_file`` (or stdout). Returns the exit code: 0, 1 if the
     autopilot never answered, 2 for a bad setting (said in one line on stderr)."""
-    import numpy as np
 
     from uavmpc.comms.zenoh_link import ZenohTransport
-    from uavmpc.drivers.node import Node, parse_mission
+    from uavmpc.drivers.node import Node
     from uavmpc.drivers.node import run_node as fly
+    from uavmpc.missions.format import mission_from_table, read_mission
     from uavmpc.plant import Airframe
-    from uavmpc.reference import InvalidReferenceError, Reference
+    from uavmpc.reference import InvalidReferenceError
 
     airframe = Airframe.named(spec.airframe)
     creds = load_credentials("uavmpc node", key_file=spec.key_file,
@@ -362,13 +362,10 @@ def run_node(spec: NodeLaunch) -> int:
     mission = None
     try:
         if spec.mission_file:
-            data = json.loads(Path(spec.mission_file).read_text())
-            mission = Reference(np.asarray(data["times_s"], dtype=float),
-                                np.asarray(data["points"], dtype=float),
-                                bool(data.get("loop", False)))
+            _, mission = read_mission(spec.mission_file, time.time())
         elif spec.goto:
-            mission = parse_mission(json.dumps({"goto": list(spec.goto)}).encode(), time.time())
-    except (OSError, KeyError, ValueError, InvalidReferenceError) as exc:
+            mission = mission_from_table({"goto": spec.goto}, "--goto", time.time())
+    except (OSError, InvalidReferenceError) as exc:
         print(f"uavmpc node: bad mission: {exc}", file=sys.stderr)
         return 2
     formation_mission = None

@@ -37,6 +37,7 @@ from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
 from uavmpc.geofence import FenceWatch, Geofence, GeofenceError
+from uavmpc.missions.format import mission_from_json
 from uavmpc.missions.mission import CommandedMission, Mission, MissionInput
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
@@ -66,101 +67,6 @@ COMMAND_MAX_SKEW_S = 30.0
 #: The channel formation commands are sealed for (every member hears the same command).
 FORMATION_CHANNEL = "formation"
 
-
-def parse_mission(payload: bytes, now_s: float) -> Reference:
-    """A mission message: JSON ``{"goto": [x, y, z, heading]}`` or ``{"points": [[x, y, z, h],
-    ...], "sample_period_s": 0.2, "start_s": t, "loop": false}`` (``start_s`` absolute; default
-    now; a ``goto`` takes ``start_s`` only).
-
-    Raises:
-        InvalidReferenceError: anything else; the text starts with ``mission`` and names the
-            field. The payload comes from the network: it reaches numpy only once every value
-            is known to be a finite number, so nothing else is ever raised from inside.
-    """
-    from uavmpc.reference import (
-        MAX_ABS_HEADING_RAD,
-        MAX_ABS_TIME_S,
-        MAX_POINTS,
-        MIN_SAMPLE_PERIOD_S,
-    )
-
-    # The reference's own bounds on stamps and headings (checked here first, to name the
-    # mission's field), and at most one point an hour.
-    max_abs_time_s, max_abs_heading_rad = MAX_ABS_TIME_S, MAX_ABS_HEADING_RAD
-    max_period_s = 3600.0
-    float_max = float(np.finfo(float).max)
-    fields = ("goto", "points", "sample_period_s", "start_s", "loop")
-
-    def describe(value: Any) -> str:
-        # Never repr() a container: a deeply nested one would recurse, a large one flood logs.
-        if isinstance(value, list | dict):
-            return f"a JSON {'array' if isinstance(value, list) else 'object'} of {len(value)}"
-        text = repr(value)
-        return text if len(text) <= 40 else f"{text[:37]}..."
-
-    def number(value: Any, name: str, bound: float = float_max) -> float:
-        # bool is an int to Python; NaN fails every comparison; a huge JSON integer is
-        # compared exactly here (float() of it would raise OverflowError).
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InvalidReferenceError(f"mission.{name}: must be a number, got "
-                                        f"{describe(value)}")
-        if not -bound <= value <= bound:
-            limit = "finite" if bound == float_max else f"finite and within ±{bound:g}"
-            raise InvalidReferenceError(f"mission.{name}: must be {limit}, got "
-                                        f"{describe(value)}")
-        return float(value)
-
-    def row(value: Any, name: str) -> list[float]:
-        if not isinstance(value, list) or len(value) != 4:
-            raise InvalidReferenceError(f"mission.{name}: must be [x, y, z, heading], got "
-                                        f"{describe(value)}")
-        return [*(number(v, f"{name}[{j}]") for j, v in enumerate(value[:3])),
-                number(value[3], f"{name}[3]", max_abs_heading_rad)]
-
-    try:
-        data = json.loads(payload)
-    except RecursionError:
-        raise InvalidReferenceError("mission is not JSON: nested too deeply") from None
-    except (TypeError, ValueError) as exc:  # also bad UTF-8, and integers of > 4300 digits
-        raise InvalidReferenceError(f"mission is not JSON: {exc}") from None
-    if not isinstance(data, dict):
-        raise InvalidReferenceError(f"mission must be a JSON object, got {describe(data)}")
-    unknown = sorted(k for k in data if k not in fields)
-    if unknown:  # a typo ("sample_periods") must not silently fall back to a default
-        raise InvalidReferenceError(f"mission: unknown field {describe(unknown[0])} (known: "
-                                    f"{', '.join(fields)})")
-    if ("goto" in data) == ("points" in data):
-        raise InvalidReferenceError("mission needs exactly one of 'goto' or 'points'")
-    start = number(data.get("start_s", now_s), "start_s", max_abs_time_s)
-    if "goto" in data:
-        extra = [k for k in ("sample_period_s", "loop") if k in data]
-        if extra:
-            raise InvalidReferenceError(f"mission.{extra[0]}: only with 'points', not 'goto'")
-        goal = row(data["goto"], "goto")
-        try:
-            return Reference(np.array([start]), np.array([goal]))
-        except InvalidReferenceError as exc:
-            raise InvalidReferenceError(f"mission.goto: {exc}") from None
-    points = data["points"]
-    if not isinstance(points, list) or not points:
-        raise InvalidReferenceError("mission.points: must be a non-empty list of [x, y, z, "
-                                    f"heading], got {describe(points)}")
-    if len(points) > MAX_POINTS:
-        raise InvalidReferenceError(f"mission.points: {len(points)} points, more than the "
-                                    f"limit {MAX_POINTS}")
-    rows = [row(p, f"points[{k}]") for k, p in enumerate(points)]
-    period = number(data.get("sample_period_s", 0.2), "sample_period_s", max_period_s)
-    if period < MIN_SAMPLE_PERIOD_S:
-        raise InvalidReferenceError(f"mission.sample_period_s: must be ≥ {MIN_SAMPLE_PERIOD_S} "
-                                    f"s, got {describe(period)}")
-    loop = data.get("loop", False)
-    if not isinstance(loop, bool):
-        raise InvalidReferenceError(f"mission.loop: must be true or false, got "
-                                    f"{describe(loop)}")
-    try:
-        return Reference.sampled(np.array(rows), period, start, loop=loop)
-    except InvalidReferenceError as exc:
-        raise InvalidReferenceError(f"mission: {exc}") from None
 
 @dataclass
 class NodeStats:
@@ -562,7 +468,7 @@ class Node:
             try:
                 if self.mission is not None:
                     raise ValueError("this UAV flies its mission (e.g. a formation slot)")
-                ref = parse_mission(self._open_command(payload, f"{self.uav_id}/mission"), now)
+                ref = mission_from_json(self._open_command(payload, f"{self.uav_id}/mission"), now)
                 self._set_checked(ref)
             except (InvalidReferenceError, ValueError, TypeError):
                 self.stats.missions_rejected += 1

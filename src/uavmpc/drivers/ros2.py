@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uavmpc.comms.ros2 import Ros2Graph, UavTopics
+from uavmpc.missions.format import mission_from_table
 from uavmpc.onboard import OnboardStack
 from uavmpc.reference import Reference
 
@@ -27,13 +28,17 @@ __all__ = ["WorldOnRos2", "publish_plan", "publish_status", "ros2_mission"]
 
 
 def ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> Reference:
-    """A mission from ROS 2: one point is a go-to from now; a path has its stamps, or (all
-    zero) is sampled every 0.2 s from now. Validated like every mission."""
+    """A mission from ROS 2, in the one mission format (:mod:`uavmpc.missions.format`): one
+    pose is a go-to from now; a path has its stamps, or (all zero) is sampled every 0.2 s from
+    now."""
+    table: dict[str, Any]
     if len(points) == 1:
-        return Reference.goto(*points[0], start_s=now_s)
-    if times is None:
-        return Reference.sampled(points, 0.2, now_s)
-    return Reference(times, points)
+        table = {"goto": points[0]}
+    elif times is None:
+        table = {"trajectory": {"points": points}}
+    else:
+        table = {"trajectory": {"times_s": times, "points": points}}
+    return mission_from_table(table, "ros2 mission", now_s)
 
 
 def publish_status(topics: UavTopics, stamp_s: float, stack: OnboardStack) -> None:

@@ -75,8 +75,10 @@ from uavmpc.drivers.world import (
     SCENE_PERIOD_S,
 )
 from uavmpc.log import FlightRecorder
+from uavmpc.missions.format import mission_table
 from uavmpc.missions.formation import formation_error, formation_table
 from uavmpc.plant import Airframe
+from uavmpc.reference import Reference
 from uavmpc.scenarios import Scenario
 from uavmpc.view.scene import (
     UavView,
@@ -394,9 +396,9 @@ def _mission_file(spec: Any, work: Path, epoch: float, follower: bool) -> Path |
     if follower:  # a follower's trajectory comes from its slot only
         return None
     mission = work / f"{spec.uav_id}.json"
-    mission.write_text(json.dumps({
-        "times_s": (spec.mission.times_s + epoch).tolist(),
-        "points": spec.mission.points.tolist(), "loop": spec.mission.loop}))
+    on_wall_clock = Reference(spec.mission.times_s + epoch, spec.mission.points,
+                              spec.mission.loop)
+    mission.write_text(json.dumps(mission_table(on_wall_clock)))
     return mission
 
 

@@ -10,10 +10,8 @@ with errors that name the field, e.g. ``uavs[2].priority: duplicate of uavs[0]``
     [avoidance]  any AvoidanceParams field (defaults: the reference design)
     [limits]     any DynamicLimits field: every UAV's nominal limits (default: data/tracker.toml)
     [[uavs]]     id, priority, airframe, start = [x, y, z], heading_rad,
-                 goto = [x, y, z, heading]                       (at most one of; none: hold
-                 trajectory = { points = [[x, y, z, heading], ...],    at the start)
-                                sample_period_s, start_s, loop }
-                 path = { waypoints = [[x, y, z], ...], speed_mps, start_s, sample_period_s }
+                 at most one of goto, trajectory or path: the UAV's mission, in the one
+                   mission format (uavmpc.missions.format; none: hold at the start)
                  avoidance = true/false (default true; false: a non-cooperative UAV, flying
                    its mission without avoidance, its flag down: the others yield to it)
 
@@ -45,6 +43,7 @@ import numpy as np
 from uavmpc.avoidance import AvoidanceParams
 from uavmpc.config import ConfigError, from_table, positive, read_toml, reject_unknown, take
 from uavmpc.geofence import Geofence, GeofenceError
+from uavmpc.missions.format import FORMS, mission_from_table
 from uavmpc.missions.formation import FormationSpec
 from uavmpc.missions.landing import LandingParams
 from uavmpc.plant.ground_vehicle import KMH, FigureEightTrack, GroundVehicle
@@ -232,47 +231,16 @@ def _uav(t: dict[str, Any], i: int) -> UavSpec:
     avoidance = t.get("avoidance", True)
     if not isinstance(avoidance, bool):
         raise ConfigError(f"{p}.avoidance: must be true or false, got {avoidance!r}")
-    given = [k for k in ("goto", "trajectory", "path") if k in t]
-    if len(given) > 1:
-        raise ConfigError(f"{p}: at most one of 'goto', 'trajectory' or 'path', got "
-                          f"{' and '.join(given)}")
+    given = {k: t[k] for k in FORMS if k in t}
     try:
-        if not given:  # hold at the start (e.g. until a mission says where to go)
-            goal = (*start, float(heading))
-            mission = Reference.goto(*goal)
-        elif "path" in t:
-            pt = t["path"]
-            if not isinstance(pt, dict):
-                raise ConfigError(f"{p}.path: must be a table")
-            reject_unknown(pt, {"waypoints", "speed_mps", "start_s", "sample_period_s"},
-                           f"{p}.path")
-            wps = take(pt, "waypoints", f"{p}.path")
-            if not isinstance(wps, list) or len(wps) < 2:
-                raise ConfigError(f"{p}.path.waypoints: must be a list of ≥ 2 [x, y, z]")
-            rows3 = [_vec(r, 3, f"{p}.path.waypoints[{k}]") for k, r in enumerate(wps)]
-            mission = Reference.along_path(
-                np.array(rows3), positive(take(pt, "speed_mps", f"{p}.path"),
-                                          f"{p}.path.speed_mps", upper=100.0),
-                pt.get("start_s", 0.0), pt.get("sample_period_s", 0.2))
-            goal = tuple(mission.points[-1])
-        elif "goto" in t:
-            goal = _vec(t["goto"], 4, f"{p}.goto")
-            mission = Reference.goto(*goal)
-        else:
-            tr = t["trajectory"]
-            reject_unknown(tr, {"points", "sample_period_s", "start_s", "loop"},
-                           f"{p}.trajectory")
-            pts = take(tr, "points", f"{p}.trajectory")
-            if not isinstance(pts, list) or not pts:
-                raise ConfigError(f"{p}.trajectory.points: must be a non-empty list")
-            rows = [_vec(r, 4, f"{p}.trajectory.points[{k}]") for k, r in enumerate(pts)]
-            mission = Reference.sampled(np.array(rows), tr.get("sample_period_s", 0.2),
-                                        tr.get("start_s", 0.0), loop=bool(tr.get("loop", False)))
-            goal = rows[-1]
+        # None given: hold at the start (e.g. until a mission says where to go).
+        mission = (mission_from_table(given, p) if given
+                   else Reference.goto(*start, float(heading)))
     except InvalidReferenceError as exc:
-        raise ConfigError(f"{p}: {exc}") from None
+        raise ConfigError(str(exc)) from None
+    goal = mission.points[-1]
     return UavSpec(uav_id, priority, airframe, start, float(heading), mission,
-                   (goal[0], goal[1], goal[2]), avoidance)
+                   (float(goal[0]), float(goal[1]), float(goal[2])), avoidance)
 
 
 def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:
