@@ -534,24 +534,7 @@ class HeightOffsetStrategy:
         candidates = z + prm.dz_m * np.arange(1, steps + 1)
         sub = _subset(enc, must_yield)
         blocked_end = _conflicts(sub, candidates, half_h).any(axis=(1, 2))  # (c,)
-        fast = z + _climbed(np.maximum(ahead_s, 0.0), prm)  # (m,)
-        slow = climbed + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
-        hi = np.minimum(fast[None, :], candidates[:, None])[:, None, :]  # (c, 1, m)
-        lo = np.minimum(slow[None, :], candidates[:, None])[:, None, :]
-        # While still climbing (lo < o; once there, the check at the end applies):
-        # |dz + o'| ≤ h for some o' in [lo, hi]  ⇔  dz + hi ≥ −h and dz + lo ≤ h
-        # A point already in conflict at the offset in force, with us level or above, is not
-        # made worse by climbing (it is what the climb escapes from). With them above us it
-        # is: the climb would close in on them (rule 6). "Level" is within the collision
-        # distance: two plans at one height differ by centimetres, and holding there is
-        # worse than climbing (found in the same campaign, trial 33).
-        climbing = lo < candidates[:, None, None]
-        escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z >= -LEVEL_M)
-        # Along the plans as announced: where a silent UAV could have gone since does not
-        # hold a climb away from a conflict we know of (rule 7).
-        in_way = (enc.announced_xy & climbing & ~escaping
-                  & (enc.dz_m + hi >= -half_h) & (enc.dz_m + lo <= half_h))
-        blocked_way = in_way.any(axis=2)  # (c, k)
+        blocked_way = _blocked_way(enc, candidates, z, climbed, ahead_s, half_h, prm)  # (c, k)
         clear_way = ~blocked_way.any(axis=1)
 
         def in_the_way(c: int) -> tuple[str, ...]:
@@ -595,3 +578,28 @@ def _climbed(t_s: np.ndarray, prm: AvoidanceParams) -> np.ndarray:
     a, v = prm.climb_accel_mps2, prm.climb_speed_mps
     t_a = v / a
     return np.where(t_s < t_a, 0.5 * a * t_s**2, 0.5 * v * t_a + v * (t_s - t_a))
+
+
+def _blocked_way(enc: Encounters, candidates: np.ndarray, z: float, climbed: float,
+                 ahead_s: np.ndarray, half_h: float, prm: AvoidanceParams) -> np.ndarray:
+    """(c, k): whether the climb from the offset in force ``z`` (``climbed`` of it reached so
+    far) to each of the ``candidates`` (c,) offsets meets each of the k known UAVs on the way,
+    at the predicted points ``ahead_s`` (m,) seconds from now (see ``_climb``)."""
+    fast = z + _climbed(np.maximum(ahead_s, 0.0), prm)  # (m,)
+    slow = climbed + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
+    hi = np.minimum(fast[None, :], candidates[:, None])[:, None, :]  # (c, 1, m)
+    lo = np.minimum(slow[None, :], candidates[:, None])[:, None, :]
+    # While still climbing (lo < o; once there, the check at the end applies):
+    # |dz + o'| ≤ h for some o' in [lo, hi]  ⇔  dz + hi ≥ −h and dz + lo ≤ h
+    # A point already in conflict at the offset in force, with us level or above, is not
+    # made worse by climbing (it is what the climb escapes from). With them above us it
+    # is: the climb would close in on them (rule 6). "Level" is within the collision
+    # distance: two plans at one height differ by centimetres, and holding there is
+    # worse than climbing (found in the same campaign, trial 33).
+    climbing = lo < candidates[:, None, None]
+    escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z >= -LEVEL_M)
+    # Along the plans as announced: where a silent UAV could have gone since does not
+    # hold a climb away from a conflict we know of (rule 7).
+    in_way = (enc.announced_xy & climbing & ~escaping
+              & (enc.dz_m + hi >= -half_h) & (enc.dz_m + lo <= half_h))
+    return in_way.any(axis=2)

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -274,51 +274,8 @@ class Airframe:
             raise ConfigError(f"{prefix}.name: must be a non-empty string, got {name!r}")
         mass = positive(take(d, "mass_kg", prefix), f"{prefix}.mass_kg", upper=1000.0)
 
-        p = f"{prefix}.inertia"
-        it = take(d, "inertia", prefix)
-        if not isinstance(it, dict):
-            raise ConfigError(f"{p}: must be a table")
-        reject_unknown(it, _INERTIA, p)
-        ixx, iyy, izz = (
-            positive(take(it, k, p), f"{p}.{k}", upper=1e4)
-            for k in ("ixx_kgm2", "iyy_kgm2", "izz_kgm2")
-        )
-        ixy, ixz, iyz = (
-            _signed(it.get(k, 0.0), f"{p}.{k}") for k in ("ixy_kgm2", "ixz_kgm2", "iyz_kgm2")
-        )
-        inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-        if np.min(np.linalg.eigvalsh(inertia)) <= 0.0:
-            raise ConfigError(f"{p}: not positive definite (check the products of inertia)")
-        # A rigid body's principal moments obey the triangle inequality.
-        if ixx + iyy < izz or iyy + izz < ixx or ixx + izz < iyy:
-            raise ConfigError(f"{p}: moments violate the triangle inequality ixx + iyy ≥ izz etc.")
-
-        p = f"{prefix}.rotors"
-        rt = take(d, "rotors", prefix)
-        if not isinstance(rt, dict):
-            raise ConfigError(f"{p}: must be a table")
-        reject_unknown(rt, _ROTORS, p)
-        arm = positive(take(rt, "arm_length_m", p), f"{p}.arm_length_m", upper=10.0)
-        angles = take(rt, "angles_deg", p)
-        if not isinstance(angles, list) or len(angles) < 3:
-            raise ConfigError(f"{p}.angles_deg: must be a list of ≥ 3 angles, got {angles!r}")
-        ang = np.radians([_signed(a, f"{p}.angles_deg[{i}]") for i, a in enumerate(angles)])
-        spin = take(rt, "spin", p)
-        if not isinstance(spin, list) or len(spin) != len(angles):
-            raise ConfigError(f"{p}.spin: must be a list of {len(angles)} values ±1, got {spin!r}")
-        for i, s in enumerate(spin):
-            if isinstance(s, bool) or s not in (1, -1):
-                raise ConfigError(f"{p}.spin[{i}]: must be +1 or -1, got {s!r}")
-        if sum(spin) != 0:
-            raise ConfigError(f"{p}.spin: as many rotors must spin each way (sum is {sum(spin)})")
-        k_f = positive(take(rt, "k_f_n_per_radps2", p), f"{p}.k_f_n_per_radps2", upper=1.0)
-        k_m = positive(take(rt, "k_m_nm_per_radps2", p), f"{p}.k_m_nm_per_radps2", upper=1.0)
-        tau = positive(take(rt, "motor_tau_s", p), f"{p}.motor_tau_s", upper=1.0)
-        wmax = positive(take(rt, "omega_max_radps", p), f"{p}.omega_max_radps", upper=1e5)
-        widle = positive(
-            take(rt, "omega_idle_radps", p), f"{p}.omega_idle_radps", upper=wmax, allow_zero=True
-        )
-        xy = arm * np.column_stack([np.cos(ang), np.sin(ang)])
+        inertia = _inertia(take(d, "inertia", prefix), f"{prefix}.inertia")
+        rotors = _rotors(take(d, "rotors", prefix), f"{prefix}.rotors")
 
         p = f"{prefix}.drag"
         dt = take(d, "drag", prefix)
@@ -333,13 +290,13 @@ class Airframe:
             name=name,
             mass_kg=mass,
             inertia_kgm2=inertia,
-            rotor_xy_m=xy,
-            rotor_spin=np.array(spin, dtype=float),
-            k_f=k_f,
-            k_m=k_m,
-            motor_tau_s=tau,
-            omega_max_radps=wmax,
-            omega_idle_radps=widle,
+            rotor_xy_m=rotors.xy_m,
+            rotor_spin=np.array(rotors.spin, dtype=float),
+            k_f=rotors.k_f,
+            k_m=rotors.k_m,
+            motor_tau_s=rotors.motor_tau_s,
+            omega_max_radps=rotors.omega_max_radps,
+            omega_idle_radps=rotors.omega_idle_radps,
             drag_n_per_mps=drag,
             se3=se3,
             attitude=att,
@@ -389,3 +346,65 @@ class Airframe:
         if str(name_or_path).endswith(".toml"):
             return cls.from_toml(name_or_path)
         return cls.packaged(str(name_or_path))
+
+
+def _inertia(it: Any, p: str) -> np.ndarray:
+    """The inertia tensor of an airframe's ``[inertia]`` table ``it`` (named ``p``) [kg m²]."""
+    if not isinstance(it, dict):
+        raise ConfigError(f"{p}: must be a table")
+    reject_unknown(it, _INERTIA, p)
+    ixx, iyy, izz = (
+        positive(take(it, k, p), f"{p}.{k}", upper=1e4)
+        for k in ("ixx_kgm2", "iyy_kgm2", "izz_kgm2")
+    )
+    ixy, ixz, iyz = (
+        _signed(it.get(k, 0.0), f"{p}.{k}") for k in ("ixy_kgm2", "ixz_kgm2", "iyz_kgm2")
+    )
+    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    if np.min(np.linalg.eigvalsh(inertia)) <= 0.0:
+        raise ConfigError(f"{p}: not positive definite (check the products of inertia)")
+    # A rigid body's principal moments obey the triangle inequality.
+    if ixx + iyy < izz or iyy + izz < ixx or ixx + izz < iyy:
+        raise ConfigError(f"{p}: moments violate the triangle inequality ixx + iyy ≥ izz etc.")
+    return inertia
+
+
+class _Rotors(NamedTuple):
+    """An airframe's validated ``[rotors]`` table."""
+
+    xy_m: np.ndarray  # (k, 2) rotor positions in the body frame [m]
+    spin: list[int]  # ±1 each
+    k_f: float
+    k_m: float
+    motor_tau_s: float
+    omega_max_radps: float
+    omega_idle_radps: float
+
+
+def _rotors(rt: Any, p: str) -> _Rotors:
+    """An airframe's ``[rotors]`` table ``rt`` (named ``p``), validated."""
+    if not isinstance(rt, dict):
+        raise ConfigError(f"{p}: must be a table")
+    reject_unknown(rt, _ROTORS, p)
+    arm = positive(take(rt, "arm_length_m", p), f"{p}.arm_length_m", upper=10.0)
+    angles = take(rt, "angles_deg", p)
+    if not isinstance(angles, list) or len(angles) < 3:
+        raise ConfigError(f"{p}.angles_deg: must be a list of ≥ 3 angles, got {angles!r}")
+    ang = np.radians([_signed(a, f"{p}.angles_deg[{i}]") for i, a in enumerate(angles)])
+    spin = take(rt, "spin", p)
+    if not isinstance(spin, list) or len(spin) != len(angles):
+        raise ConfigError(f"{p}.spin: must be a list of {len(angles)} values ±1, got {spin!r}")
+    for i, s in enumerate(spin):
+        if isinstance(s, bool) or s not in (1, -1):
+            raise ConfigError(f"{p}.spin[{i}]: must be +1 or -1, got {s!r}")
+    if sum(spin) != 0:
+        raise ConfigError(f"{p}.spin: as many rotors must spin each way (sum is {sum(spin)})")
+    k_f = positive(take(rt, "k_f_n_per_radps2", p), f"{p}.k_f_n_per_radps2", upper=1.0)
+    k_m = positive(take(rt, "k_m_nm_per_radps2", p), f"{p}.k_m_nm_per_radps2", upper=1.0)
+    tau = positive(take(rt, "motor_tau_s", p), f"{p}.motor_tau_s", upper=1.0)
+    wmax = positive(take(rt, "omega_max_radps", p), f"{p}.omega_max_radps", upper=1e5)
+    widle = positive(
+        take(rt, "omega_idle_radps", p), f"{p}.omega_idle_radps", upper=wmax, allow_zero=True
+    )
+    xy = arm * np.column_stack([np.cos(ang), np.sin(ang)])
+    return _Rotors(xy, spin, k_f, k_m, tau, wmax, widle)
