@@ -288,3 +288,30 @@ def test_lossy_link_to_strategy_end_to_end() -> None:
             offsets[u] = strat[u].update(now, u, prio[u], times, nominal[u], others).z_offset_m
     assert offsets == {"a": 0.0, "b": 3.0}
     assert link.stats.sent == 16 and link.stats.delivered + link.stats.dropped == 16
+
+
+# --------------------------------------------------------------------------- node state
+def test_a_node_state_round_trips_and_a_bad_one_is_refused_by_name() -> None:
+    import json
+
+    from uavmpc.comms.state import InvalidStateError, NodeState
+
+    s = NodeState(t_s=1.7e9, position_m=(1.0, 2.0, 5.0), velocity_mps=(0.5, 0.0, 0.0),
+                  heading_rad=0.3, command_m=(1.1, 2.0, 8.0), z_offset_m=3.0, avoiding=True,
+                  conflicts=("uav2",), yielding_to=("uav2",), waiting_for=())
+    assert NodeState.decode(s.encode()) == s
+    good = json.loads(s.encode())
+    for change, field in [({"position_m": [0.0, float("nan"), 1.0]}, "position_m"),
+                          ({"position_m": [0.0, 1.0]}, "position_m"),
+                          ({"t_s": True}, "t_s"), ({"avoiding": 1}, "avoiding"),
+                          ({"yielding_to": ["a b"]}, "yielding_to"),
+                          ({"z_offset_m": 1e9}, "z_offset_m"), ({"extra": 1}, "extra")]:
+        payload = json.dumps({**good, **change}).encode()
+        with pytest.raises(InvalidStateError, match=rf"^state\.{field}"):
+            NodeState.decode(payload)
+    missing = {k: v for k, v in good.items() if k != "command_m"}
+    with pytest.raises(InvalidStateError, match=r"^state\.command_m: missing"):
+        NodeState.decode(json.dumps(missing).encode())
+    for junk in (b"", b"[1]", b"\xff", b"[" * 100_000):
+        with pytest.raises(InvalidStateError, match=r"^state"):
+            NodeState.decode(junk)

@@ -85,7 +85,8 @@ def test_ros2_goals_and_paths_go_through_the_same_validator() -> None:
     _same(goal, mission_from_table({"goto": [1.0, 2.0, 3.0, 0.1]}, "x", NOW_S))
     pts = np.array([[0.0, 0.0, 5.0, 0.0], [1.0, 0.0, 5.0, 0.0]])
     _same(ros2_mission(None, pts, NOW_S), Reference.sampled(pts, 0.2, NOW_S))
-    with pytest.raises(InvalidReferenceError, match=r"^ros2 mission\.trajectory: times_s must increase"):
+    with pytest.raises(InvalidReferenceError,
+                       match=r"^ros2 mission\.trajectory: times_s must increase"):
         ros2_mission(np.array([NOW_S, NOW_S]), pts, NOW_S)  # stamps that do not increase
     with pytest.raises(InvalidReferenceError, match=r"^ros2 mission\.goto\[2\]"):
         ros2_mission(None, np.array([[0.0, 0.0, np.nan, 0.0]]), NOW_S)

@@ -279,7 +279,8 @@ def test_the_field_scenarios_load_and_bad_ones_are_refused() -> None:
         scenarios.from_dict({**base, "limits": {"horizontal_speed_mps": -1.0}})
     with pytest.raises(ConfigError, match=r"ground_vehicle.speed_kmh"):
         scenarios.from_dict({**base, "ground_vehicle": {"speed_kmh": -3}})
-    with pytest.raises(ConfigError, match="exactly one of goto, trajectory or path, got goto and path"):
+    with pytest.raises(ConfigError,
+                       match="exactly one of goto, trajectory or path, got goto and path"):
         scenarios.from_dict({**base, "uavs": [{**base["uavs"][0], "goto": [0, 0, 5, 0],
                                                 "path": {"waypoints": [[0, 0, 5], [1, 0, 5]],
                                                          "speed_mps": 1.0}}]})

@@ -17,6 +17,7 @@ from waiting import wait_until
 from uavmpc import scenarios
 from uavmpc.comms.auth import sign
 from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.comms.state import NodeState
 from uavmpc.comms.zenoh_link import ZenohTransport
 from uavmpc.drivers.node import Node
 from uavmpc.drivers.swarm import free_ports, run_swarm
@@ -68,9 +69,7 @@ class _Flight:
         self.node_tx.close()
 
     def max_offset(self) -> float:
-        import json
-
-        return max((json.loads(p)["z_offset"] for _, p in self.states.drain()), default=0.0)
+        return max((NodeState.decode(p).z_offset_m for _, p in self.states.drain()), default=0.0)
 
 
 def test_swap_as_three_processes_is_collision_free_and_reaches_goals(tmp_path) -> None:
@@ -101,7 +100,7 @@ def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_pa
     assert uav2["max_z_offset_m"] >= 3.0  # it yielded while uav1 was there
     # …held it while uav1 was silent (10 s after its last message), then released it at
     # 2 m/s: back down by about 16.5 s
-    assert uav2["last_state"]["z_offset"] == 0.0 and not uav2["last_state"]["avoiding"]
+    assert uav2["last_state"]["z_offset_m"] == 0.0 and not uav2["last_state"]["avoiding"]
     assert uav2["reached_goal"]
     # the killed node printed no report: the summary says how it ended instead
     assert s["uavs"]["uav1"]["node"]["exit_code"] == -9

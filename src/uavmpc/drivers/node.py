@@ -22,7 +22,6 @@ they are synchronised by construction.
 
 from __future__ import annotations
 
-import json
 import signal
 import threading
 import time
@@ -35,6 +34,7 @@ import numpy as np
 from uavmpc.avoidance import AvoidanceParams, EncounterStrategy, HeightOffsetStrategy
 from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
+from uavmpc.comms.state import NodeState
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
 from uavmpc.geofence import FenceWatch, Geofence, GeofenceError
 from uavmpc.missions.format import mission_from_json
@@ -541,18 +541,18 @@ class Node:
         assert stack is not None
         decision = stack.decision
         cmd = stack.command()
-        self.transport.put("state", json.dumps({
-            "t": now,
-            "p": state.position_m.tolist(),
-            "v": state.velocity_mps.tolist(),
-            "heading": float(heading_of(state.attitude_wxyz)),
-            "cmd": cmd.position_m.tolist(),
-            "z_offset": stack.tracker.z_offset_m,
-            "avoiding": bool(decision is not None and decision.avoiding),
-            "conflicts": list(decision.conflicts) if decision is not None else [],
-            "yielding_to": list(decision.yielding_to) if decision is not None else [],
-            "waiting_for": list(decision.waiting_for) if decision is not None else [],
-        }, separators=(",", ":")).encode())
+        p, v, c = state.position_m, state.velocity_mps, cmd.position_m
+        self.transport.put("state", NodeState(
+            t_s=now, position_m=(float(p[0]), float(p[1]), float(p[2])),
+            velocity_mps=(float(v[0]), float(v[1]), float(v[2])),
+            heading_rad=float(heading_of(state.attitude_wxyz)),
+            command_m=(float(c[0]), float(c[1]), float(c[2])),
+            z_offset_m=float(stack.tracker.z_offset_m),
+            avoiding=bool(decision is not None and decision.avoiding),
+            conflicts=tuple(decision.conflicts) if decision is not None else (),
+            yielding_to=tuple(decision.yielding_to) if decision is not None else (),
+            waiting_for=tuple(decision.waiting_for) if decision is not None else (),
+        ).encode())
 
 
 def run_node(node: Node, duration_s: float | None = None) -> NodeStats:

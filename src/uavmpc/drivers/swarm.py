@@ -51,6 +51,7 @@ import numpy as np
 from uavmpc.avoidance import AvoidanceParams
 from uavmpc.comms.auth import load_key, verify
 from uavmpc.comms.message import InvalidMessageError, decode
+from uavmpc.comms.state import InvalidStateError, NodeState
 from uavmpc.config import ConfigError
 from uavmpc.drivers.launch import (
     LaunchError,
@@ -213,7 +214,7 @@ class LiveSink(Protocol):
     def publish(self, t_s: float, scene: dict[str, Any], metrics: dict[str, Any]) -> None: ...
 
 
-def _scene(t_s: float, states: dict[str, dict[str, Any]],
+def _scene(t_s: float, states: dict[str, NodeState],
            plans: dict[str, tuple[float, np.ndarray]], now: float, prm: AvoidanceParams,
            ground: dict[str, Any], min_distance_m: float | None
            ) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -223,21 +224,18 @@ def _scene(t_s: float, states: dict[str, dict[str, Any]],
     views = []
     for uav, s in states.items():
         heard, plan = plans.get(uav, (-math.inf, np.zeros((0, 3))))
-        z_off = float(s.get("z_offset", 0.0))
+        z_off = s.z_offset_m
         views.append(UavView(
-            uav, np.array(s["p"], dtype=float), float(s.get("heading", 0.0)), plan,
+            uav, np.array(s.position_m), s.heading_rad, plan,
             plan - np.array([0.0, 0.0, z_off]), z_off,
-            state_of(silent=now - heard > prm.timeout_s,
-                     waiting_for=s.get("waiting_for", []),
-                     yielding_to=s.get("yielding_to", []), z_offset_m=z_off,
-                     avoiding=bool(s.get("avoiding", False))),
+            state_of(silent=now - heard > prm.timeout_s, waiting_for=list(s.waiting_for),
+                     yielding_to=list(s.yielding_to), z_offset_m=z_off, avoiding=s.avoiding),
             prm.radius_m, prm.height_m,
-            detail_of(yielding_to=s.get("yielding_to", []),
-                      waiting_for=s.get("waiting_for", []))))
+            detail_of(yielding_to=list(s.yielding_to), waiting_for=list(s.waiting_for))))
     metrics = {"t_s": t_s, "min_distance_m": min_distance_m,
                "uavs": {v.uav_id: {"state": v.state, "detail": v.detail,
                                    "z_offset_m": v.z_offset_m,
-                                   "avoiding": bool(states[v.uav_id].get("avoiding", False))}
+                                   "avoiding": states[v.uav_id].avoiding}
                         for v in views}}
     return scene_update(t_s, views, ground=ground), metrics
 
@@ -453,7 +451,8 @@ class _Monitor:
         self.kills = dict(kill_at_s or {})
         self.live = live
         self.latest: dict[str, np.ndarray] = {}
-        self.last_state: dict[str, dict[str, Any]] = {}
+        self.last_state: dict[str, NodeState] = {}
+        self.states_refused = 0  # malformed state messages (not drawn, not judged)
         self.at_end: dict[str, np.ndarray] = {}
         self.offsets: dict[str, float] = dict.fromkeys(self.ids, 0.0)
         self.collisions: list[dict[str, Any]] = []
@@ -485,26 +484,27 @@ class _Monitor:
             time.sleep(0.005)
 
     def hear_states(self, rec: FlightRecorder) -> None:
-        """Record every state received since the last call (malformed ones are skipped)."""
+        """Record every state received since the last call (malformed ones are counted and
+        skipped)."""
         for topic, payload in self.states.drain():
             uav = topic.split("/")[-2]
             try:
-                s = json.loads(payload)
-                p = np.array(s["p"], dtype=float)
-            except (ValueError, KeyError, TypeError):
+                s = NodeState.decode(payload)
+            except InvalidStateError:
+                self.states_refused += 1
                 continue
-            if uav not in self.offsets or p.shape != (3,) or not np.all(np.isfinite(p)):
+            if uav not in self.offsets:
+                self.states_refused += 1
                 continue
+            p = np.array(s.position_m)
             self.latest[uav] = p
             self.last_state[uav] = s
-            self.tracks[uav].append((float(s["t"]), p))
-            self.offsets[uav] = max(self.offsets[uav], float(s.get("z_offset", 0.0)))
-            rec.pose(uav, "state", float(s["t"]), p, float(s.get("heading", 0.0)))
-            rec.pose(uav, "command", float(s["t"]), np.array(s["cmd"]), 0.0)
-            rec.status(uav, float(s["t"]), z_offset_m=float(s.get("z_offset", 0.0)),
-                       avoiding=bool(s.get("avoiding", False)),
-                       conflicts=list(s.get("conflicts", [])),
-                       yielding_to=list(s.get("yielding_to", [])))
+            self.tracks[uav].append((s.t_s, p))
+            self.offsets[uav] = max(self.offsets[uav], s.z_offset_m)
+            rec.pose(uav, "state", s.t_s, p, s.heading_rad)
+            rec.pose(uav, "command", s.t_s, np.array(s.command_m), 0.0)
+            rec.status(uav, s.t_s, z_offset_m=s.z_offset_m, avoiding=s.avoiding,
+                       conflicts=list(s.conflicts), yielding_to=list(s.yielding_to))
 
     def hear_predictions(self, rec: FlightRecorder) -> None:
         """Record every plan received since the last call (unverifiable ones are skipped)."""
@@ -579,7 +579,8 @@ def _uav_summary(uav: str, goal: np.ndarray, follower: bool, monitor: _Monitor,
                          else bool(np.linalg.norm(judged - goal) < GOAL_TOLERANCE_M)),
         "mission_end_position_m": np.asarray(judged).tolist(),
         "final_position_m": final.tolist(),
-        "last_state": monitor.last_state.get(uav, {}),
+        "last_state": (dataclasses.asdict(monitor.last_state[uav])
+                       if uav in monitor.last_state else {}),
         "node": ended.nodes[uav][1] if uav in ended.nodes else {},
     }
     if opts.real_px4:
