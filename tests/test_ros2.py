@@ -232,6 +232,54 @@ def test_without_commands_no_subscription_is_offered() -> None:
         router.close()
 
 
+def _listening_sockets() -> set[tuple[str, int]]:
+    """(address, port) of the TCP sockets this process listens on (from /proc)."""
+    import os
+    import socket
+
+    mine = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            link = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if link.startswith("socket:["):
+            mine.add(link[8:-1])
+    out = set()
+    for table, family in (("/proc/net/tcp", socket.AF_INET), ("/proc/net/tcp6", socket.AF_INET6)):
+        with open(table) as f:
+            for line in f.readlines()[1:]:
+                fields = line.split()
+                if fields[3] != "0A" or fields[9] not in mine:  # 0A: LISTEN
+                    continue
+                addr_hex, port_hex = fields[1].split(":")
+                raw = bytes.fromhex(addr_hex)
+                # /proc writes each 32-bit word in host (little-endian) order
+                raw = b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))
+                out.add((socket.inet_ntop(family, raw), int(port_hex, 16)))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux's /proc")
+def test_the_graph_publishes_reliably_and_listens_on_loopback_only() -> None:
+    router, endpoint = _router()
+    before = _listening_sockets()
+    try:
+        with ros2.Ros2Graph(endpoint, node_name="uavmpc_r") as graph:
+            topics = ros2.UavTopics(graph, "r", commands=False)
+            # the token says reliable (empty first QoS field) and so does the publisher
+            assert "/::,10:,:,:,," in topics.pose.token_key
+            assert topics.pose.reliability == zenoh.Reliability.RELIABLE
+            opened = _listening_sockets() - before
+            assert opened and all(addr == "127.0.0.1" for addr, _ in opened), opened
+        with ros2.Ros2Graph(endpoint, node_name="uavmpc_n", listen=()):
+            assert _listening_sockets() - before == set()
+        with pytest.raises(ValueError, match="listen"):
+            ros2.Ros2Graph(endpoint, listen=["localhost"])
+    finally:
+        router.close()
+
+
 def test_a_swarm_on_the_graph_publishes_every_uavs_topics_at_their_rates(tmp_path: Path) -> None:
     router, endpoint = _router()
     obs = Observer(endpoint)
