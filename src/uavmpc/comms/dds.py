@@ -38,12 +38,17 @@ from uavmpc.comms.ros2 import (
     dds_type_name,
 )
 
-__all__ = ["DdsGraph", "DdsPublisher", "DdsSubscriber", "dds_topic_name", "user_data"]
+__all__ = ["DdsGraph", "DdsPublisher", "DdsSubscriber", "dds_topic_name", "require", "user_data"]
 
 DISCOVERY_TOPIC = "ros_discovery_info"
 PARTICIPANT_INFO = "rmw_dds_common/msg/ParticipantEntitiesInfo"
 
 _EXTRA = "pip install 'uavmpc[ros2]'"
+
+
+def require() -> None:
+    """Raise ImportError, naming the extra to install, unless Cyclone DDS imports."""
+    _need("cyclonedds.domain")
 
 
 def dds_topic_name(topic: str) -> str:
