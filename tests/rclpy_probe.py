@@ -9,7 +9,8 @@ stdin, prints one JSON answer line on stdout:
 - ``{"op": "watch", "uavs": [...], "seconds": S, "timeout": T, "goal": {...}}``: subscribes
   to every UAV's pose, odom and prediction; once every one has data, publishes the goal (and
   the bad commands) and records S more seconds; answers the graph (topics and types, nodes,
-  publishers' type hashes and QoS), per topic the receive times and the last message.
+  publishers' type hashes and QoS), per topic the receive times (Unix s), the messages' header
+  stamps and the last message.
 """
 
 from __future__ import annotations
@@ -78,14 +79,17 @@ def _goal(frame: str, x: float, y: float, z: float) -> PoseStamped:
 def watch(request: dict[str, Any]) -> dict[str, Any]:
     node = rclpy.create_node("uavmpc_probe")
     times: dict[str, list[float]] = {}
+    stamps: dict[str, list[float]] = {}
     last: dict[str, Any] = {}
     for uav in request["uavs"]:
         for kind, cls in KINDS.items():
             topic = f"/{uav}/{kind}"
             times[topic] = []
+            stamps[topic] = []
 
             def on(msg: Any, topic: str = topic) -> None:
                 times[topic].append(time.time())
+                stamps[topic].append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
                 last[topic] = msg
 
             node.create_subscription(cls, topic, on, 10)
@@ -117,6 +121,7 @@ def watch(request: dict[str, Any]) -> dict[str, Any]:
              "durability": i.qos_profile.durability.name}
             for i in node.get_publishers_info_by_topic(topic)]
     answer["times"] = times
+    answer["stamps"] = stamps
     answer["last"] = {t: as_dict(m) for t, m in last.items()}
     node.destroy_node()
     return answer

@@ -59,7 +59,8 @@ def rclpy_py() -> Path:
 def _plain(msg: Any) -> Any:
     """A rosbags message as the JSON values the probe gives for rclpy's."""
     if dataclasses.is_dataclass(msg):
-        return {f.name: _plain(getattr(msg, f.name)) for f in dataclasses.fields(msg)}
+        return {f.name: _plain(getattr(msg, f.name)) for f in dataclasses.fields(msg)
+                if not f.name.startswith("__")}  # rosbags' __msgtype__
     if isinstance(msg, np.ndarray | list | tuple):
         return [_plain(v) for v in msg]
     return msg.item() if isinstance(msg, np.generic) else msg
