@@ -10,7 +10,7 @@ stdin, prints one JSON answer line on stdout:
   to every UAV's pose, odom and prediction; once every one has data, publishes the goal (and
   the bad commands) and records S more seconds; answers the graph (topics and types, nodes,
   publishers' type hashes and QoS), per topic the receive times (Unix s), the messages' header
-  stamps and the last message.
+  stamps, the DDS source-to-received times and the last message.
 """
 
 from __future__ import annotations
@@ -80,16 +80,20 @@ def watch(request: dict[str, Any]) -> dict[str, Any]:
     node = rclpy.create_node("uavmpc_probe")
     times: dict[str, list[float]] = {}
     stamps: dict[str, list[float]] = {}
+    wire: dict[str, list[float]] = {}
     last: dict[str, Any] = {}
     for uav in request["uavs"]:
         for kind, cls in KINDS.items():
             topic = f"/{uav}/{kind}"
             times[topic] = []
             stamps[topic] = []
+            wire[topic] = []
 
-            def on(msg: Any, topic: str = topic) -> None:
+            def on(msg: Any, info: Any, topic: str = topic) -> None:
                 times[topic].append(time.time())
                 stamps[topic].append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+                # DDS's own stamps: written by the publisher, received by the middleware
+                wire[topic].append((info["received_timestamp"] - info["source_timestamp"]) * 1e-9)
                 last[topic] = msg
 
             node.create_subscription(cls, topic, on, 10)
@@ -122,6 +126,7 @@ def watch(request: dict[str, Any]) -> dict[str, Any]:
             for i in node.get_publishers_info_by_topic(topic)]
     answer["times"] = times
     answer["stamps"] = stamps
+    answer["wire_s"] = wire
     answer["last"] = {t: as_dict(m) for t, m in last.items()}
     node.destroy_node()
     return answer

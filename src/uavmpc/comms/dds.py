@@ -166,8 +166,10 @@ class DdsPublisher:
         self.gid = self._writer.guid.bytes
 
     def put(self, cdr: bytes, t_ns: int | None = None) -> None:
-        """Publish one CDR payload; ``t_ns``: its source time stamp (default: now)."""
-        self._writer.write(self._type.of(bytes(cdr)), timestamp=t_ns)
+        """Publish one CDR payload. Its DDS source time stamp is the time of writing, as ROS 2's
+        DDS middlewares stamp theirs (``t_ns``, the message's own time, is in its header)."""
+        del t_ns
+        self._writer.write(self._type.of(bytes(cdr)))
         self.graph.stats.published += 1
         self.graph.stats.bytes_published += len(cdr)
 
