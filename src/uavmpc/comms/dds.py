@@ -25,9 +25,7 @@ encoded, what a reader hands on is what arrived, decoded (and refused if bad) by
 
 from __future__ import annotations
 
-import itertools
 import os
-import threading
 from typing import Any
 
 from uavmpc.comms.ros2 import (
@@ -42,9 +40,6 @@ __all__ = ["DdsGraph", "DdsPublisher", "DdsSubscriber", "dds_topic_name", "requi
 
 DISCOVERY_TOPIC = "ros_discovery_info"
 PARTICIPANT_INFO = "rmw_dds_common/msg/ParticipantEntitiesInfo"
-
-_EXTRA = "pip install 'uavmpc[ros2]'"
-
 
 def require() -> None:
     """Raise ImportError, naming the extra to install, unless Cyclone DDS imports."""
@@ -76,13 +71,12 @@ class _DdsTypes:
         self.fielddefs = codec.store.fielddefs
         self._made: dict[str, Any] = {}
         self._raw: dict[str, Any] = {}
-        base = {"bool": bool, "float32": self.t.float32, "float64": self.t.float64,
+        self._base = {"bool": bool, "float32": self.t.float32, "float64": self.t.float64,
                 "int8": self.t.int8, "int16": self.t.int16, "int32": self.t.int32,
                 "int64": self.t.int64, "uint8": self.t.uint8, "uint16": self.t.uint16,
                 "uint32": self.t.uint32, "uint64": self.t.uint64,
                 # rosidl: a message's byte is an IDL octet, its char an IDL uint8
                 "byte": self.t.byte, "char": self.t.uint8, "octet": self.t.byte}
-        self._base = base
 
     def _field(self, node: tuple[Any, Any]) -> Any:
         kind, arg = node
@@ -238,8 +232,6 @@ class DdsGraph:
         self.gid = self.participant.guid.bytes
         self._topics: dict[str, Any] = {}
         self._entities: list[DdsPublisher | DdsSubscriber] = []
-        self._lock = threading.Lock()
-        self._ids = itertools.count()
         pub = _need("cyclonedds.pub")
         core = _need("cyclonedds.core")
         policy = core.Policy
