@@ -50,7 +50,8 @@ def main(seconds: float = 10.0) -> dict:
         thread = threading.Thread(target=fly, daemon=True)
         thread.start()
         seen = run_probe(python, {"op": "watch", "uavs": list(UAVS), "seconds": seconds,
-                                  "timeout": 90.0, "goal": {"uav": "uav1", "position": GOAL}},
+                                  "timeout": 90.0, "goal": {"uav": "uav1", "position": GOAL,
+                                                             "within_m": 0.5}},
                          domain_id=domain, timeout_s=seconds + 200.0)
         thread.join()
     out: dict = {"seconds": seconds, "rate_hz": {}, "latency_ms": {}, "age_ms": {}}

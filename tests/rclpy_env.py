@@ -80,6 +80,8 @@ def rclpy_python(build_timeout_s: float = 600.0) -> tuple[Path | None, str]:
         why = _imports_rclpy(_python_of(work))
         if why is not None:
             return None, f"rclpy from PyPI does not import here: {why}"
+        if _python_of(venv).exists() and _imports_rclpy(_python_of(venv)) is None:
+            return _python_of(venv), ""  # another process built it meanwhile: keep theirs
         shutil.rmtree(venv, ignore_errors=True)
         # a venv's scripts name its folder; the interpreter itself does not, so `python`
         # (all we run) works after the rename

@@ -8,7 +8,8 @@ stdin, prints one JSON answer line on stdout:
   per message, rclpy's CDR (hex) and the message as a dict.
 - ``{"op": "watch", "uavs": [...], "seconds": S, "timeout": T, "goal": {...}}``: subscribes
   to every UAV's pose, odom and prediction; once every one has data, publishes the goal (and
-  the bad commands) and records S more seconds; answers the graph (topics and types, nodes,
+  the bad commands) and records S more seconds, then waits (at most T) until the UAV's pose is
+  within ``within_m`` of the goal; answers the graph (topics and types, nodes,
   publishers' type hashes and QoS), per topic the receive times (Unix s), the messages' header
   stamps, the DDS source-to-received times and the last message.
 """
@@ -115,6 +116,16 @@ def watch(request: dict[str, Any]) -> dict[str, Any]:
         pub.publish(_goal("world", x, y, z))
     t0 = time.time()
     _spin_until(node, lambda: time.time() - t0 >= request["seconds"], request["seconds"] + 1)
+    if started and goal is not None:  # then until the UAV is there, as its pose tells
+        topic = f"/{goal['uav']}/pose"
+
+        def away() -> float:
+            p = last[topic].pose.position
+            return sum((a - b) ** 2 for a, b in zip((p.x, p.y, p.z), goal["position"],
+                                                    strict=True)) ** 0.5
+
+        _spin_until(node, lambda: away() < goal["within_m"], request["timeout"])
+        answer["goal_distance_m"] = away()
     answer["topics"] = sorted([name, types] for name, types in node.get_topic_names_and_types())
     answer["nodes"] = sorted([ns, name] for name, ns in node.get_node_names_and_namespaces())
     answer["publishers"] = {}
