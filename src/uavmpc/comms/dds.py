@@ -58,6 +58,25 @@ def user_data(type_hash: str) -> bytes:
     return f"typehash={type_hash};".encode()
 
 
+#: Cyclone DDS's configuration of every domain we join: match Fast DDS's endpoints by type name,
+#: as ROS 2 does, ignoring the XTypes type information Fast DDS 3 (ROS 2 Kilted) sends; Cyclone
+#: cannot use it for ROS's types and would match none of them. eProsima's vendor id: 1.15.
+COMPATIBILITY = ("<CycloneDDS><Domain><Compatibility><IgnoreTypeInformation>1.15"
+                 "</IgnoreTypeInformation></Compatibility></Domain></CycloneDDS>")
+_domains: dict[int, Any] = {}
+
+
+def _configure(domain_id: int) -> None:
+    """Create the domain once per process with :data:`COMPATIBILITY`, then what
+    ``CYCLONEDDS_URI`` adds (a site's configuration); the domain lives as long as the process."""
+    if domain_id in _domains:
+        return
+    config = COMPATIBILITY
+    if os.environ.get("CYCLONEDDS_URI"):
+        config += "," + os.environ["CYCLONEDDS_URI"]
+    _domains[domain_id] = _need("cyclonedds.domain").Domain(domain_id, config)
+
+
 class _DdsTypes:
     """Cyclone DDS data types of ROS message types, made from the rosbags type store's fields.
 
@@ -226,6 +245,7 @@ class DdsGraph:
         self.types = _DdsTypes(self.codec)
         self.stats = Ros2Stats()
         try:
+            _configure(self.domain_id)
             self.participant = domain.DomainParticipant(self.domain_id)
         except Exception as exc:  # cyclonedds raises DDSException on a bad configuration
             raise OSError(f"cannot join DDS domain {self.domain_id}: {exc}") from None
