@@ -126,6 +126,19 @@ def test_the_node_is_announced_and_cdr_goes_through_unchanged_and_bad_commands_c
         wait_until(refused, 10.0, "both unflyable goals, refused")
         assert not taken and len(rejected) == 2
         assert "frame_id 'map'" in rejected[0] and "x is nan" in rejected[1], rejected
+        # A trajectory (nav_msgs/Path, stamps zero: one pose every 0.2 s from now) is taken.
+        trajectory = b.publisher("/a/trajectory", ros2.PATH)
+        points = np.array([[0.0, 0.0, 5.0], [1.0, 0.0, 5.0], [2.0, 1.0, 5.5]])
+        trajectory.put(a.codec.path(0.0, np.zeros(3), points, np.zeros(3)))
+
+        def flown() -> list[Any]:
+            missions, why = topics.missions(
+                5.0, lambda times, pts: ros2_mission(times, pts, 5.0))
+            assert not why
+            return missions
+
+        (reference,) = wait_until(flown, 10.0, "the trajectory, taken")
+        assert np.allclose(reference.sample(np.array([5.4]))[0, :3], [2.0, 1.0, 5.5])
 
 
 # ---------------------------------------------------------------------- real rclpy
