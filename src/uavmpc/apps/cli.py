@@ -70,10 +70,9 @@ def _fly_world(world: Any, sc: Any, *, duration: float | None, ros2: str | None,
     with contextlib.ExitStack() as around:
         mirror = live = None
         if ros2 is not None:
-            from uavmpc.comms.ros2 import Ros2Graph
-            from uavmpc.drivers.ros2 import WorldOnRos2
+            from uavmpc.drivers.ros2 import WorldOnRos2, open_graph
 
-            graph = around.enter_context(Ros2Graph(ros2, node_name="uavmpc_world"))
+            graph = around.enter_context(open_graph(ros2, "uavmpc_world"))
             mirror = WorldOnRos2(graph, [u.uav_id for u in sc.uavs])
         if live_port is not None:
             from uavmpc.view.live import LiveView
@@ -340,9 +339,9 @@ def _swarm_preflight(args: argparse.Namespace) -> tuple[Any, Any] | None:
     if args.mavlink or build is not None:
         import uavmpc.drivers.px4.dialect  # noqa: F401  (fail early if pymavlink is missing)
     if args.ros2:
-        from uavmpc.comms.ros2 import Ros2Codec
+        from uavmpc.drivers.ros2 import require_graph
 
-        Ros2Codec()  # fail early, in one line, if the ros2 extra is missing
+        require_graph(args.ros2)  # fail early, in one line, if the ros2 extra is missing
     return build, geo_origin
 
 
@@ -671,6 +670,10 @@ def _add_run_parser(sub: Any) -> None:
                      help="fly in real time and show every UAV on a ROS 2 graph through this "
                           "Zenoh router (rmw_zenohd, e.g. tcp/localhost:7447); goals and "
                           "trajectories from ROS 2 are flown")
+    run.add_argument("--ros2-dds", type=int, nargs="?", const=-1, default=None,
+                     metavar="DOMAIN",
+                     help="like --ros2, on ROS 2's default middleware (DDS) in this domain "
+                          "(default: ROS_DOMAIN_ID, else 0)")
     run.add_argument("--realtime", type=float, default=None, metavar="FACTOR",
                      help="pace the simulation at FACTOR × real time (--ros2, --live: "
                           "default 1)")
@@ -734,6 +737,10 @@ def _add_node_parser(sub: Any) -> None:
                       help="also appear on a ROS 2 graph (rmw_zenoh) through this Zenoh router, "
                            "e.g. tcp/localhost:7447: /ID/pose, odom, prediction, avoidance out; "
                            "/ID/goal, /ID/trajectory in (pip install 'uavmpc[ros2]')")
+    node.add_argument("--ros2-dds", type=int, nargs="?", const=-1, default=None,
+                      metavar="DOMAIN",
+                      help="like --ros2, on ROS 2's default middleware (DDS) in this domain "
+                           "(default: ROS_DOMAIN_ID, else 0)")
     node.add_argument("--ros2-commands", action="store_true",
                       help="--ros2 with --key-file: take goals and trajectories from ROS 2 anyway "
                            "(they are not signed)")
@@ -795,6 +802,10 @@ def _add_swarm_parser(sub: Any) -> None:
     swarm.add_argument("--ros2", metavar="ROUTER",
                        help="every node also appears on a ROS 2 graph through this Zenoh router "
                             "(rmw_zenohd, e.g. tcp/localhost:7447)")
+    swarm.add_argument("--ros2-dds", type=int, nargs="?", const=-1, default=None,
+                       metavar="DOMAIN",
+                       help="like --ros2, on ROS 2's default middleware (DDS) in this domain "
+                            "(default: ROS_DOMAIN_ID, else 0)")
     swarm.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                        help="serve the 3-D scene and metrics to Foxglove on "
                             "ws://127.0.0.1:PORT while it flies (default port 8765; pip "
@@ -948,6 +959,18 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "ticks", 1) < 1:
         print("uavmpc: --ticks must be ≥ 1", file=sys.stderr)
         return 2
+    if getattr(args, "ros2_dds", None) is not None:  # run, swarm, node: one graph, named once
+        from uavmpc.drivers.ros2 import dds_where
+
+        if args.ros2 is not None:
+            print("uavmpc: --ros2 and --ros2-dds are exclusive (one ROS 2 middleware)",
+                  file=sys.stderr)
+            return 2
+        try:
+            args.ros2 = dds_where(None if args.ros2_dds < 0 else args.ros2_dds)
+        except ValueError as exc:
+            print(f"uavmpc: {exc}", file=sys.stderr)
+            return 2
     return exit_code_of(lambda: args.func(args))
 
 

@@ -26,6 +26,7 @@ durability for late joiners (an AdvancedPublisher cache), services, shared memor
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import os
 import threading
@@ -47,6 +48,9 @@ PATH = "nav_msgs/msg/Path"
 AVOIDANCE_STATUS = "uavmpc_msgs/msg/AvoidanceStatus"
 #: rmw_zenoh's default router endpoint.
 DEFAULT_ROUTER = "tcp/localhost:7447"
+#: Where the graph session accepts connections from other peers: loopback only, as rmw_zenoh's
+#: own session config (it listens on ``tcp/localhost:0``); a port chosen by the system.
+DEFAULT_LISTEN = ("tcp/127.0.0.1:0",)
 #: The QoS field of a token: reliable, volatile, keep last 10 (empty fields are rmw_zenoh's
 #: defaults: reliable, volatile, keep-last, depth 42, infinite durations, automatic liveliness).
 QOS_KEEP_LAST_10 = "::,10:,:,:,,"
@@ -241,7 +245,10 @@ class Ros2Publisher:
         self.token_key = graph.entity_token(next(graph.ids), "MP", topic, ros_type, qos)
         self.gid = gid_of(self.token_key)
         self._seq = 0
-        self._pub = graph.session.declare_publisher(self.key)
+        zenoh = _need("zenoh")
+        # Reliable, as the token's QoS says and as rmw_zenoh declares its own publishers.
+        self._pub = graph.session.declare_publisher(
+            self.key, reliability=zenoh.Reliability.RELIABLE)
         self._token = graph.session.liveliness().declare_token(self.token_key)
 
     def put(self, cdr: bytes, t_ns: int | None = None) -> None:
@@ -255,6 +262,11 @@ class Ros2Publisher:
         self._pub.put(cdr, attachment=attachment)
         self.graph.stats.published += 1
         self.graph.stats.bytes_published += len(cdr)
+
+    @property
+    def reliability(self) -> Any:
+        """The Zenoh reliability this publisher was declared with."""
+        return self._pub.reliability
 
     def close(self) -> None:
         self._token.undeclare()
@@ -324,14 +336,18 @@ class Ros2Graph:
         node_name: the ROS node's name.
         domain_id: ``ROS_DOMAIN_ID`` (default: that environment variable, else 0).
         namespace: the node's namespace ("/" for none).
+        listen: endpoints on which the session accepts peers' connections (default: loopback
+            only, a free port); ``()`` for none. Zenoh's own default would be every interface.
     """
 
     def __init__(self, router: str = DEFAULT_ROUTER, *, node_name: str = "uavmpc",
-                 domain_id: int | None = None, namespace: str = "/") -> None:
+                 domain_id: int | None = None, namespace: str = "/",
+                 listen: Sequence[str] = DEFAULT_LISTEN) -> None:
         from uavmpc.comms.zenoh_link import check_endpoints
 
         zenoh = _need("zenoh")
         (self.router,) = check_endpoints([router], "router")
+        self.listen = check_endpoints(listen, "listen")
         if domain_id is None:
             domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
         if not 0 <= int(domain_id) <= 232:
@@ -346,6 +362,7 @@ class Ros2Graph:
         self.stats = Ros2Stats()
         config = zenoh.Config()
         for key, value in (("mode", '"peer"'), ("connect/endpoints", f'["{self.router}"]'),
+                           ("listen/endpoints", json.dumps(self.listen)),
                            ("scouting/multicast/enabled", "false")):
             config.insert_json5(key, value)
         try:

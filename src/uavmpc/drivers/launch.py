@@ -409,10 +409,11 @@ def run_node(spec: NodeLaunch) -> int:
             return 2
     graph = topics = None
     if spec.ros2:
-        from uavmpc.comms.ros2 import Ros2Graph, UavTopics
+        from uavmpc.comms.ros2 import UavTopics
+        from uavmpc.drivers.ros2 import open_graph
 
         try:
-            graph = Ros2Graph(spec.ros2, node_name=f"uavmpc_{spec.uav_id.replace('-', '_')}")
+            graph = open_graph(spec.ros2, f"uavmpc_{spec.uav_id.replace('-', '_')}")
         except (ValueError, OSError) as exc:
             print(f"uavmpc node: --ros2: {exc}", file=sys.stderr)
             return 2

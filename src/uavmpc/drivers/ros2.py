@@ -1,4 +1,8 @@
-"""The simulated world on a ROS 2 graph (``uavmpc run SCENARIO --ros2 ROUTER``).
+"""The simulated world on a ROS 2 graph (``uavmpc run SCENARIO --ros2 ROUTER`` or
+``--ros2-dds [DOMAIN]``).
+
+Where a world, a swarm or a node appears is one string (:func:`open_graph`): a Zenoh router's
+endpoint for rmw_zenoh, or ``dds/<domain>`` for ROS 2's DDS middlewares.
 
 :class:`WorldOnRos2` is called by :meth:`World.run <uavmpc.drivers.world.World.run>` at its log
 rate (20 Hz): it publishes every UAV's topics as a node would (:class:`~uavmpc.comms.ros2.
@@ -10,6 +14,7 @@ see a live system; a trajectory's stamps are read back on the world's clock.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
@@ -24,7 +29,47 @@ from uavmpc.reference import Reference
 if TYPE_CHECKING:
     from uavmpc.drivers.world import World
 
-__all__ = ["WorldOnRos2", "publish_plan", "publish_status", "ros2_mission"]
+__all__ = ["DDS_PREFIX", "WorldOnRos2", "dds_where", "open_graph", "publish_plan",
+           "publish_status", "require_graph", "ros2_mission"]
+
+#: ``dds/<domain>``: the graph is a DDS domain (``--ros2-dds``), not a Zenoh router.
+DDS_PREFIX = "dds/"
+
+
+def dds_where(domain_id: int | None) -> str:
+    """``--ros2-dds [DOMAIN]`` as a graph's place: ``dds/<domain>``; no domain given:
+    ``ROS_DOMAIN_ID``, else 0 (as ROS 2 picks it)."""
+    if domain_id is None:
+        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    if not 0 <= int(domain_id) <= 232:
+        raise ValueError(f"--ros2-dds: a ROS domain id is in 0..232, got {domain_id!r}")
+    return f"{DDS_PREFIX}{int(domain_id)}"
+
+
+def require_graph(where: str) -> None:
+    """Raise ImportError, naming the extra to install, unless the graph ``where`` can open."""
+    from uavmpc.comms.ros2 import Ros2Codec
+
+    Ros2Codec()
+    if where.startswith(DDS_PREFIX):
+        from uavmpc.comms.dds import require
+
+        require()
+
+
+def open_graph(where: str, node_name: str) -> Ros2Graph | Any:
+    """The ROS 2 node ``node_name`` on the graph ``where``: a Zenoh router's endpoint
+    (rmw_zenoh, :class:`~uavmpc.comms.ros2.Ros2Graph`) or ``dds/<domain>``
+    (:class:`~uavmpc.comms.dds.DdsGraph`). Raises ValueError / OSError naming the problem, and
+    ImportError with the extra to install."""
+    if where.startswith(DDS_PREFIX):
+        from uavmpc.comms.dds import DdsGraph
+
+        domain = where[len(DDS_PREFIX):]
+        if not domain.isdigit():
+            raise ValueError(f"{where!r}: expected dds/<domain id>")
+        return DdsGraph(int(domain), node_name=node_name)
+    return Ros2Graph(where, node_name=node_name)
 
 
 def ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> Reference:
