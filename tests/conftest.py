@@ -22,6 +22,25 @@ def pytest_xdist_auto_num_workers(config) -> int:
     return max(1, min(os.cpu_count() or 1, 4))
 
 
+def pytest_sessionstart(session) -> None:
+    """Start building the real-rclpy venv (tests/rclpy_env.py) in the background while the
+    computing tests run, when this session may run the real-time tests and the venv is not
+    cached yet: on a fresh machine the build takes a minute or more, and the tests that need
+    it wait for it (a lock) instead of building it on the real-time worker's critical path."""
+    config = session.config
+    if hasattr(config, "workerinput") or "not realtime" in (config.option.markexpr or ""):
+        return  # an xdist worker (the controller starts it), or no real-time test
+    import subprocess
+    import sys
+
+    import rclpy_env
+
+    venv = rclpy_env.cache_root() / f"rclpy-{rclpy_env.venv_key()}"
+    if sys.platform.startswith("linux") and not (venv / "bin" / "python").exists():
+        subprocess.Popen([sys.executable, rclpy_env.__file__], stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL, start_new_session=True)
+
+
 def pytest_itemcollected(item) -> None:
     """The real-time tests run one after another on one worker, beside the computing ones on
     the others: two real-time flights at once (a swarm is a dozen processes) would starve

@@ -59,13 +59,24 @@ def _imports_rclpy(python: Path) -> str | None:
 
 
 def rclpy_python(build_timeout_s: float = 600.0) -> tuple[Path | None, str]:
-    """(the venv's python, "") once built or found in the cache; (None, why) if it cannot be."""
+    """(the venv's python, "") once built or found in the cache; (None, why) if it cannot be.
+    One build at a time (a lock file beside the venv): a second caller waits for the first
+    and then finds the venv built, e.g. a test waiting for the build the test session started
+    in the background (``tests/conftest.py``)."""
     if not sys.platform.startswith("linux"):
         return None, f"the ROS 2 wheels on PyPI are built for Linux, not {sys.platform}"
+    import fcntl
+
     venv = cache_root() / f"rclpy-{venv_key()}"
+    venv.parent.mkdir(parents=True, exist_ok=True)
+    with open(venv.parent / f"{venv.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return _found_or_built(venv, build_timeout_s)
+
+
+def _found_or_built(venv: Path, build_timeout_s: float) -> tuple[Path | None, str]:
     if _python_of(venv).exists() and _imports_rclpy(_python_of(venv)) is None:
         return _python_of(venv), ""
-    venv.parent.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="rclpy-build-", dir=venv.parent))
     try:
         subprocess.run([sys.executable, "-m", "venv", str(work)], check=True,
@@ -112,3 +123,8 @@ def run_probe(python: Path, request: dict[str, Any], *, domain_id: int,
     if done.returncode != 0:
         raise AssertionError(f"the rclpy probe failed ({done.returncode}):\n{done.stderr}")
     return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+if __name__ == "__main__":  # the background build of tests/conftest.py
+    found, reason = rclpy_python()
+    print(found or reason)
