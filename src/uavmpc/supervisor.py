@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from uavmpc.avoidance.encounters import heard_from_all
-from uavmpc.geofence import FenceWatch, Geofence, GeofenceError
+from uavmpc.geofence import FenceWatch, Geofence
 from uavmpc.missions.mission import Mission, MissionInput
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import VehicleState
@@ -44,20 +44,17 @@ class FenceGuard:
     def __init__(self, geofence: Geofence) -> None:
         self.geofence = geofence
         self.watch = FenceWatch(geofence)
-        #: Missions refused for leaving the volume.
+        #: Missions from the network refused for leaving the volume (counted by the driver
+        #: that took them).
         self.refused = 0
 
     def check_mission(self, reference: Reference) -> None:
         """Accept ``reference`` as the next mission (it replaces a failsafe's hold).
 
         Raises:
-            GeofenceError: it leaves the volume (the message says where; counted).
+            GeofenceError: it leaves the volume (the message says where).
         """
-        try:
-            self.geofence.check_reference(reference)
-        except GeofenceError:
-            self.refused += 1
-            raise
+        self.geofence.check_reference(reference)
         self.watch.mission_accepted()
 
     def needs_look(self, margin_m: float) -> bool:
@@ -185,6 +182,11 @@ class Supervisor:
         ref = self.fence.recovery(own_s, position_m, heading_rad, margin_m)
         if ref is None:
             return False
-        self.mission = None
-        self.fly(ref)
+        self.failsafe(ref)
         return True
+
+    def failsafe(self, recovery: Reference) -> None:
+        """Fly ``recovery`` (back inside the geofence, :meth:`FenceGuard.recovery`) and hold:
+        its mission, if one steps beside it, stops."""
+        self.mission = None
+        self.fly(recovery)

@@ -44,17 +44,17 @@ from uavmpc.drivers.world_report import (
     GOAL_TOLERANCE_M,
     Collision,
     Contacts,
+    Traces,
     Yields,
-    applications,
-    fleet_extras,
-    uav_outcomes,
+    world_result,
 )
+from uavmpc.drivers.world_tick import CompiledTick, world_post, world_pre, world_tick
 from uavmpc.drivers.world_view import GROUND_VEHICLE_ID, SCENE_PERIOD_S, WorldScene
 from uavmpc.estimation import ObserverParams
 from uavmpc.estimation.fleet import FleetEstimator
-from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel
+from uavmpc.jit import HAS_CYCLE_COUNTER, cycle_count
 from uavmpc.log import FlightRecorder
-from uavmpc.missions.formation import FormationFollower, FormationSpec
+from uavmpc.missions.formation import FormationFollower
 from uavmpc.missions.landing import LandingMission
 from uavmpc.missions.mission import Mission
 from uavmpc.onboard import (
@@ -62,13 +62,9 @@ from uavmpc.onboard import (
     OnboardBatch,
     OnboardStack,
     avoidance_round,
-    onboard_post,
-    onboard_pre,
-    onboard_row,
 )
 from uavmpc.plant import Airframe, PlantRows, Wind
 from uavmpc.plant.interface import heading_of
-from uavmpc.plant.kernels import fly_target
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
@@ -76,12 +72,11 @@ from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 from uavmpc.scenarios.faults import Faults
 from uavmpc.supervisor import FenceGuard, Supervisor
 from uavmpc.tracker import DynamicLimits, TrackerConfig
-from uavmpc.tracker.kernels import make_scratch
 from uavmpc.view.scene import UavView
 
 __all__ = ["COLLISION_DISTANCE_M", "FORMATION_SETTLE_S", "GOAL_TOLERANCE_M",
            "GROUND_VEHICLE_ID", "SCENE_PERIOD_S", "Collision", "UavOutcome", "World",
-           "WorldResult", "WorldUav", "world_faults"]
+           "WorldResult", "WorldUav", "world_faults", "world_post", "world_pre", "world_tick"]
 
 #: The geofence failsafe looks every this many ticks (10 Hz, the avoidance's rate).
 FENCE_CHECK_TICKS = 10
@@ -177,96 +172,6 @@ class WorldResult:
 def broadcast_phase(i: int, n: int) -> float:
     """When UAV i of n first broadcasts: the phases are spread over the period."""
     return BROADCAST_PERIOD_S * (i + 0.5) / n
-
-
-@kernel
-def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d, cycles, est):
-    """One 10 ms tick of every UAV, the compiled solver inline: each UAV's stack
-    (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true state, then the
-    plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row ``k`` of the traces
-    (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the pair distances
-    ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the index of a UAV whose attitude
-    target could not be flown (the tick stops there).
-
-    ``cycles``: (4,) int64 to profile the tick, or (0,) not to: adds the cycle counts of the
-    stacks, the plants and the traces, and the number of UAV-ticks (:func:`cycle_count`).
-    ``est``: (N, 6) the estimated [p, v] the stacks fly on (attitude and rates stay the
-    plants' own), or (0, 6) for the true state."""
-    n = plant.x.shape[0]
-    sc = make_scratch(consts.horizon_s.shape[0])
-    qd = np.empty(4)
-    ff = np.empty(3)
-    timed = cycles.shape[0] > 0
-    estimated = est.shape[0] > 0
-    c0 = c1 = 0
-    for i in range(n):
-        x = plant.x[i]
-        if timed:
-            c0 = cycle_count()
-        if estimated:
-            thrust = onboard_row(i, trk, refs, consts, ctl, stats, est[i, 0:3], est[i, 3:6],
-                                 x[6:10], dt, sc, qd, ff)
-        else:
-            thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt,
-                                 sc, qd, ff)
-        if timed:
-            c1 = cycle_count()
-            cycles[0] += c1 - c0
-        if not fly_target(i, plant, n_sub, qd, thrust, ff):
-            return i
-        if timed:
-            cycles[1] += cycle_count() - c1
-            cycles[3] += 1
-    if timed:
-        c0 = cycle_count()
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
-    if timed:
-        cycles[2] += cycle_count() - c0
-    return -1
-
-
-@kernel
-def world_pre(trk, stats, plant):
-    """:func:`world_tick`'s bookkeeping before the trackers tick (Python solvers)."""
-    for i in range(plant.x.shape[0]):
-        onboard_pre(i, trk, stats, plant.x[i, 0:3])
-
-
-@kernel
-def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d):
-    """:func:`world_tick` after the trackers ticked (Python solvers): control and plants."""
-    qd = np.empty(4)
-    ff = np.empty(3)
-    for i in range(plant.x.shape[0]):
-        x = plant.x[i]
-        thrust = onboard_post(i, trk, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, qd, ff)
-        if not fly_target(i, plant, n_sub, qd, thrust, ff):
-            return i
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
-    return -1
-
-
-@kernel
-def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
-    n = plant.x.shape[0]
-    for i in range(n):
-        for j in range(3):
-            pos_out[k, i, j] = plant.x[i, j]
-        zoff_out[k, i] = trk.z_offset_m[i]
-    best = math.inf
-    p = 0
-    for a in range(n):
-        for b in range(a + 1, n):
-            d0 = pos_out[k, a, 0] - pos_out[k, b, 0]
-            d1 = pos_out[k, a, 1] - pos_out[k, b, 1]
-            d2 = pos_out[k, a, 2] - pos_out[k, b, 2]
-            d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            pair_d[p] = d
-            best = min(best, d)
-            p += 1
-    dmin_out[k] = best
 
 
 def world_faults(faults: Faults) -> dict[str, Any]:
@@ -417,32 +322,54 @@ def _ticks_of(duration_s: float, realtime: float | None, period_s: float) -> int
     return ticks
 
 
-@dataclass
-class _Traces:
-    """A run's traces, written tick by tick: times (K,), true positions (K, N, 3), z offsets
-    (K, N), closest distance (K,), the pair distances of the last tick (N (N − 1) / 2,), and
-    whether any formation member (rows ``members``) avoids (K,)."""
 
-    t_s: np.ndarray
-    pos: np.ndarray
-    zoff: np.ndarray
-    dmin: np.ndarray
-    pair_d: np.ndarray
-    members: np.ndarray
-    members_avoiding: np.ndarray
 
-    @classmethod
-    def empty(cls, ticks: int, n: int, formation: FormationSpec | None,
-              ids: list[str]) -> _Traces:
-        members = (np.array([ids.index(m) for m in formation.members])
-                   if formation is not None else np.zeros(0, dtype=np.int64))
-        return cls(np.empty(ticks), np.empty((ticks, n, 3)), np.empty((ticks, n)),
-                   np.full(ticks, np.inf), np.empty(max(1, n * (n - 1) // 2)), members,
-                   np.zeros(ticks, dtype=bool))
+def _world_uav(world: World, i: int, spec: UavSpec, af: Airframe, wind_mps: float, off: float,
+               resolver: ResolutionStrategy | None) -> WorldUav:
+    """Row ``i`` of ``world``: its plant and its stack on the world's rows, clock offset
+    ``off`` [s], its supervisor flying its mission (held at its start when the launch check
+    holds it) and the mission beside it, if any."""
+    scenario, n, seed = world.scenario, len(world.scenario.uavs), world.seed
+    wind = None
+    if wind_mps > 0.0:
+        wind = Wind(mean_mps=(wind_mps, 0.0, 0.0), gust_sigma_mps=0.3 * wind_mps,
+                    seed=seed * 1000 + i)
+    plant = Multirotor(af, position_m=spec.start_m, yaw_rad=spec.heading_rad, wind=wind,
+                       rotors_at_hover=spec.start_m[2] > 0.0, rows=world.plants, row=i)
+    # Each UAV broadcasts at its own phase, spread over the period.
+    stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
+                         t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
+                         avoidance=resolver, params=world.params,
+                         broadcast_phase_s=broadcast_phase(i, n), batch=world.onboard,
+                         row=i, inbox_table=world.inboxes)
+    mission, sensor = _mission_of(scenario, spec, seed * 1000 + 500 + i)
+    supervisor = Supervisor(stack, mission=mission, fence=(
+        FenceGuard(world.geofence) if world.geofence is not None else None))
+    reference = spec.mission
+    if off:
+        reference = Reference(reference.times_s + off, reference.points, reference.loop)
+    formation = scenario.formation
+    if (world.launch_check_s is not None and n > 1 and resolver is not None
+            and scenario.landing is None
+            and not (formation is not None and spec.uav_id in formation.followers)):
+        # Hover where it starts; the mission waits for the link (:meth:`World._launch`).
+        supervisor.hold(reference, Reference.goto(*spec.start_m, spec.heading_rad,
+                                                  start_s=off))
+    else:
+        stack.set_mission(reference)
+    supervisor.limit_ceiling(spec.mission.points[:, 2])
+    return WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, supervisor, off, sensor)
 
-    def kernel_args(self, k: int) -> tuple[Any, ...]:
-        """Row ``k``'s traces as :func:`world_tick` writes them."""
-        return (k, self.pos, self.zoff, self.dmin, self.pair_d)
+
+def _estimator_of(gnss: str | ObserverParams | None, onboard: OnboardBatch, n: int,
+                  period_s: float, seed: int) -> FleetEstimator | None:
+    """The observer every controller flies on, or None (the true state)."""
+    if gnss is None:
+        return None
+    if not onboard.inline:
+        raise ValueError("gnss: needs the compiled tracker solver (batchqp)")
+    obs = ObserverParams.preset(gnss) if isinstance(gnss, str) else gnss
+    return FleetEstimator(obs, n, period_s, seed)
 
 
 class World:
@@ -537,31 +464,24 @@ class World:
         self.launch_check_s = _launch_check(launch_check_s)
         #: Per id: when it set off [s, world time] and whom it had not heard then.
         self.launches: dict[str, dict[str, Any]] = {}
-        flying_alone = set(self.non_cooperative)
-        self.uavs: list[WorldUav] = []
-        for i, spec in enumerate(scenario.uavs):
-            resolver = (None if spec.uav_id in flying_alone
-                        else _strategy_of(spec.uav_id, strategy, self.params,
-                                          scenario.formation))
-            self.uavs.append(self._add_uav(i, spec, airframes[spec.airframe], wind_mps,
-                                           float(offsets[i]), resolver))
-            self._positions[spec.uav_id] = np.array(spec.start_m, dtype=float)
+        self.uavs = self._add_uavs(airframes, strategy, wind_mps, offsets)
         #: The rows still held at their starts by the launch check.
         self._held = [i for i, u in enumerate(self.uavs) if not u.supervisor.launched]
         self.t_s = 0.0
         self.period_s = self.onboard.tracker.config.first_step_s
         self.n_sub = _common_substeps(self.uavs, self.period_s)
-        self._kernels: tuple[Any, Any] | None = None
         self._offsets = offsets.copy()
-        self.estimator = self._estimator_of(gnss)
-        self._no_estimate = np.zeros((0, 6))
+        self.estimator = _estimator_of(gnss, self.onboard, n, self.period_s, seed)
+        #: The numerical tick of every UAV (one compiled call).
+        self.ticker = CompiledTick(self.onboard, self.plants, self.n_sub, self.period_s,
+                                   self.estimator,
+                                   [u.plant for u in self.uavs if u.plant.wind is not None])
         #: UAV id → when its radio goes silent [s].
         self.silent_from_s = _silent_times(scenario, silent_from_s)
         self._stacks = [u.stack for u in self.uavs]
         self.wire = WorldLink(self.link, self.inboxes, self._stacks, self._offsets,
                               self.silent_from_s, recorder)
         self.shown = WorldScene(self)
-        self._windy = [u.plant for u in self.uavs if u.plant.wind is not None]
         self._missions = [u for u in self.uavs if u.supervisor.mission is not None]
         self._finder = _world_finder(self._stacks, index)
         self._overrides = [s.encounter_overrides() for s in self._stacks]
@@ -571,60 +491,28 @@ class World:
         self._started = False
         #: Wall time of the batched ticks' phases in the current run [s]: receiving and
         #: planning, the compiled tick, broadcasting.
-        self._phase_wall_s = [0.0, 0.0, 0.0]
-        #: The compiled tick's cycle counts in the current run (see :func:`world_tick`).
-        self._cycles = np.zeros(4 if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
+        self.phase_wall_s = [0.0, 0.0, 0.0]
+
+    def _add_uavs(self, airframes: dict[str, Airframe],
+                  strategy: Callable[[AvoidanceParams], ResolutionStrategy], wind_mps: float,
+                  offsets: np.ndarray) -> list[WorldUav]:
+        """Every UAV of the scenario on its row (:func:`_world_uav`), its strategy made by
+        ``strategy`` unless it flies alone."""
+        scenario, flying_alone = self.scenario, set(self.non_cooperative)
+        uavs = []
+        for i, spec in enumerate(scenario.uavs):
+            resolver = (None if spec.uav_id in flying_alone
+                        else _strategy_of(spec.uav_id, strategy, self.params,
+                                          scenario.formation))
+            uavs.append(_world_uav(self, i, spec, airframes[spec.airframe], wind_mps,
+                                   float(offsets[i]), resolver))
+            self._positions[spec.uav_id] = np.array(spec.start_m, dtype=float)
+        return uavs
 
     @property
     def silenced(self) -> int:
         """Broadcasts swallowed by dead radios (``silent_from_s``)."""
         return self.wire.silenced
-
-    def _add_uav(self, i: int, spec: UavSpec, af: Airframe, wind_mps: float, off: float,
-                 resolver: ResolutionStrategy | None) -> WorldUav:
-        """Row ``i``: its plant and its stack on the world's rows, clock offset ``off`` [s],
-        its supervisor flying its mission (held at its start when the launch check holds
-        it) and the mission beside it, if any."""
-        scenario, n = self.scenario, len(self.scenario.uavs)
-        wind = None
-        if wind_mps > 0.0:
-            wind = Wind(mean_mps=(wind_mps, 0.0, 0.0), gust_sigma_mps=0.3 * wind_mps,
-                        seed=self.seed * 1000 + i)
-        plant = Multirotor(af, position_m=spec.start_m, yaw_rad=spec.heading_rad, wind=wind,
-                           rotors_at_hover=spec.start_m[2] > 0.0, rows=self.plants, row=i)
-        # Each UAV broadcasts at its own phase, spread over the period.
-        stack = OnboardStack(af, position_m=spec.start_m, heading_rad=spec.heading_rad,
-                             t0_s=off, uav_id=spec.uav_id, priority=spec.priority,
-                             avoidance=resolver, params=self.params,
-                             broadcast_phase_s=broadcast_phase(i, n), batch=self.onboard,
-                             row=i, inbox_table=self.inboxes)
-        mission, sensor = _mission_of(scenario, spec, self.seed * 1000 + 500 + i)
-        supervisor = Supervisor(stack, mission=mission, fence=(
-            FenceGuard(self.geofence) if self.geofence is not None else None))
-        reference = spec.mission
-        if off:
-            reference = Reference(reference.times_s + off, reference.points, reference.loop)
-        formation = scenario.formation
-        if (self.launch_check_s is not None and n > 1 and resolver is not None
-                and scenario.landing is None
-                and not (formation is not None and spec.uav_id in formation.followers)):
-            # Hover where it starts; the mission waits for the link (:meth:`_launch`).
-            supervisor.hold(reference, Reference.goto(*spec.start_m, spec.heading_rad,
-                                                      start_s=off))
-        else:
-            stack.set_mission(reference)
-        supervisor.limit_ceiling(spec.mission.points[:, 2])
-        return WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, supervisor, off,
-                        sensor)
-
-    def _estimator_of(self, gnss: str | ObserverParams | None) -> FleetEstimator | None:
-        """The observer every controller flies on, or None (the true state)."""
-        if gnss is None:
-            return None
-        if not self.onboard.inline:
-            raise ValueError("gnss: needs the compiled tracker solver (batchqp)")
-        obs = ObserverParams.preset(gnss) if isinstance(gnss, str) else gnss
-        return FleetEstimator(obs, len(self.uavs), self.period_s, self.seed)
 
     def run(self, duration_s: float | None = None, *, realtime: float | None = None,
             on_log: Callable[[World], None] | None = None,
@@ -641,15 +529,15 @@ class World:
         ticks = _ticks_of(self.scenario.duration_s if duration_s is None else duration_s,
                           realtime, self.period_s)
         ids = [u.uav_id for u in self.uavs]
-        tr = _Traces.empty(ticks, len(ids), self.scenario.formation, ids)
+        tr = Traces.empty(ticks, len(ids), self.scenario.formation, ids)
         contacts = Contacts(ids)
         if self.batched and self.onboard.inline:
             # Compile (or load) the tick before the clock starts: wall_s and the real-time
             # factor measure flying, not a first run's compilation.
-            self._bound_tick(self.onboard.tracker.table(), tr.kernel_args(0))
-        self._phase_wall_s = [0.0, 0.0, 0.0]
+            self.ticker.bound(self.onboard.tracker.table(), tr.kernel_args(0))
+        self.phase_wall_s = [0.0, 0.0, 0.0]
         # The compiled tick times its stages in CPU cycles, read against the wall clock.
-        self._cycles[:] = 0
+        self.ticker.cycles[:] = 0
         cycles0 = cycle_count() if HAS_CYCLE_COUNTER else 0
         wall0 = time.perf_counter()
         next_log = self.t_s
@@ -661,9 +549,11 @@ class World:
                     time.sleep(ahead)
         wall = time.perf_counter() - wall0
         cycles_per_s = (cycle_count() - cycles0) / wall if HAS_CYCLE_COUNTER and wall > 0 else 0.0
-        return self._result(tr, contacts, wall, cycles_per_s)
+        for i, u in enumerate(self.uavs):
+            self._positions[u.uav_id] = tr.pos[-1, i].copy()
+        return world_result(self, tr, contacts, wall, cycles_per_s)
 
-    def _tick(self, k: int, tr: _Traces, contacts: Contacts, next_log: float,
+    def _tick(self, k: int, tr: Traces, contacts: Contacts, next_log: float,
               on_log: Callable[[World], None] | None,
               on_scene: Callable[[float, dict[str, Any], dict[str, Any]], None] | None
               ) -> float:
@@ -696,40 +586,6 @@ class World:
                 and self.t_s >= self.shown.next_scene_s - 1e-9:
             self.shown.show(float(tr.dmin[k]) if n > 1 else None, on_scene)
         return next_log
-
-    def _result(self, tr: _Traces, contacts: Contacts, wall: float,
-                cycles_per_s: float) -> WorldResult:
-        ticks = tr.t_s.shape[0]
-        for i, u in enumerate(self.uavs):
-            self._positions[u.uav_id] = tr.pos[ticks - 1, i].copy()
-        st = self.link.stats
-        messages = {"sent": st.sent, "delivered": st.delivered,
-                    "dropped": st.dropped + st.dropped_range, "published": st.published}
-        result = WorldResult(self.scenario.name, self.seed, self.avoidance,
-                             ticks * self.period_s, [u.uav_id for u in self.uavs], tr.t_s,
-                             tr.pos, tr.zoff, tr.dmin, contacts.collisions,
-                             uav_outcomes(self.uavs, tr.pos[-1]), messages, wall)
-        if tr.members.size:
-            result.traces["members_avoiding"] = tr.members_avoiding
-        if self.batched:
-            self._timing_extras(result, cycles_per_s)
-        fleet_extras(result, self.uavs, launch_check_s=self.launch_check_s,
-                     launches=self.launches, non_cooperative=self.non_cooperative,
-                     avoidance=self.avoidance)
-        applications(result, self.uavs, self.ground_vehicle, self.scenario.formation)
-        return result
-
-    def _timing_extras(self, result: WorldResult, cycles_per_s: float) -> None:
-        """Where a batched run's wall time went: the numbers of a scale benchmark."""
-        result.extra["wall_s_by_phase"] = dict(zip(
-            ("receive_and_plan", "compiled_tick", "broadcast"),
-            (round(v, 6) for v in self._phase_wall_s), strict=True))
-        c = self._cycles
-        if c.size and c[3] > 0 and cycles_per_s > 0:
-            # Per UAV and tick, inside the compiled call: the floor of a UAV-second.
-            result.extra["compiled_us_per_uav_tick"] = {
-                name: round(float(c[j] / c[3] / cycles_per_s * 1e6), 3)
-                for j, name in enumerate(("stack", "plant", "trace"))}
 
     # ------------------------------------------------------------------------------ one tick
     def _receive_and_plan(self, now: float) -> None:
@@ -858,40 +714,16 @@ class World:
         t0 = clock()
         self._receive_and_plan_batched(now)
         t1 = clock()
-        for plant in self._windy:
-            plant.hold_wind(self.period_s)
-        ob = self.onboard
-        trk = ob.tracker
-        table = trk.table()
-        if ob.inline:
-            bad = self._bound_tick(table, traces)(trk.rows, table, trk.consts, ob.control,
-                                                  ob.stats, self.plants, self.n_sub,
-                                                  self.period_s, *traces, self._cycles,
-                                                  self._estimates())
-        else:
-            world_pre(trk.rows, ob.stats, self.plants)
-            trk.step()
-            bad = world_post(trk.rows, trk.consts, ob.control, ob.stats, self.plants,
-                             self.n_sub, self.period_s, *traces)
+        bad = self.ticker(traces)
         if bad >= 0:
             raise ValueError(f"invalid attitude target for {self.uavs[bad].uav_id} "
                              "(not finite): the controller got a degenerate state")
         t2 = clock()
         self._emit(now)
-        phase = self._phase_wall_s
+        phase = self.phase_wall_s
         phase[0] += t1 - t0
         phase[1] += t2 - t1
         phase[2] += clock() - t2
-
-    def _bound_tick(self, table: Any, traces: tuple[Any, ...]) -> Any:
-        """:func:`world_tick` bound to this world's records (compiled on first use)."""
-        if self._kernels is None or self._kernels[0] is not table:
-            ob = self.onboard
-            trk = ob.tracker
-            self._kernels = (table, bind(world_tick, trk.rows, table, trk.consts, ob.control,
-                                         ob.stats, self.plants, self.n_sub, self.period_s,
-                                         *traces, self._cycles, self._estimates(peek=True)))
-        return self._kernels[1]
 
     def _tick_objects(self, now: float, traces: tuple[Any, ...]) -> None:
         # Receive and plan for everyone first, as the batched tick does: a UAV must not see a
@@ -899,7 +731,7 @@ class World:
         self._receive_and_plan(now)
         self._started = True
         self._next_round_s = self._next_emit_s = -math.inf  # if the batched path takes over
-        est = self._estimates()
+        est = self.ticker.estimates()
         for i, u in enumerate(self.uavs):
             # received and planned above: those phases are no-ops here
             state = u.plant.state()
@@ -910,17 +742,7 @@ class World:
             u.plant.step(out.target, self.period_s)
             if out.outgoing is not None:
                 self.wire.publish(u.stack, out.outgoing, now)
-        _trace(self.onboard.tracker.rows, self.plants, *traces)
-
-    def _estimates(self, peek: bool = False) -> np.ndarray:
-        """What the controllers fly on this tick: (N, 6) estimated [p, v], or (0, 6) (the
-        truth). ``peek``: the array only, the sensors not advanced (to compile the tick)."""
-        if self.estimator is None:
-            return self._no_estimate
-        if peek:
-            return self.estimator.estimate
-        x = self.plants.x
-        return self.estimator.step(x[:, 0:3], x[:, 3:6])
+        self.ticker.trace(traces)
 
     # ------------------------------------------------------------------------------ views
     def views(self) -> list[UavView]:

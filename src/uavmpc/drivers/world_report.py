@@ -14,7 +14,7 @@ from uavmpc.missions.formation import formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 
 if TYPE_CHECKING:
-    from uavmpc.drivers.world import UavOutcome, WorldResult, WorldUav
+    from uavmpc.drivers.world import UavOutcome, World, WorldResult, WorldUav
     from uavmpc.missions.formation import FormationSpec
     from uavmpc.plant.ground_vehicle import GroundVehicle
 
@@ -175,3 +175,69 @@ def _formation(result: WorldResult, spec: FormationSpec) -> None:
         "leader": spec.leader, "followers": list(spec.followers),
         "measured_from_s": FORMATION_SETTLE_S,
         "outsiders": [uid for uid in result.uav_ids if uid not in spec.members]}
+
+
+@dataclasses.dataclass
+class Traces:
+    """A run's traces, written tick by tick: times (K,), true positions (K, N, 3), z offsets
+    (K, N), closest distance (K,), the pair distances of the last tick (N (N − 1) / 2,), and
+    whether any formation member (rows ``members``) avoids (K,)."""
+
+    t_s: np.ndarray
+    pos: np.ndarray
+    zoff: np.ndarray
+    dmin: np.ndarray
+    pair_d: np.ndarray
+    members: np.ndarray
+    members_avoiding: np.ndarray
+
+    @classmethod
+    def empty(cls, ticks: int, n: int, formation: FormationSpec | None,
+              ids: list[str]) -> Traces:
+        members = (np.array([ids.index(m) for m in formation.members])
+                   if formation is not None else np.zeros(0, dtype=np.int64))
+        return cls(np.empty(ticks), np.empty((ticks, n, 3)), np.empty((ticks, n)),
+                   np.full(ticks, np.inf), np.empty(max(1, n * (n - 1) // 2)), members,
+                   np.zeros(ticks, dtype=bool))
+
+    def kernel_args(self, k: int) -> tuple[Any, ...]:
+        """Row ``k``'s traces as :func:`~uavmpc.drivers.world_tick.world_tick` writes them."""
+        return (k, self.pos, self.zoff, self.dmin, self.pair_d)
+
+
+def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
+                 cycles_per_s: float) -> WorldResult:
+    """The result of ``world``'s run: its traces ``tr``, its contacts, each UAV's outcome,
+    the messages, the extras; ``wall_s`` it took [s], the CPU's cycles per second."""
+    from uavmpc.drivers.world import WorldResult
+
+    st = world.link.stats
+    messages = {"sent": st.sent, "delivered": st.delivered,
+                "dropped": st.dropped + st.dropped_range, "published": st.published}
+    result = WorldResult(world.scenario.name, world.seed, world.avoidance,
+                         tr.t_s.shape[0] * world.period_s, [u.uav_id for u in world.uavs],
+                         tr.t_s, tr.pos, tr.zoff, tr.dmin, contacts.collisions,
+                         uav_outcomes(world.uavs, tr.pos[-1]), messages, wall_s)
+    if tr.members.size:
+        result.traces["members_avoiding"] = tr.members_avoiding
+    if world.batched:
+        _timing_extras(result, world.phase_wall_s, world.ticker.cycles, cycles_per_s)
+    fleet_extras(result, world.uavs, launch_check_s=world.launch_check_s,
+                 launches=world.launches, non_cooperative=world.non_cooperative,
+                 avoidance=world.avoidance)
+    applications(result, world.uavs, world.ground_vehicle, world.scenario.formation)
+    return result
+
+
+def _timing_extras(result: WorldResult, phase_wall_s: Sequence[float], cycles: np.ndarray,
+                   cycles_per_s: float) -> None:
+    """Where a batched run's wall time went: the numbers of a scale benchmark."""
+    result.extra["wall_s_by_phase"] = dict(zip(
+        ("receive_and_plan", "compiled_tick", "broadcast"),
+        (round(v, 6) for v in phase_wall_s), strict=True))
+    c = cycles
+    if c.size and c[3] > 0 and cycles_per_s > 0:
+        # Per UAV and tick, inside the compiled call: the floor of a UAV-second.
+        result.extra["compiled_us_per_uav_tick"] = {
+            name: round(float(c[j] / c[3] / cycles_per_s * 1e6), 3)
+            for j, name in enumerate(("stack", "plant", "trace"))}
