@@ -20,7 +20,7 @@ then the numerical part of every UAV at once (:func:`onboard_row` on the rows of
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -32,6 +32,7 @@ from uavmpc.avoidance import (
     EncounterStrategy,
     ResolutionStrategy,
 )
+from uavmpc.avoidance.encounters import EncounterFinder, Encounters
 from uavmpc.comms.auth import Identity, Roster, seal, sign
 from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
@@ -461,6 +462,9 @@ class OnboardStack:
     def plan(self, now_s: float) -> None:
         """Avoidance (every :data:`AVOIDANCE_PERIOD_S`, once there is a plan): the z offset
         and the limits for the next tracker tick."""
+        if self._finder is not None:  # the encounters found for it: the round of one row
+            avoidance_round(self.batch, {self.row: self}, self._finder, rows=self._idx)
+            return
         if self.avoidance is None or not self.cooperative or not self._ticked:
             return
         plan_s = self.tracker.time_s
@@ -472,15 +476,41 @@ class OnboardStack:
         own = np.empty((1, trk.config.steps, 3))
         climbed = np.empty(1)
         avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own, climbed)
-        if self._decider is None or self._finder is None:  # only ``update``: the messages
-            self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times[0],
-                                             own[0], self.inbox.latest))
-            return
-        overrides = self._decider.overrides(self.inbox.table)
-        enc = self._finder.find(self._idx, times, own, np.array([plan_s]),
-                                np.array([self.params.radius_m]), [overrides])[0]
-        self.apply(self._decider.decide(
-            plan_s, self.uav_id, self.priority, times[0], enc, climbed_m=float(climbed[0])))
+        # only ``update``: the messages
+        self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times[0], own[0],
+                                         self.inbox.latest))
+
+    def decide(self, plan_s: float, times_s: np.ndarray, found: Encounters,
+               climbed_m: float) -> None:
+        """Steer by its encounter strategy's decision on ``found``, the encounters of its plan
+        of times ``times_s`` (m,) at ``plan_s`` (an avoidance round, :func:`avoidance_round`)."""
+        assert self._decider is not None, "decide: the stack's strategy takes encounters"
+        self.apply(self._decider.decide(plan_s, self.uav_id, self.priority, times_s, found,
+                                        climbed_m=climbed_m))
+
+    def encounter_overrides(self) -> dict[int, float]:
+        """Its strategy's per-pair radii by its inbox table's columns (none without one)."""
+        return ({} if self._decider is None
+                else self._decider.overrides(self.inbox.table))
+
+    @property
+    def decides_from_encounters(self) -> bool:
+        """Its strategy decides from encounters found for it (an
+        :class:`~uavmpc.avoidance.EncounterStrategy`)."""
+        return self._decider is not None
+
+    def encounter_finder(self, use_index: bool | None = True) -> EncounterFinder | None:
+        """A finder of its strategy's encounters among its inbox table's messages (for every
+        row of the table when all its stacks fly the same parameters), or None."""
+        if self._decider is None:
+            return None
+        return self._decider.finder(self.inbox.table, use_index=use_index)
+
+    def limit_offset(self, ceiling_m: float) -> None:
+        """Its avoidance climbs no higher than ``ceiling_m`` [m] over its mission (a
+        geofence's ceiling); without an encounter strategy, nothing to limit."""
+        if self._decider is not None:
+            self._decider.limit_offset(ceiling_m)
 
     def avoidance_due(self) -> bool:
         """The avoidance runs at this tick (its period has passed on the tracker's clock)."""
@@ -591,3 +621,40 @@ def avoidance_limits(nominal: DynamicLimits, horizontal_scale: float,
         limits.descend_speed_mps, limits.descend_accel_mps2,
         limits.heading_rate_radps, limits.heading_accel_radps2,
     )
+
+
+def avoidance_round(batch: OnboardBatch,
+                    stacks: Sequence[OnboardStack] | Mapping[int, OnboardStack],
+                    finder: EncounterFinder, rows: np.ndarray | None = None,
+                    overrides: Sequence[dict[int, float]] | None = None) -> np.ndarray:
+    """The avoidance of the stacks of ``batch`` due now (among ``rows`` (R,), default all),
+    each on its tracker's clock: their plans (:func:`avoidance_plans`), their encounters in
+    one call of ``finder`` (one finder for the rows of one inbox table), and each one's own
+    decision (:meth:`OnboardStack.decide`). ``stacks[i]`` is row i's stack; ``overrides``:
+    per row, its per-pair radii (default: asked of each stack). Returns the rows that
+    planned (D,)."""
+    sched = batch.schedule
+    trk = batch.tracker
+    t = trk.rows.t_s
+    if rows is None:
+        due = np.flatnonzero(sched.planning & (t >= sched.next_avoidance_s - _SCHEDULE_TOL_S))
+    else:
+        due = rows[sched.planning[rows] & (t[rows] >= sched.next_avoidance_s[rows]
+                                           - _SCHEDULE_TOL_S)]
+    if not due.size:
+        return due
+    plan_s = t[due]
+    sched.next_avoidance_s[due] = plan_s + AVOIDANCE_PERIOD_S
+    m = trk.config.steps
+    times = np.empty((due.size, m))
+    own = np.empty((due.size, m, 3))
+    climbed = np.empty(due.size)
+    avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
+    which = due.tolist()
+    radius = np.array([stacks[i].params.radius_m for i in which])
+    found = finder.find(due, times, own, plan_s, radius,
+                        [overrides[i] if overrides is not None
+                         else stacks[i].encounter_overrides() for i in which])
+    for j, i in enumerate(which):
+        stacks[i].decide(float(plan_s[j]), times[j], found[j], float(climbed[j]))
+    return due

@@ -336,17 +336,18 @@ def _say_compiling(airframe: Any) -> None:
           file=sys.stderr, flush=True)
 
 
+class _Refused(Exception):
+    """A bad setting of a node's launch (said in one line; exit code 2)."""
+
+
 def run_node(spec: NodeLaunch) -> int:
     """Build the node ``spec`` describes and fly it until its duration or SIGINT/SIGTERM;
     its report goes to ``spec.report_file`` (or stdout). Returns the exit code: 0, 1 if the
     autopilot never answered, 2 for a bad setting (said in one line on stderr)."""
-
     from uavmpc.comms.zenoh_link import ZenohTransport
     from uavmpc.drivers.node import Node
     from uavmpc.drivers.node import run_node as fly
-    from uavmpc.missions.format import mission_from_table, read_mission
     from uavmpc.plant import Airframe
-    from uavmpc.reference import InvalidReferenceError
 
     airframe = Airframe.named(spec.airframe)
     creds = load_credentials("uavmpc node", key_file=spec.key_file,
@@ -355,72 +356,19 @@ def run_node(spec: NodeLaunch) -> int:
     if creds is None:
         return 2
     key, identity, roster = creds
-    if identity is not None and identity.member_id != spec.uav_id:
-        print(f"uavmpc node: --identity-file is {identity.member_id!r}'s, not "
-              f"{spec.uav_id!r}'s", file=sys.stderr)
-        return 2
-    mission = None
     try:
-        if spec.mission_file:
-            _, mission = read_mission(spec.mission_file, time.time())
-        elif spec.goto:
-            mission = mission_from_table({"goto": spec.goto}, "--goto", time.time())
-    except (OSError, InvalidReferenceError) as exc:
-        print(f"uavmpc node: bad mission: {exc}", file=sys.stderr)
+        if identity is not None and identity.member_id != spec.uav_id:
+            raise _Refused(f"--identity-file is {identity.member_id!r}'s, not "
+                           f"{spec.uav_id!r}'s")
+        mission = _node_mission(spec)
+        formation_mission, pair_radius = _node_formation(spec, mission)
+        vehicle, lost = _node_vehicle(spec, airframe)
+        # With a key, ROS 2 commands would be a way around it (ROS 2 has no signatures
+        # here): they are taken only when asked for.
+        graph, topics = _node_ros2(spec, (key is None and roster is None) or spec.ros2_commands)
+    except _Refused as exc:
+        print(f"uavmpc node: {exc}", file=sys.stderr)
         return 2
-    formation_mission = None
-    pair_radius: dict[str, float] = {}
-    if spec.formation_file:
-        from uavmpc.missions.formation import FormationFollower, load_formation
-
-        formation = load_formation(spec.formation_file)
-        if spec.uav_id not in formation.members:
-            print(f"uavmpc node: --formation: {spec.uav_id!r} is not a member of the formation "
-                  f"({', '.join(formation.members)})", file=sys.stderr)
-            return 2
-        pair_radius = formation.pair_radii(spec.uav_id)
-        if spec.uav_id in formation.followers:
-            if mission is not None:
-                print("uavmpc node: a follower flies its slot: no --goto or --mission-file",
-                      file=sys.stderr)
-                return 2
-            formation_mission = FormationFollower(formation, spec.uav_id)
-    vehicle = None
-    lost: tuple[type[Exception], ...] = ()
-    if spec.geo_origin is not None and not spec.mavlink:
-        print("uavmpc node: --geo-origin places a PX4's frame: it needs --mavlink",
-              file=sys.stderr)
-        return 2
-    if spec.mavlink:
-        from uavmpc.drivers.node import warm_up
-        from uavmpc.drivers.px4.vehicle import Px4Vehicle, VehicleLost
-
-        lost = (VehicleLost,)
-        # Compile before the link exists: a first run compiles for a minute, and neither
-        # the autopilot's clock map nor its stream should start before the flight can.
-        _say_compiling(airframe)
-        warm_up(airframe)
-        try:
-            vehicle = Px4Vehicle(spec.mavlink, airframe, setpoints=spec.setpoints,
-                                 system_id=spec.system_id, hover_thrust=spec.hover_thrust,
-                                 origin_m=spec.origin_m, geo_origin=spec.geo_origin)
-        except (ValueError, OSError) as exc:
-            print(f"uavmpc node: --mavlink: {exc}", file=sys.stderr)
-            return 2
-    graph = topics = None
-    if spec.ros2:
-        from uavmpc.comms.ros2 import UavTopics
-        from uavmpc.drivers.ros2 import open_graph
-
-        try:
-            graph = open_graph(spec.ros2, f"uavmpc_{spec.uav_id.replace('-', '_')}")
-        except (ValueError, OSError) as exc:
-            print(f"uavmpc node: --ros2: {exc}", file=sys.stderr)
-            return 2
-        # With a key, ROS 2 commands would be a way around it (ROS 2 has no signatures here):
-        # they are taken only when asked for.
-        topics = UavTopics(graph, spec.uav_id, commands=(key is None and roster is None)
-                           or spec.ros2_commands)
     with ZenohTransport(spec.uav_id, swarm=spec.swarm, listen=list(spec.listen),
                         connect=list(spec.connect)) as transport:
         node = Node(spec.uav_id, spec.priority, airframe, transport, start_m=spec.start_m,
@@ -439,6 +387,77 @@ def run_node(spec: NodeLaunch) -> int:
                 graph.close()
     _report(spec.report_file, stats)
     return 0
+
+
+def _node_mission(spec: NodeLaunch) -> Any:
+    """The node's mission (a Reference) from ``--mission-file`` or ``--goto``, or None."""
+    from uavmpc.missions.format import mission_from_table, read_mission
+    from uavmpc.reference import InvalidReferenceError
+
+    try:
+        if spec.mission_file:
+            return read_mission(spec.mission_file, time.time())[1]
+        if spec.goto:
+            return mission_from_table({"goto": spec.goto}, "--goto", time.time())
+    except InvalidReferenceError as exc:
+        raise _Refused(f"bad mission: {exc}") from None
+    return None
+
+
+def _node_formation(spec: NodeLaunch, mission: Any) -> tuple[Any, dict[str, float]]:
+    """With ``--formation``: a follower's mission (its slot) and the members' pair radii."""
+    if not spec.formation_file:
+        return None, {}
+    from uavmpc.missions.formation import FormationFollower, load_formation
+
+    formation = load_formation(spec.formation_file)
+    if spec.uav_id not in formation.members:
+        raise _Refused(f"--formation: {spec.uav_id!r} is not a member of the formation "
+                       f"({', '.join(formation.members)})")
+    pair_radius = formation.pair_radii(spec.uav_id)
+    if spec.uav_id not in formation.followers:
+        return None, pair_radius
+    if mission is not None:
+        raise _Refused("a follower flies its slot: no --goto or --mission-file")
+    return FormationFollower(formation, spec.uav_id), pair_radius
+
+
+def _node_vehicle(spec: NodeLaunch, airframe: Any) -> tuple[Any, tuple[type[Exception], ...]]:
+    """With ``--mavlink``: the PX4 vehicle (kernels loaded first) and the error it raises
+    when the autopilot never answers; else (None, ())."""
+    if spec.geo_origin is not None and not spec.mavlink:
+        raise _Refused("--geo-origin places a PX4's frame: it needs --mavlink")
+    if not spec.mavlink:
+        return None, ()
+    from uavmpc.drivers.node import warm_up
+    from uavmpc.drivers.px4.vehicle import Px4Vehicle, VehicleLost
+
+    # Compile before the link exists: a first run compiles for a minute, and neither
+    # the autopilot's clock map nor its stream should start before the flight can.
+    _say_compiling(airframe)
+    warm_up(airframe)
+    try:
+        vehicle = Px4Vehicle(spec.mavlink, airframe, setpoints=spec.setpoints,
+                             system_id=spec.system_id, hover_thrust=spec.hover_thrust,
+                             origin_m=spec.origin_m, geo_origin=spec.geo_origin)
+    except (ValueError, OSError) as exc:
+        raise _Refused(f"--mavlink: {exc}") from None
+    return vehicle, (VehicleLost,)
+
+
+def _node_ros2(spec: NodeLaunch, commands: bool) -> tuple[Any, Any]:
+    """With ``--ros2``: the graph and the UAV's topics (taking commands if ``commands``);
+    else (None, None)."""
+    if not spec.ros2:
+        return None, None
+    from uavmpc.comms.ros2 import UavTopics
+    from uavmpc.drivers.ros2 import open_graph
+
+    try:
+        graph = open_graph(spec.ros2, f"uavmpc_{spec.uav_id.replace('-', '_')}")
+    except (ValueError, OSError) as exc:
+        raise _Refused(f"--ros2: {exc}") from None
+    return graph, UavTopics(graph, spec.uav_id, commands=commands)
 
 
 def run_sitl(spec: SitlLaunch) -> int:

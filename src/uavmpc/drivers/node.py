@@ -31,19 +31,20 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from uavmpc.avoidance import AvoidanceParams, EncounterStrategy, HeightOffsetStrategy
+from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
 from uavmpc.comms.state import NodeState
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
-from uavmpc.geofence import FenceWatch, Geofence, GeofenceError
+from uavmpc.geofence import Geofence, GeofenceError
 from uavmpc.missions.format import mission_from_json
-from uavmpc.missions.mission import CommandedMission, Mission, MissionInput
+from uavmpc.missions.mission import CommandedMission, Mission
 from uavmpc.onboard import OnboardStack
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import InvalidReferenceError, Reference
+from uavmpc.supervisor import FenceGuard, Supervisor
 
 PERIOD_S = 0.01
 #: Most messages taken from the transport per tick: a flood is dropped, not queued forever.
@@ -249,8 +250,7 @@ class Node:
         #: The operational volume: missions outside it are refused, and a vehicle found
         #: outside flies back in and holds (:class:`~uavmpc.geofence.FenceWatch`).
         self.geofence = geofence
-        self._fence_watch = FenceWatch(geofence) if geofence is not None else None
-        self._fence_refused = 0
+        self._fence = FenceGuard(geofence) if geofence is not None else None
         self.start_m = tuple(float(v) for v in start_m)
         self.heading_rad = float(heading_rad)
         self.avoidance = avoidance
@@ -262,7 +262,6 @@ class Node:
         #: per-pair avoidance radii (e.g. the formation's members).
         self.mission = mission
         self.pair_radius_m = dict(pair_radius_m or {})
-        self._next_mission_s = 0.0
         # A mission that takes commands (a formation follower's shape changes) hears them on
         # uavmpc/<swarm>/<sender>/formation.
         self._commanded = mission if isinstance(mission, CommandedMission) else None
@@ -277,8 +276,9 @@ class Node:
         self.stats = NodeStats(uav_id)
         self._stop = threading.Event()
         self._stop_requests = 0
-        self._launched = False
         self.stack: OnboardStack | None = None
+        #: The stack's supervisor (its mission, launch hold, geofence), built with it.
+        self.supervisor: Supervisor | None = None
 
     def _build(self) -> tuple[OnboardStack, VehicleState]:
         # Built when the flight starts, so the virtual UAV's clock starts on the wall clock
@@ -302,6 +302,8 @@ class Node:
             broadcast_phase_s=self.phase_s)
         # Hold where it is until it may fly (a mission starting later keeps this before).
         self.stack.set_mission(Reference.goto(*first.position_m, heading, start_s=now))
+        self.supervisor = Supervisor(self.stack, mission=self.mission, fence=self._fence,
+                                     launched=False)
         return self.stack, first
 
     def set_mission(self, reference: Reference) -> None:
@@ -312,10 +314,8 @@ class Node:
         """
         if not isinstance(reference, Reference):
             raise TypeError(f"reference must be a uavmpc.Reference, got {type(reference).__name__}")
-        if self.geofence is not None:
-            self.geofence.check_reference(reference)
-            assert self._fence_watch is not None
-            self._fence_watch.mission_accepted()
+        if self._fence is not None:
+            self._fence.check_mission(reference)
         with self._lock:
             self._pending_mission = reference
 
@@ -359,27 +359,12 @@ class Node:
                 fresh = vehicle.update(time.time())
                 if fresh is not None:
                     state = fresh
-                if vehicle.flying and not self._launched:
-                    self._launch(now, state)
-                self._take_missions(now)
-                if self.mission is not None and self._launched and vehicle.flying \
-                        and landing_until is None and now >= self._next_mission_s:
-                    self._step_mission(now, state)
-                if self._fence_watch is not None and self._launched and vehicle.flying \
-                        and landing_until is None and ticks % 10 == 0:
-                    self._watch_fence(state)
+                self._supervise(now, state, ticks, landing=landing_until is not None)
                 if commanded and not vehicle.commanding and fresh is not None \
                         and ticks % 10 == 0:
                     stack.follow(now, fresh)  # no longer ours: say what it really does
-                received = self.transport.receive(self.uav_id, now)[:MAX_MESSAGES_PER_TICK]
-                out = stack.tick(now, state, received)
-                vehicle.actuate(time.time(), out.target, stack.command())
-                commanded = commanded or vehicle.commanding
+                commanded = self._tick(now, state) or commanded
                 ticks += 1
-                if out.outgoing is not None:
-                    self.transport.publish(out.outgoing, self.uav_id, now)
-                    if self.ros2 is not None:
-                        publish_plan(self.ros2, now, stack)
                 if now >= next_state:
                     next_state += self.state_period_s
                     self._publish_state(now, state)
@@ -399,15 +384,51 @@ class Node:
                 last = tick_end
         finally:
             vehicle.close()
+        return self._final_stats(state, intervals, time.perf_counter() - wall0,
+                                 time.process_time() - cpu0, mission_rmse)
+
+    def _supervise(self, now: float, state: VehicleState, ticks: int, landing: bool) -> None:
+        """The supervisor's part of a tick: the launch once the vehicle is ours to fly, the
+        missions received, the mission beside the stack, the geofence failsafe (10 Hz)."""
+        sup = self.supervisor
+        assert sup is not None and self.vehicle is not None
+        flying = self.vehicle.flying
+        if flying and not sup.launched:
+            self._launch(now, state)
+        self._take_missions(now)
+        if not (sup.launched and flying and not landing):
+            return
+        if sup.mission_due(now):
+            self._step_mission(now, state)
+        if self._fence is not None and ticks % 10 == 0:
+            self._watch_fence(state)
+
+    def _tick(self, now: float, state: VehicleState) -> bool:
+        """The stack's tick on what the transport delivered, the vehicle actuated, the
+        broadcast published. Returns whether the vehicle is ours to command."""
+        assert self.stack is not None and self.vehicle is not None
+        received = self.transport.receive(self.uav_id, now)[:MAX_MESSAGES_PER_TICK]
+        out = self.stack.tick(now, state, received)
+        self.vehicle.actuate(time.time(), out.target, self.stack.command())
+        if out.outgoing is not None:
+            self.transport.publish(out.outgoing, self.uav_id, now)
+            if self.ros2 is not None:
+                publish_plan(self.ros2, now, self.stack)
+        return self.vehicle.commanding
+
+    def _final_stats(self, state: VehicleState, intervals: list[float], wall_s: float,
+                     cpu_s: float, mission_rmse: float | None) -> NodeStats:
+        """The statistics of the flight that ended at ``state``."""
+        assert self.stack is not None and self.vehicle is not None
         s = self.stats
-        s.wall_s = time.perf_counter() - wall0
-        s.cpu_s = time.process_time() - cpu0
+        s.wall_s = wall_s
+        s.cpu_s = cpu_s
         if intervals:
             ms = np.array(intervals) * 1e3
             s.period_p50_ms = float(np.median(ms))
             s.period_p99_ms = float(np.percentile(ms, 99))
             s.period_max_ms = float(ms.max())
-        rep = stack.report()
+        rep = self.stack.report()
         s.ticks = rep.ticks
         s.predictions_sent = rep.predictions_sent
         s.accepted = rep.messages_accepted
@@ -418,17 +439,17 @@ class Node:
         s.max_z_offset_m = rep.max_z_offset_m
         s.avoidance_active_s = rep.avoidance_active_s
         s.final_position_m = state.position_m.tolist()
-        s.vehicle = vehicle.report()
+        s.vehicle = self.vehicle.report()
         return s
 
     def _launch(self, now: float, state: VehicleState) -> None:
         """The vehicle is ours to fly: take off to the start position if on the ground below
         it, then fly the missions that waited."""
-        assert self.stack is not None
-        self._launched = True
+        assert self.supervisor is not None
+        takeoff = None
         if self.start_m[2] - state.position_m[2] > TAKEOFF_BELOW_M:
-            self.stack.set_mission(Reference.goto(*self.start_m, self.heading_rad,
-                                                  start_s=now))
+            takeoff = Reference.goto(*self.start_m, self.heading_rad, start_s=now)
+        self.supervisor.launch(takeoff)
 
     def _land(self, now: float, state: VehicleState) -> None:
         """Fly down where it is: at the tracker's pace to the flare height, then at the flare
@@ -449,24 +470,26 @@ class Node:
                       [x, y, min(z, flare) - FLARE_SPEED_MPS * LANDING_TIMEOUT_S, heading]])))
 
     def _step_mission(self, now: float, state: VehicleState) -> None:
-        assert self.mission is not None and self.stack is not None
-        self._next_mission_s = now + self.mission.period_s
+        """The mission's commands, then its step (:meth:`~uavmpc.supervisor.Supervisor.
+        step_mission`); a node whose mission cuts the motors lands instead: its vehicle's
+        landing is the safe cut."""
+        assert self.supervisor is not None
         if self._mission_commands is not None and self._commanded is not None:
             for _key, payload in self._mission_commands.drain(4):
                 try:
                     self._commanded.command(self._open_command(payload, FORMATION_CHANNEL), now)
                 except ValueError:
                     self.stats.missions_rejected += 1
-        out = self.mission.step(MissionInput(now, state, False, self.stack.inbox.latest))
-        if out.reference is not None:
-            self.stack.set_mission(out.reference)
-        if out.cut_motors:  # a node lands instead: its vehicle's landing is the safe cut
+        if self.supervisor.step_mission(now, now, state):
             self.stop()
 
     def _take_missions(self, now: float) -> None:
+        """Missions from the network and ROS 2 (checked), flown once the vehicle is ours."""
+        sup = self.supervisor
+        assert sup is not None
         for _key, payload in self._missions.drain(4):
             try:
-                if self.mission is not None:
+                if sup.mission is not None:
                     raise ValueError("this UAV flies its mission (e.g. a formation slot)")
                 ref = mission_from_json(self._open_command(payload, f"{self.uav_id}/mission"), now)
                 self._set_checked(ref)
@@ -482,45 +505,34 @@ class Node:
                     self._set_checked(ref)
                 except GeofenceError:
                     self.stats.missions_rejected += 1
-        if not self._launched:
+        if not sup.launched:
             return  # missions wait until the vehicle is ours to fly
         with self._lock:
             ref, self._pending_mission = self._pending_mission, None
         if ref is not None:
-            assert self.stack is not None
-            self._limit_ceiling(ref)
-            self.stack.set_mission(ref)
-
-    def _limit_ceiling(self, ref: Reference) -> None:
-        """With a geofence, the avoidance climbs no higher than its ceiling over ``ref``."""
-        if self.geofence is not None and self.stack is not None \
-                and isinstance(self.stack.avoidance, EncounterStrategy):
-            self.stack.avoidance.limit_offset(self.geofence.offset_ceiling_m(ref.points[:, 2]))
+            sup.fly(ref)
 
     def _set_checked(self, ref: Reference) -> None:
         """:meth:`set_mission`, counting a refusal by the geofence as such."""
         try:
             self.set_mission(ref)
         except GeofenceError:
-            self._fence_refused += 1
-            if self._fence_watch is not None:
-                self.stats.geofence = {**self._fence_watch.report(),
-                                       "missions_refused": self._fence_refused}
+            if self._fence is not None:
+                self._fence.refused += 1
+                self.stats.geofence = self._fence.report()
             raise
 
     def _watch_fence(self, state: VehicleState) -> None:
         """The failsafe at 10 Hz: a vehicle found outside the volume flies back in and holds."""
-        watch = self._fence_watch
-        assert watch is not None and self.stack is not None
-        back = watch.check(state.position_m)
+        fence, sup = self._fence, self.supervisor
+        assert fence is not None and sup is not None
+        back = fence.recovery(sup.stack.tracker.time_s, state.position_m,
+                              float(heading_of(state.attitude_wxyz)))
         if back is not None:
             with self._lock:
                 self._pending_mission = None  # a mission that waited led out as well
-            ref = Reference.goto(*back, float(heading_of(state.attitude_wxyz)),
-                                 start_s=self.stack.tracker.time_s)
-            self._limit_ceiling(ref)
-            self.stack.set_mission(ref)
-        self.stats.geofence = {**watch.report(), "missions_refused": self._fence_refused}
+            sup.failsafe(back)
+        self.stats.geofence = fence.report()
 
     def _open_command(self, payload: bytes, channel: str) -> bytes:
         """The command inside ``payload`` (checked by the gate, if any)."""

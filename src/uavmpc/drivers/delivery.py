@@ -1,0 +1,128 @@
+"""The simulated world's link stage: each UAV's broadcasts onto the
+:class:`~uavmpc.comms.link.SimulatedLink` (unless its radio is dead), and the link's due copies
+into the receivers' inbox rows, a tick's deliveries at once (each broadcast decoded once for
+all its receivers, docs/scale.md) or UAV by UAV; both written to the flight log."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from uavmpc.comms.inbox import InboxTable, accept_copies
+from uavmpc.comms.link import SimulatedLink
+from uavmpc.comms.message import InvalidMessageError
+from uavmpc.log import FlightRecorder
+from uavmpc.onboard import OnboardStack
+
+
+class WorldLink:
+    """The link between the world's stacks (``stacks[i]``: row i of ``inboxes``).
+
+    Args:
+        link: the simulated link.
+        inboxes: every UAV's inbox, one row each.
+        stacks: the UAVs' programs, by row.
+        offsets_s: (N,) each UAV's clock minus the world's [s].
+        silent_from_s: UAV id → world time from which its radio sends nothing [s].
+        recorder: the flight log, if any.
+    """
+
+    def __init__(self, link: SimulatedLink, inboxes: InboxTable, stacks: Sequence[OnboardStack],
+                 offsets_s: np.ndarray, silent_from_s: dict[str, float],
+                 recorder: FlightRecorder | None) -> None:
+        self.link = link
+        self.inboxes = inboxes
+        self.stacks = stacks
+        self.offsets_s = offsets_s
+        self.silent_from_s = silent_from_s
+        self.recorder = recorder
+        #: Broadcasts swallowed by dead radios.
+        self.silenced = 0
+
+    def publish(self, stack: OnboardStack, data: bytes, now: float) -> None:
+        """``stack``'s broadcast ``data`` at world time ``now``."""
+        if now >= self.silent_from_s.get(stack.uav_id, math.inf):
+            self.silenced += 1  # a dead radio: the UAV does not know it
+            return
+        self.link.publish(data, stack.uav_id, now)
+        pred = stack.last_broadcast
+        if self.recorder is not None and pred is not None:
+            self.recorder.prediction(stack.uav_id, now, pred.position_m, pred.heading_rad)
+            self.recorder.link(now, "sent", stack.uav_id, stamp_s=now)
+
+    def receive_one(self, i: int, now: float) -> None:
+        """Row ``i``'s due datagrams into its stack's inbox (the per-object path)."""
+        stack = self.stacks[i]
+        rec = self.recorder
+        data = self.link.receive(stack.uav_id, now)
+        rejected = stack.inbox.rejected_total
+        kept = stack.receive(now + float(self.offsets_s[i]), data)
+        if rec is not None:
+            for msg in kept:
+                if msg is not None:
+                    rec.link(now, "delivered", msg.uav_id, stack.uav_id, msg.stamp_s)
+            for _ in range(stack.inbox.rejected_total - rejected):
+                rec.link(now, "rejected", "?", stack.uav_id)
+
+    def deliver(self, now: float) -> None:
+        """Every copy due at ``now`` through its receiver's rule into its inbox row."""
+        due = self.link.take_due(now)
+        if due is None:
+            return
+        receivers, payloads = due
+        table = self.inboxes
+        n = len(self.stacks)
+        # A tick's copies come from a few broadcasts: each is decoded (or found) once.
+        pids = np.unique(payloads)
+        slots = np.empty(pids.shape[0], dtype=np.int64)
+        errors: dict[int, str] = {}
+        for j, pid in enumerate(pids.tolist()):
+            try:
+                slots[j] = table.slot_for(self.link.payload(pid))
+            except InvalidMessageError as exc:
+                slots[j] = -1
+                errors[pid] = str(exc)
+        self.link.release(payloads)
+        copy_slots = (np.full(payloads.shape[0], slots[0]) if pids.shape[0] == 1
+                      else slots[np.searchsorted(pids, payloads)])
+        good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
+        if errors:
+            for k in np.flatnonzero((receivers < n) & (copy_slots < 0)).tolist():
+                self.stacks[receivers[k]].inbox.count_rejected(errors[int(payloads[k])])
+        rec = self.recorder
+        if rec is not None:
+            before = table.rows.accepted.copy()
+        try:
+            if good.all():
+                accept_copies(table.rows, table.store, receivers, copy_slots,
+                              now + self.offsets_s)
+            else:
+                accept_copies(table.rows, table.store, receivers[good], copy_slots[good],
+                              now + self.offsets_s)
+        finally:
+            table.unpin()
+        if rec is not None:
+            self._log_deliveries(now, receivers, copy_slots, good, before)
+
+    def _log_deliveries(self, now: float, receivers: np.ndarray, slots: np.ndarray,
+                        good: np.ndarray, before: np.ndarray) -> None:
+        """Delivered (kept) and rejected copies into the flight log: a receiver's kept copies
+        are the newest of each sender it now holds that it did not hold before."""
+        rec = self.recorder
+        assert rec is not None
+        table = self.inboxes
+        st = table.store
+        for k in range(receivers.shape[0]):
+            r = int(receivers[k])
+            if r >= len(self.stacks):
+                continue
+            if not good[k]:
+                rec.link(now, "rejected", "?", self.stacks[r].uav_id)
+                continue
+            slot = int(slots[k])
+            col = int(st.col[slot])
+            if table.rows.held_slot[r, col] == slot and table.rows.accepted[r] > before[r]:
+                rec.link(now, "delivered", table.ids[col], self.stacks[r].uav_id,
+                         float(st.stamp_s[slot]))

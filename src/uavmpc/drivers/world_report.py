@@ -1,0 +1,243 @@
+"""What a :class:`~uavmpc.drivers.world.World` run reports besides its traces: the contacts
+between UAVs, each UAV's outcome, whom each yielded to, and the extras only some runs have
+(the geofence, the launch check, the landing and the formation)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from uavmpc.missions.formation import formation_error
+from uavmpc.missions.landing import LandingMission, landing_outcome
+
+if TYPE_CHECKING:
+    from uavmpc.drivers.world import UavOutcome, World, WorldResult, WorldUav
+    from uavmpc.missions.formation import FormationSpec
+    from uavmpc.plant.ground_vehicle import GroundVehicle
+
+COLLISION_DISTANCE_M = 1.0
+#: A UAV has reached its goal when it ends within this 3-D distance of it.
+GOAL_TOLERANCE_M = 1.0
+#: The formation error is measured from this time on (the followers' first plans arrive and
+#: settle).
+FORMATION_SETTLE_S = 10.0
+
+
+@dataclasses.dataclass
+class Collision:
+    """One contact: from when two UAVs came closer than the threshold, its closest distance."""
+
+    t: float
+    a: str
+    b: str
+    distance_m: float
+
+
+class Contacts:
+    """The contacts of a run: each pair of UAVs closer than :data:`COLLISION_DISTANCE_M`,
+    one :class:`Collision` per contact (from when it began, its closest distance)."""
+
+    def __init__(self, ids: Sequence[str]) -> None:
+        self.ids = list(ids)
+        self._pairs = np.triu_indices(len(ids), 1)
+        self._open: dict[tuple[int, int], Collision] = {}
+        self.collisions: list[Collision] = []
+
+    def update(self, t_s: float, closest_m: float, pair_d: np.ndarray) -> None:
+        """The pair distances ``pair_d`` (N (N − 1) / 2,) at ``t_s``, ``closest_m`` their
+        minimum [m]."""
+        if not closest_m < COLLISION_DISTANCE_M and not self._open:
+            return
+        close = pair_d < COLLISION_DISTANCE_M
+        if not close.any() and not self._open:
+            return
+        iu = self._pairs
+        for j in range(pair_d.shape[0]):
+            key = (int(iu[0][j]), int(iu[1][j]))
+            if close[j]:
+                c = self._open.get(key)
+                if c is None:
+                    c = Collision(t_s, self.ids[key[0]], self.ids[key[1]], float(pair_d[j]))
+                    self._open[key] = c
+                    self.collisions.append(c)
+                c.distance_m = min(c.distance_m, float(pair_d[j]))
+            else:
+                self._open.pop(key, None)
+
+
+class Yields:
+    """Whom each UAV yielded to: other id → [first, last] time of a decision saying so [s]
+    (into each :class:`~uavmpc.drivers.world.WorldUav`'s ``yielded_to``)."""
+
+    def __init__(self, uavs: Sequence[WorldUav]) -> None:
+        self.uavs = uavs
+        self._yielding: set[int] = set()
+
+    def add(self, decided: Iterable[int]) -> None:
+        """``decided``: UAVs that may have decided since (those yielding are followed)."""
+        for i in decided:
+            d = self.uavs[i].stack.decision
+            if d is not None and d.yielding_to:
+                self._yielding.add(i)
+
+    def note(self, now: float, decided: Iterable[int]) -> None:
+        """At ``now``, whom each UAV followed (and those of ``decided``) yields to."""
+        self.add(decided)
+        for i in sorted(self._yielding):
+            u = self.uavs[i]
+            d = u.stack.decision
+            if d is None or not d.yielding_to:
+                self._yielding.discard(i)
+                continue
+            for other in d.yielding_to:
+                span = u.yielded_to.setdefault(other, [now, now])
+                span[1] = now
+
+
+def uav_outcomes(uavs: Sequence[WorldUav], final_m: np.ndarray) -> dict[str, UavOutcome]:
+    """Per UAV, how its flight ended, from its program's report and its last position
+    ``final_m`` (N, 3) [m]."""
+    from uavmpc.drivers.world import UavOutcome
+
+    per_uav = {}
+    for u, final in zip(uavs, final_m, strict=True):
+        rep = u.stack.report()
+        per_uav[u.uav_id] = UavOutcome(
+            max_z_offset_m=rep.max_z_offset_m, avoidance_active_s=rep.avoidance_active_s,
+            tracking_rmse_m=rep.tracking_rmse_m,
+            reached_goal=(None if u.supervisor.mission is not None
+                          else bool(np.linalg.norm(final - u.goal_m) < GOAL_TOLERANCE_M)),
+            final_position_m=final.tolist(), limit_violations=rep.limit_violations,
+            max_limit_excess=rep.max_limit_excess, tracker_fallbacks=rep.tracker_fallbacks,
+            messages_rejected=rep.messages_rejected_total,
+            yielded_to={k: [round(a, 3), round(b, 3)] for k, (a, b) in u.yielded_to.items()})
+    return per_uav
+
+
+def fleet_extras(result: WorldResult, uavs: Sequence[WorldUav], *,
+                 launch_check_s: float | None, launches: dict[str, dict[str, Any]],
+                 non_cooperative: Sequence[str], avoidance: bool) -> None:
+    """The geofence, the launch check and who flew without avoidance, into ``result``."""
+    fenced = [(u.uav_id, u.supervisor.fence) for u in uavs]
+    if any(f is not None for _, f in fenced):
+        result.extra["geofence"] = {uid: f.watch.report() for uid, f in fenced if f is not None}
+    if launch_check_s is not None:
+        result.extra["launch"] = {
+            "max_wait_s": launch_check_s, **launches,
+            **{u.uav_id: {"launched_s": None, "not_heard": None}
+               for u in uavs if not u.supervisor.launched}}
+    if avoidance and non_cooperative:
+        # Who flew without avoidance while the others avoided (with ``avoidance`` off,
+        # the summary's "avoidance": false already says everyone did).
+        result.extra["non_cooperative"] = list(non_cooperative)
+
+
+def applications(result: WorldResult, uavs: Sequence[WorldUav], car: GroundVehicle | None,
+                 spec: FormationSpec | None) -> None:
+    """The field applications' outcomes (landing, formation) into ``result``."""
+    if car is not None:
+        result.traces["ground_vehicle_m"] = np.array(
+            [car.state(t).position_m for t in result.t_s])
+    for i, u in enumerate(uavs):
+        mission = u.supervisor.mission
+        if isinstance(mission, LandingMission):
+            assert car is not None
+            end = float(result.t_s[-1])
+            final = result.positions_m[-1, i]
+            rests = bool(u.plant.landed and abs(final[2] - car.deck_height_m) < 1e-6
+                         and car.on_deck(end, final))
+            out = landing_outcome(mission, u.plant.deck_touch(),
+                                  u.stack.airframe.max_touchdown_speed_mps, rests, end)
+            result.extra.update({"landing_uav": u.uav_id, **out})
+            result.traces["lander_index"] = np.array(i)
+    if spec is not None:
+        _formation(result, spec)
+
+
+def _formation(result: WorldResult, spec: FormationSpec) -> None:
+    keep = result.t_s >= FORMATION_SETTLE_S
+    index = {uid: k for k, uid in enumerate(result.uav_ids)}
+    err = formation_error(spec, result.t_s[keep],
+                          {m: result.positions_m[keep, index[m]] for m in spec.members})
+    series = err.pop("series_m")
+    calm = ~result.traces["members_avoiding"][keep]
+    if calm.any():
+        err["while_no_member_avoids"] = {
+            "rms": float(np.sqrt(np.mean(series[calm] ** 2))),
+            "max": float(series[calm].max()), "share_of_time": float(calm.mean())}
+    result.traces["formation_error_m"] = series
+    result.traces["formation_t_s"] = result.t_s[keep]
+    result.extra["formation_error_m"] = err
+    result.extra["formation"] = {
+        "leader": spec.leader, "followers": list(spec.followers),
+        "measured_from_s": FORMATION_SETTLE_S,
+        "outsiders": [uid for uid in result.uav_ids if uid not in spec.members]}
+
+
+@dataclasses.dataclass
+class Traces:
+    """A run's traces, written tick by tick: times (K,), true positions (K, N, 3), z offsets
+    (K, N), closest distance (K,), the pair distances of the last tick (N (N − 1) / 2,), and
+    whether any formation member (rows ``members``) avoids (K,)."""
+
+    t_s: np.ndarray
+    pos: np.ndarray
+    zoff: np.ndarray
+    dmin: np.ndarray
+    pair_d: np.ndarray
+    members: np.ndarray
+    members_avoiding: np.ndarray
+
+    @classmethod
+    def empty(cls, ticks: int, n: int, formation: FormationSpec | None,
+              ids: list[str]) -> Traces:
+        members = (np.array([ids.index(m) for m in formation.members])
+                   if formation is not None else np.zeros(0, dtype=np.int64))
+        return cls(np.empty(ticks), np.empty((ticks, n, 3)), np.empty((ticks, n)),
+                   np.full(ticks, np.inf), np.empty(max(1, n * (n - 1) // 2)), members,
+                   np.zeros(ticks, dtype=bool))
+
+    def kernel_args(self, k: int) -> tuple[Any, ...]:
+        """Row ``k``'s traces as :func:`~uavmpc.drivers.world_tick.world_tick` writes them."""
+        return (k, self.pos, self.zoff, self.dmin, self.pair_d)
+
+
+def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
+                 cycles_per_s: float) -> WorldResult:
+    """The result of ``world``'s run: its traces ``tr``, its contacts, each UAV's outcome,
+    the messages, the extras; ``wall_s`` it took [s], the CPU's cycles per second."""
+    from uavmpc.drivers.world import WorldResult
+
+    st = world.link.stats
+    messages = {"sent": st.sent, "delivered": st.delivered,
+                "dropped": st.dropped + st.dropped_range, "published": st.published}
+    result = WorldResult(world.scenario.name, world.seed, world.avoidance,
+                         tr.t_s.shape[0] * world.period_s, [u.uav_id for u in world.uavs],
+                         tr.t_s, tr.pos, tr.zoff, tr.dmin, contacts.collisions,
+                         uav_outcomes(world.uavs, tr.pos[-1]), messages, wall_s)
+    if tr.members.size:
+        result.traces["members_avoiding"] = tr.members_avoiding
+    if world.batched:
+        _timing_extras(result, world.phase_wall_s, world.ticker.cycles, cycles_per_s)
+    fleet_extras(result, world.uavs, launch_check_s=world.launch_check_s,
+                 launches=world.launches, non_cooperative=world.non_cooperative,
+                 avoidance=world.avoidance)
+    applications(result, world.uavs, world.ground_vehicle, world.scenario.formation)
+    return result
+
+
+def _timing_extras(result: WorldResult, phase_wall_s: Sequence[float], cycles: np.ndarray,
+                   cycles_per_s: float) -> None:
+    """Where a batched run's wall time went: the numbers of a scale benchmark."""
+    result.extra["wall_s_by_phase"] = dict(zip(
+        ("receive_and_plan", "compiled_tick", "broadcast"),
+        (round(v, 6) for v in phase_wall_s), strict=True))
+    c = cycles
+    if c.size and c[3] > 0 and cycles_per_s > 0:
+        # Per UAV and tick, inside the compiled call: the floor of a UAV-second.
+        result.extra["compiled_us_per_uav_tick"] = {
+            name: round(float(c[j] / c[3] / cycles_per_s * 1e6), 3)
+            for j, name in enumerate(("stack", "plant", "trace"))}

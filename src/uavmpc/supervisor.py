@@ -1,0 +1,192 @@
+"""One UAV's supervision beside its onboard stack: what decides *which* trajectory it flies.
+
+:class:`~uavmpc.onboard.OnboardStack` flies a desired trajectory (and avoids the others); a
+:class:`Supervisor` chooses that trajectory, the same way under every driver (the simulated
+world, a network node, a node flying a PX4):
+
+- the **launch hold**: a UAV holds where it is, its mission waiting, until its driver launches
+  it (the world: once its inbox holds a prediction from every other UAV, :meth:`heard_from`,
+  or a deadline passed; a node: once the vehicle is its to fly);
+- the **mission** stepped beside the stack (:mod:`uavmpc.missions`) at its period: a new
+  trajectory, or a **motor cut**, after which the stack only follows where the UAV rests
+  (:meth:`~uavmpc.onboard.OnboardStack.follow`: broadcast it, flag down);
+- the **geofence** (:class:`FenceGuard`): missions checked against the volume, the
+  avoidance's ceiling over the mission flown, and the failsafe: a UAV found outside flies back
+  to a point inside and holds there, its mission stopped.
+
+A supervisor holds no numbers of the flight: its decisions are calls on its stack. The world
+keeps one per UAV and steps them together (it computes the fence margins of all UAVs in one
+call and hands each its own).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from uavmpc.avoidance.encounters import heard_from_all
+from uavmpc.geofence import FenceWatch, Geofence
+from uavmpc.missions.mission import Mission, MissionInput
+from uavmpc.onboard import OnboardStack
+from uavmpc.plant import VehicleState
+from uavmpc.reference import Reference
+
+#: Tolerance of the mission's schedule against round-off in the tick times [s].
+_SCHEDULE_TOL_S = 1e-9
+
+
+class FenceGuard:
+    """One UAV's geofence duty: its failsafe (:class:`~uavmpc.geofence.FenceWatch`), the
+    missions it refused for leaving the volume, the avoidance's ceiling over a mission."""
+
+    def __init__(self, geofence: Geofence) -> None:
+        self.geofence = geofence
+        self.watch = FenceWatch(geofence)
+        #: Missions from the network refused for leaving the volume (counted by the driver
+        #: that took them).
+        self.refused = 0
+
+    def check_mission(self, reference: Reference) -> None:
+        """Accept ``reference`` as the next mission (it replaces a failsafe's hold).
+
+        Raises:
+            GeofenceError: it leaves the volume (the message says where).
+        """
+        self.geofence.check_reference(reference)
+        self.watch.mission_accepted()
+
+    def needs_look(self, margin_m: float) -> bool:
+        """A UAV at ``margin_m`` [m] from the walls needs :meth:`recovery` (outside, or not
+        yet inside once); else nothing can change."""
+        return not (margin_m >= 0.0) or not self.watch.entered
+
+    def recovery(self, own_s: float, position_m: np.ndarray, heading_rad: float,
+                 margin_m: float | None = None) -> Reference | None:
+        """The failsafe's trajectory when ``position_m`` (3,) is a new exit: back to a point
+        inside from ``own_s`` (the UAV's clock) on, holding ``heading_rad``; else None.
+        ``margin_m``: the position's margin, if the caller computed it in a batch."""
+        back = self.watch.check(position_m, margin_m)
+        if back is None:
+            return None
+        return Reference.goto(*back, heading_rad, start_s=own_s)
+
+    def ceiling_m(self, z_m: np.ndarray) -> float:
+        """The avoidance's ceiling [m] over a mission at heights ``z_m`` (K,)."""
+        return self.geofence.offset_ceiling_m(z_m)
+
+    def report(self) -> dict[str, Any]:
+        """The failsafe's report and the missions refused."""
+        return {**self.watch.report(), "missions_refused": self.refused}
+
+
+class Supervisor:
+    """The supervision of one :class:`~uavmpc.onboard.OnboardStack` (see the module).
+
+    Args:
+        stack: the program it steers.
+        mission: a mission stepped beside the stack (then the source of its trajectory).
+        fence: the geofence duty, or None without a geofence.
+        launched: False holds the UAV until :meth:`launch` (:meth:`hold` gives the mission
+            that waits).
+    """
+
+    def __init__(self, stack: OnboardStack, *, mission: Mission | None = None,
+                 fence: FenceGuard | None = None, launched: bool = True) -> None:
+        self.stack = stack
+        self.mission = mission
+        self.fence = fence
+        self.launched = launched
+        #: The mission waiting for the launch, if any.
+        self.held: Reference | None = None
+        #: When the mission is next stepped, on the driver's clock [s].
+        self.next_mission_s = 0.0
+        #: The mission cut the motors (the UAV rests; its stack follows it).
+        self.motors_cut = False
+
+    # ------------------------------------------------------------------ launch hold
+    def hold(self, mission: Reference, hover: Reference) -> None:
+        """Hold: fly ``hover`` (where it starts) while ``mission`` waits for :meth:`launch`."""
+        self.launched = False
+        self.held = mission
+        self.stack.set_mission(hover)
+
+    def heard_from(self, own_s: float, peers: Sequence[int] | np.ndarray) -> bool:
+        """Its inbox holds a prediction from every column of ``peers`` of its table that its
+        encounters count (fresh, or silent at most ``silent_hold_s`` old) at ``own_s``."""
+        prm = self.stack.params
+        return bool(heard_from_all(self.stack.inbox.table.rows, self.stack.row,
+                                   np.asarray(peers, dtype=np.int64), own_s,
+                                   prm.time_reference == "receive", prm.timeout_s,
+                                   prm.silent_hold_s))
+
+    def unheard(self, own_s: float, peers: Sequence[int] | np.ndarray) -> list[int]:
+        """The columns of ``peers`` it has not heard from (:meth:`heard_from`)."""
+        return [int(c) for c in np.asarray(peers).tolist()
+                if not self.heard_from(own_s, np.array([c]))]
+
+    def launch(self, reference: Reference | None = None) -> None:
+        """Set off: fly the mission held (else ``reference``, if any)."""
+        self.launched = True
+        ref, self.held = (self.held if self.held is not None else reference), None
+        if ref is not None:
+            self.stack.set_mission(ref)
+
+    # ------------------------------------------------------------------ mission
+    def mission_due(self, now_s: float) -> bool:
+        """A mission steps beside the stack and its period has passed (driver's clock)."""
+        return self.mission is not None and now_s >= self.next_mission_s - _SCHEDULE_TOL_S
+
+    def step_mission(self, now_s: float, own_s: float, estimate: VehicleState,
+                     touching: bool = False, fixes: Sequence[Any] = ()) -> bool:
+        """Step the mission (due: :meth:`mission_due`) at ``now_s`` (driver's clock) with what
+        the UAV knows at ``own_s`` (its clock): its estimate, its land detector, its inbox's
+        plans, the target fixes. A new trajectory is flown; a motor cut makes the stack
+        follow the UAV where it rests. Returns True when the motors are cut now, the first
+        time (the driver cuts them)."""
+        assert self.mission is not None
+        self.next_mission_s = now_s + self.mission.period_s
+        out = self.mission.step(MissionInput(own_s, estimate, touching, self.stack.inbox.latest,
+                                             fixes))
+        if out.cut_motors:
+            first = not self.motors_cut
+            self.motors_cut = True
+            # Where it rests is what it will do: broadcast that, flag down (others avoid it).
+            self.stack.follow(own_s, estimate)
+            return first
+        if out.reference is not None:
+            self.stack.set_mission(out.reference)
+        return False
+
+    # ------------------------------------------------------------------ geofence
+    def fly(self, reference: Reference) -> None:
+        """Fly a commanded mission (checked against the geofence already): the avoidance's
+        ceiling over it, then the trajectory."""
+        self.limit_ceiling(reference.points[:, 2])
+        self.stack.set_mission(reference)
+
+    def limit_ceiling(self, z_m: np.ndarray) -> None:
+        """With a geofence, the avoidance climbs no higher than its ceiling over a mission at
+        heights ``z_m`` (K,) [m]."""
+        if self.fence is not None:
+            self.stack.limit_offset(self.fence.ceiling_m(z_m))
+
+    def watch_fence(self, own_s: float, position_m: np.ndarray, heading_rad: float,
+                    margin_m: float | None = None) -> bool:
+        """The failsafe (with a geofence): a UAV found outside at ``position_m`` flies back in
+        from ``own_s`` on and holds; its mission, if one steps beside it, stops. Returns True
+        when it engaged."""
+        if self.fence is None:
+            return False
+        ref = self.fence.recovery(own_s, position_m, heading_rad, margin_m)
+        if ref is None:
+            return False
+        self.failsafe(ref)
+        return True
+
+    def failsafe(self, recovery: Reference) -> None:
+        """Fly ``recovery`` (back inside the geofence, :meth:`FenceGuard.recovery`) and hold:
+        its mission, if one steps beside it, stops."""
+        self.mission = None
+        self.fly(recovery)
