@@ -104,7 +104,7 @@ def test_a_goto_starts_now_and_a_start_time_is_a_one_point_trajectory() -> None:
     ({}, r"^uavs\[3\]: needs exactly one of goto, trajectory or path, got none"),
     ({"goto": [0, 0, 5, 0], "speed": 1}, r"^uavs\[3\]\.speed: unknown field"),
     ({"path": {"waypoints": [[0, 0, 5], [1, 0, 5]], "speed_mps": 500}},
-     r"^uavs\[3\]\.path\.speed_mps: must be finite and within ±100"),
+     r"^uavs\[3\]\.path\.speed_mps: must be a finite number within ±100"),
     ({"trajectory": {"points": [[0, 0, 5, 0]], "times_s": [0.0], "start_s": 1.0}},
      r"^uavs\[3\]\.trajectory\.start_s: not with times_s"),
     ({"trajectory": {"points": [[0, 0, 2e5, 0]]}}, r"^uavs\[3\]\.trajectory\.points\[0\]\[2\]"),

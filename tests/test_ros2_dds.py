@@ -126,7 +126,7 @@ def test_the_node_is_announced_and_cdr_goes_through_unchanged_and_bad_commands_c
         wait_until(refused, 10.0, "both unflyable goals, refused")
         assert not taken and len(rejected) == 2
         assert "frame_id 'map'" in rejected[0], rejected
-        assert "goto[0]: must be finite" in rejected[1], rejected
+        assert "goto[0]: must be a finite number" in rejected[1], rejected
         # A trajectory (nav_msgs/Path, stamps zero: one pose every 0.2 s from now) is taken.
         trajectory = b.publisher("/a/trajectory", ros2.PATH)
         points = np.array([[0.0, 0.0, 5.0], [1.0, 0.0, 5.0], [2.0, 1.0, 5.5]])

@@ -69,8 +69,9 @@ def _number(value: Any, name: str, bound: float = _FLOAT_MAX) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InvalidReferenceError(f"{name}: must be a number, got {_describe(value)}")
     if not -bound <= value <= bound:
-        limit = "finite" if bound == _FLOAT_MAX else f"finite and within ±{bound:g}"
-        raise InvalidReferenceError(f"{name}: must be {limit}, got {_describe(value)}")
+        within = "" if bound == _FLOAT_MAX else f" within ±{bound:g}"
+        raise InvalidReferenceError(f"{name}: must be a finite number{within}, got "
+                                    f"{_describe(value)}")
     return float(value)
 
 
