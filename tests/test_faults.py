@@ -110,7 +110,7 @@ def test_a_campaign_with_faults_records_them_and_counts_goals(tmp_path) -> None:
                       faults=spec, progress=False)
     assert r2["min_distance_m"] == r["min_distance_m"]
     assert r2["waypoints_reached"] == r["waypoints_reached"]
-    with pytest.raises(ConfigError, match="burst loss needs a loss rate"):
+    with pytest.raises(ConfigError, match="burst-loss needs a loss rate"):
         run_campaign(tmp_path / "c3", trials=1, faults=FaultSpec(burst_len=3.0),
                      progress=False)
 

@@ -64,7 +64,7 @@ from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 from uavmpc.scenarios.faults import Faults
-from uavmpc.tracker import DynamicLimits, TrackerConfig
+from uavmpc.tracker import TrackerConfig
 from uavmpc.tracker.kernels import make_scratch
 from uavmpc.view.scene import (
     ObjectView,
@@ -315,8 +315,7 @@ def _with_scenario_limits(config: TrackerConfig | None,
     if not scenario.limits:
         return config
     base = config if config is not None else TrackerConfig.from_toml()
-    limits = DynamicLimits.from_dict({**dataclasses.asdict(base.limits), **scenario.limits})
-    return dataclasses.replace(base, limits=limits)
+    return dataclasses.replace(base, limits=scenario.limits.apply(base.limits))
 
 
 def _strategy_of(uav_id: str, strategy: Callable[[AvoidanceParams], ResolutionStrategy],
@@ -414,10 +413,7 @@ class World:
         self.recorder = recorder
         self.batched = bool(batched)
         settings = link if link is not None else scenario.link
-        try:
-            params = AvoidanceParams.from_dict(scenario.avoidance)
-        except TypeError as exc:
-            raise ConfigError(f"avoidance: {exc}") from None
+        params = scenario.avoidance  # validated when the scenario was
         self.params = params
         self._positions: dict[str, np.ndarray] = {}
         self.link = SimulatedLink(
