@@ -72,7 +72,7 @@ def test_an_old_or_unknown_campaign_file_is_refused_naming_its_format(tmp_path: 
     old = tmp_path / "old"
     old.mkdir()
     (old / "trials.jsonl").write_text('{"index": 0}\n')
-    with pytest.raises(CampaignError, match="holds trials but no campaign.json"):
+    with pytest.raises(CampaignError, match=r"holds trials but no campaign\.json"):
         landing.run_landing_campaign(old, trials=1, duration_s=1.0, workers=1)
 
 
