@@ -305,7 +305,8 @@ class Progress:
         self.t0 = time.perf_counter()
         self.width = 0
 
-    def show(self, done: int, total: int | None, sim_h: float, new: int) -> None:
+    def show(self, done: int, total: int | None, sim_h: float | None, new: int) -> None:
+        """``sim_h``: the simulated hours of the ``done`` trials (None: they do not say)."""
         if not self.enabled:
             return
         el = time.perf_counter() - self.t0
@@ -315,8 +316,8 @@ class Progress:
             eta = _hms(el / new * max(total - done, 0))
         frac = done / total if total else 0.0
         bar = "#" * int(20 * min(frac, 1.0))
-        line = (f"\r[{bar:<20}] {done}/{tot} trials, {sim_h:.2f} h simulated, "
-                f"{_hms(el)} elapsed, ETA {eta}")
+        sim = "" if sim_h is None else f"{sim_h:.2f} h simulated, "
+        line = f"\r[{bar:<20}] {done}/{tot} trials, {sim}{_hms(el)} elapsed, ETA {eta}"
         self.width = max(self.width, len(line))
         self.stream.write(line.ljust(self.width))
         self.stream.flush()
@@ -369,7 +370,8 @@ class _Run:
 
     def status(self) -> None:
         sel, _ = selected(self.trials, self.n_trials, self.target_s)
-        sim_h = sum(r.get("sim_s", 0.0) for r in sel) / 3600.0
+        sim_h = (sum(r["sim_s"] for r in sel) / 3600.0
+                 if all("sim_s" in r for r in sel) else None)
         total = self.n_trials
         if total is None and self.target_s is not None:
             done = self.trials.values()
