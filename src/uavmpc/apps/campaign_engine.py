@@ -371,7 +371,7 @@ class _Run:
     def status(self) -> None:
         sel, _ = selected(self.trials, self.n_trials, self.target_s)
         sim_h = (sum(r["sim_s"] for r in sel) / 3600.0
-                 if all("sim_s" in r for r in sel) else None)
+                 if sel and all("sim_s" in r for r in sel) else None)
         total = self.n_trials
         if total is None and self.target_s is not None:
             done = self.trials.values()
