@@ -12,12 +12,15 @@ The replays quoted in docs/campaign.md and docs/faults.md ("replayed: ...") are 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
 
-from uavmpc.apps.campaign import avoidance_file, run_trial, trial_job
+from uavmpc.apps.campaign import RandomWalkSpec, avoidance_file, run_trial
+from uavmpc.apps.campaign_engine import stored_spec
 from uavmpc.config import ConfigError
+from uavmpc.scenarios import avoidance_params
 
 
 def main() -> int:
@@ -29,13 +32,17 @@ def main() -> int:
     ap.add_argument("--log", type=Path, default=None, help="also write the flight log here")
     args = ap.parse_args()
     try:
-        params = json.loads((args.campaign / "campaign.json").read_text())["parameters"]
-        table = avoidance_file(args.avoidance_file) if args.avoidance_file else None
-        job = trial_job(params, args.index, table)
+        stored = stored_spec(args.campaign, RandomWalkSpec.kind)
+        if stored is None:
+            raise ConfigError(f"{args.campaign}: no campaign.json")
+        spec = RandomWalkSpec.from_json(stored)
+        if args.avoidance_file:
+            spec = dataclasses.replace(spec, avoidance_params=avoidance_params(
+                avoidance_file(args.avoidance_file)))
     except (OSError, ValueError, KeyError, ConfigError) as exc:
         print(f"replay_trial: {exc}", file=sys.stderr)
         return 2
-    record = run_trial(job, args.log)
+    record = run_trial(spec, args.index, args.log)
     print(json.dumps(record))
     return 0
 

@@ -11,15 +11,15 @@ import pytest
 
 from uavmpc.apps.campaign import (
     CampaignError,
-    TrialJob,
+    RandomWalkSpec,
     load_trials,
     merge_reports,
     run_campaign,
     run_trial,
-    trial_job,
     trial_seeds,
 )
 from uavmpc.config import ConfigError
+from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.random_walk import MIN_START_SEPARATION_M, STEP_S, hold_time_s, random_walk
 
 SMALL = {"uavs": 3, "area_m": 30.0, "progress": False}
@@ -156,8 +156,8 @@ def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
         assert d >= t["min_distance_m"] - 1e-9 and d < t["min_distance_m"] + 0.5
     assert not list((tmp_path / "logs").glob("*.part"))
     # a trial flown again from the folder's parameters is the same trial
-    params = json.loads((tmp_path / "campaign.json").read_text())["parameters"]
-    again = run_trial(trial_job(params, closest[0]["index"]))
+    stored = json.loads((tmp_path / "campaign.json").read_text())["spec"]
+    again = run_trial(RandomWalkSpec.from_json(stored), closest[0]["index"])
     assert {k: v for k, v in again.items() if k != "wall_s"} == {
         k: v for k, v in closest[0].items() if k != "wall_s"}
     with pytest.raises(CampaignError, match="logs: must be an integer"):
@@ -184,9 +184,9 @@ def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> Non
 
     flown: list[int] = []
 
-    def spy(job):
-        flown.append(job.index)
-        return run_trial(job)
+    def spy(spec, index):
+        flown.append(index)
+        return run_trial(spec, index)
 
     monkeypatch.setattr(campaign, "run_trial", spy)
     r = run_campaign(tmp_path, trials=4, **kw)
@@ -305,10 +305,9 @@ def test_collisions_found_by_the_24_hour_campaigns_no_longer_happen(
         index: int, loss: float, latency_s: float, duration_s: float, story: str) -> None:
     """``uavmpc campaign random-walk --avoidance --hours 24 [--loss 0.3 --latency 0.2]``,
     seed 0: the trial that collided, flown past the moment of its collision."""
-    scenario_seed, world_seed = trial_seeds(0, index)
-    job = TrialJob(index=index, scenario_seed=scenario_seed, world_seed=world_seed, uavs=5,
-                   area_m=100.0, height_m=10.0, avoidance=True, loss=loss, latency_s=latency_s,
-                   jitter_s=0.02, wind_mps=0.0, duration_s=duration_s)
-    record = run_trial(job)
+    spec = RandomWalkSpec(uavs=5, area_m=100.0, height_m=10.0, avoidance=True, seed=0,
+                          link=LinkSettings(latency_s=latency_s, jitter_s=0.02, loss=loss),
+                          length_s=duration_s)
+    record = run_trial(spec, index)
     assert record["collisions"] == 0, story
     assert record["min_distance_m"] > 2.0, story

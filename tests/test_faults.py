@@ -110,7 +110,7 @@ def test_a_campaign_with_faults_records_them_and_counts_goals(tmp_path) -> None:
                       faults=spec, progress=False)
     assert r2["min_distance_m"] == r["min_distance_m"]
     assert r2["waypoints_reached"] == r["waypoints_reached"]
-    with pytest.raises(ConfigError, match="burst loss needs a loss rate"):
+    with pytest.raises(ConfigError, match="burst-loss needs a loss rate"):
         run_campaign(tmp_path / "c3", trials=1, faults=FaultSpec(burst_len=3.0),
                      progress=False)
 
@@ -253,3 +253,27 @@ def test_rule_8_a_uav_nobody_hears_yields_to_the_one_that_does_not_react() -> No
     uavs = on.summary()["uavs"]
     assert uavs["high"]["max_z_offset_m"] == 3.0 and uavs["low"]["max_z_offset_m"] == 0.0
     assert uavs["high"]["reached_goal"] and uavs["low"]["reached_goal"]
+
+
+def test_apply_faults_is_the_one_split_of_a_spec() -> None:
+    from uavmpc.avoidance import AvoidanceParams
+    from uavmpc.scenarios import LinkSettings
+    from uavmpc.scenarios.faults import apply_faults
+
+    sc = random_walk(4, 60.0, 10.0, 30.0, seed=2)
+    link = LinkSettings(latency_s=0.1, loss=0.2)
+    spec = FaultSpec(clock_offset_s=0.4, time_reference="receive", gnss="rtk", burst_len=3.0,
+                     non_cooperative=1, silent=1)
+    out_sc, out_link, drawn = apply_faults(spec, sc, link, duration_s=30.0, seed=7)
+    # the link gets the burst length, the scenario's avoidance the time reference, nothing else
+    assert out_link == LinkSettings(latency_s=0.1, loss=0.2, burst_len=3.0)
+    assert out_sc.avoidance.time_reference == "receive"
+    assert out_sc.avoidance == AvoidanceParams(time_reference="receive")
+    assert out_sc.uavs is sc.uavs and sc.avoidance.time_reference == "stamp"
+    # the rest is the draw of the flight, as draw_faults makes it from the same seed
+    assert drawn == draw_faults(spec, [u.uav_id for u in sc.uavs], 30.0, 0.0, 7)
+    assert world_faults(drawn)["gnss"] == "rtk"
+    with pytest.raises(ConfigError, match="burst-loss needs a loss rate"):
+        apply_faults(spec, sc, LinkSettings(), duration_s=30.0, seed=7)
+    with pytest.raises(ConfigError, match="non_cooperative"):
+        apply_faults(FaultSpec(non_cooperative=4), sc, link, duration_s=30.0, seed=7)

@@ -268,7 +268,7 @@ def test_the_field_scenarios_load_and_bad_ones_are_refused() -> None:
     form = scenarios.load("formation")
     assert form.formation.followers == ("f1", "f2", "f3")
     fast = scenarios.load("moving_target_landing_30kmh")
-    assert fast.limits["horizontal_accel_mps2"] == 5.0
+    assert fast.limits.as_dict() == {"horizontal_accel_mps2": 5.0, "horizontal_speed_mps": 12.0}
     base = {"name": "x", "duration_s": 10.0,
             "uavs": [{"id": "a", "priority": 1, "start": [0.0, 0.0, 5.0]}]}
     with pytest.raises(ConfigError, match=r"landing: needs a \[ground_vehicle\]"):

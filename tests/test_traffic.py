@@ -123,7 +123,10 @@ def test_small_traffic_with_avoidance_has_no_collision_and_the_outcome_adds_up()
         assert gap[first] < ARRIVAL_TOLERANCE_M and np.all(gap[:first] >= ARRIVAL_TOLERANCE_M)
     done = sorted(t for t in trips.values() if t is not None)
     assert o["trip_s"]["max"] == pytest.approx(done[-1], abs=1e-3)
-    assert o["trip_s"]["p50"] == pytest.approx(np.percentile(done, 50), abs=1e-3)
+    # the one percentile definition: a flown trip's own time (the empirical CDF's; the
+    # per-UAV trips are rounded to the millisecond)
+    p50 = np.percentile(done, 50, method="inverted_cdf")
+    assert p50 in done and o["trip_s"]["p50"] == pytest.approx(p50, abs=1e-3)
     assert o["airborne"]["peak"] <= 10 and o["airborne"]["mean"] > 0.0
 
 

@@ -1,9 +1,11 @@
 """Statistical campaigns (SPEC §7): many seeded random_walk trials, resumable, in parallel.
 
-A campaign lives in one folder ``DIR``:
+A campaign is a :class:`RandomWalkSpec` and a folder ``DIR`` kept by the one campaign engine
+(:mod:`uavmpc.apps.campaign_engine`, shared with the landing and traffic campaigns):
 
-- ``campaign.json``: the parameters that define the trials (UAVs, area, avoidance, link, wind,
-  trial length, seed). Re-running with other parameters in the same folder is refused.
+- ``campaign.json``: the spec (UAVs, area, avoidance, link, wind, trial length, seed, faults,
+  avoidance parameters, launch check), versioned. Re-running with other parameters in the same
+  folder is refused.
 - ``trials.jsonl``: one JSON line per finished trial, appended (flushed and fsynced) as soon as
   the trial ends. Re-running the same command skips the trials already there, so a crash or
   Ctrl-C loses nothing but the trials in flight.
@@ -24,70 +26,46 @@ world is run in chunks and stopped at the first collision; chunked runs are bit-
 run). With avoidance a trial flies ``trial_s`` seconds and records its collisions and the
 minimal distance between any two UAVs.
 
-Percentiles of the time to first collision are those of the empirical CDF (``inverted_cdf``: a
-percentile is a sample value) over all trials, a trial without collision counting as "later
-than its length" (right-censored). A percentile that falls among censored trials is reported as
-``null`` (``report.md`` shows ``> cap``); all are ``null`` when no trial collided.
+Percentiles of the time to first collision are those of the empirical CDF
+(:func:`uavmpc.scenarios.stats.percentile`: a percentile is a sample value) over all trials, a
+trial without collision counting as "later than its length" (right-censored). A percentile that
+falls among censored trials is reported as ``null`` (``report.md`` shows ``> cap``); all are
+``null`` when no trial collided.
 """
 
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import dataclasses
 import json
 import math
-import os
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from uavmpc.config import ConfigError
+from uavmpc.apps.campaign_engine import (
+    TRIALS_FILE,
+    CampaignError,
+    Task,
+    check_workers,
+    iter_trials,
+    load_records,
+    run_trials,
+)
+from uavmpc.avoidance import AvoidanceParams
+from uavmpc.scenarios import LinkSettings, avoidance_params, changed_fields
 from uavmpc.scenarios.faults import FaultSpec
+from uavmpc.scenarios.stats import percentile
 
-FORMAT = 1
 PERCENTILES = (50, 75, 95, 99)
 #: Without avoidance, the world is run this many simulated seconds at a time between checks
 #: for a collision.
 CHUNK_S = 5.0
-CAMPAIGN_FILE = "campaign.json"
-TRIALS_FILE = "trials.jsonl"
-#: One line per invocation that ran trials: its wall time (the report's ``wall_s`` is their sum,
-#: so a campaign resumed after Ctrl-C reports all the time it took, not its last part).
-RUNS_FILE = "runs.jsonl"
-
-
-class CampaignError(ConfigError):
-    """A campaign that cannot run as asked (the message says why and what to do)."""
-
-
-@dataclass(frozen=True)
-class TrialJob:
-    """Everything a worker needs to fly one trial (picklable)."""
-
-    index: int
-    scenario_seed: int
-    world_seed: int
-    uavs: int
-    area_m: float
-    height_m: float
-    avoidance: bool
-    loss: float
-    latency_s: float
-    jitter_s: float
-    wind_mps: float
-    duration_s: float
-    #: The active fields of a :class:`~uavmpc.scenarios.faults.FaultSpec` (none: a clean run).
-    faults: dict[str, Any] = field(default_factory=dict)
-    #: :class:`~uavmpc.avoidance.AvoidanceParams` fields that differ from the defaults.
-    avoidance_params: dict[str, Any] = field(default_factory=dict)
-    #: The world's launch check (longest wait at the start [s]; None: set off at once).
-    launch_check_s: float | None = None
 
 
 def trial_seeds(seed: int, index: int) -> tuple[int, int]:
@@ -97,75 +75,149 @@ def trial_seeds(seed: int, index: int) -> tuple[int, int]:
     return int(words[0]), int(words[1])
 
 
-def trial_job(params: dict[str, Any], index: int,
-              avoidance_params: dict[str, Any] | None = None) -> TrialJob:
-    """Trial ``index`` of the campaign with ``params`` (its ``campaign.json`` parameters), to
-    fly again with :func:`run_trial`; ``avoidance_params`` replace the campaign's own (a
-    replay with another rule)."""
-    s, w = trial_seeds(params["seed"], index)
-    avoid = bool(params["avoidance"])
-    lc = params.get("launch_check_s")
-    return TrialJob(index, s, w, params["uavs"], float(params["area_m"]),
-                    float(params["height_m"]), avoid, params["loss"], params["latency_s"],
-                    params["jitter_s"], float(params["wind_mps"]),
-                    float(params["trial_s" if avoid else "cap_s"]),
-                    dict(params.get("faults", {})),
-                    dict(params.get("avoidance_params", {}) if avoidance_params is None
-                         else avoidance_params),
-                    None if lc is None else float(lc))
+@dataclass(frozen=True)
+class RandomWalkSpec:
+    """What every trial of a random-walk campaign flies (validated, frozen; its ``to_json`` is
+    the campaign's ``campaign.json`` spec and the report's ``parameters``)."""
+
+    kind: ClassVar[str] = "random_walk"
+
+    uavs: int = 5
+    area_m: float = 100.0
+    height_m: float = 10.0
+    avoidance: bool = True
+    seed: int = 0
+    #: Latency, jitter and loss (a burst length comes with the faults).
+    link: LinkSettings = field(default_factory=LinkSettings)
+    wind_mps: float = 0.0
+    #: With avoidance: every trial's length; without: its cap (it ends at its first collision).
+    length_s: float = 600.0
+    faults: FaultSpec = field(default_factory=FaultSpec)
+    #: The avoidance parameters every UAV flies (a fault's time reference over them).
+    avoidance_params: AvoidanceParams = field(default_factory=AvoidanceParams)
+    #: The world's launch check (longest wait at the start [s]; None: set off at once).
+    launch_check_s: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("uavs", "seed"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise CampaignError(f"{name}: must be an integer, got {v!r}")
+        if not 2 <= self.uavs <= 1000:
+            raise CampaignError(f"uavs: must be an integer in [2, 1000], got {self.uavs!r}")
+        if self.seed < 0:
+            raise CampaignError(f"seed: must be a non-negative integer, got {self.seed!r}")
+        for name in ("length_s", "area_m", "height_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                shown = {"length_s": "trial_s" if self.avoidance else "cap_s"}.get(name, name)
+                raise CampaignError(f"{shown}: must be > 0, got {v}")
+        if not (math.isfinite(self.wind_mps) and self.wind_mps >= 0):
+            raise CampaignError(f"wind: must be ≥ 0, got {self.wind_mps}")
+        lc = self.launch_check_s
+        if lc is not None and not (math.isfinite(lc) and 0.0 <= lc <= self.length_s):
+            raise CampaignError(f"launch check: must be a time in [0, the trial's length] [s], "
+                                f"got {lc!r}")
+        self.faults.check(self.uavs, self.link.loss)
+
+    def to_json(self) -> dict[str, Any]:
+        """The parameters that define the trials (``campaign.json``, the report)."""
+        params: dict[str, Any] = {
+            "scenario": "random_walk", "uavs": self.uavs, "area_m": float(self.area_m),
+            "height_m": float(self.height_m), "avoidance": bool(self.avoidance),
+            "seed": self.seed, "loss": self.link.loss, "latency_s": self.link.latency_s,
+            "jitter_s": self.link.jitter_s, "wind_mps": float(self.wind_mps),
+        }
+        # only the length that applies defines the trials
+        params["trial_s" if self.avoidance else "cap_s"] = float(self.length_s)
+        if self.faults.active():  # a clean campaign's parameters stay what they were
+            params["faults"] = self.faults.active()
+        if changed_fields(self.avoidance_params):
+            params["avoidance_params"] = changed_fields(self.avoidance_params)
+        if self.launch_check_s is not None:
+            params["launch_check_s"] = float(self.launch_check_s)
+        return params
+
+    @classmethod
+    def from_json(cls, params: dict[str, Any]) -> RandomWalkSpec:
+        """The spec of :meth:`to_json`'s dictionary (a campaign.json's)."""
+        avoid = bool(params["avoidance"])
+        lc = params.get("launch_check_s")
+        return cls(
+            uavs=params["uavs"], area_m=float(params["area_m"]),
+            height_m=float(params["height_m"]), avoidance=avoid, seed=params["seed"],
+            link=LinkSettings.from_dict({"loss": params["loss"],
+                                         "latency_s": params["latency_s"],
+                                         "jitter_s": params["jitter_s"]}),
+            wind_mps=float(params["wind_mps"]),
+            length_s=float(params["trial_s" if avoid else "cap_s"]),
+            faults=FaultSpec(**params.get("faults", {})),
+            avoidance_params=avoidance_params(params.get("avoidance_params", {}),
+                                              "avoidance_params"),
+            launch_check_s=None if lc is None else float(lc))
+
+    def tasks(self, index: int) -> list[Task]:
+        return [Task(index, 0, run_trial, (self, index))]
+
+    def record(self, index: int, results: list[dict[str, Any]]) -> dict[str, Any]:
+        return results[0]
+
+    def foreign(self, index: int, record: dict[str, Any]) -> str | None:
+        if (record.get("scenario_seed"), record.get("world_seed")) != trial_seeds(self.seed,
+                                                                                  index):
+            return f"has seeds that do not derive from the campaign seed {self.seed}"
+        return None
 
 
-def run_trial(job: TrialJob, log_path: Path | None = None) -> dict[str, Any]:
-    """Fly one trial; returns its JSON record. ``log_path``: also write its flight log there
-    (the flight is the same)."""
+def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) -> dict[str, Any]:
+    """Fly trial ``index`` of ``spec``; returns its JSON record. ``log_path``: also write its
+    flight log there (the flight is the same)."""
     from uavmpc.drivers.world import World, world_faults
-    from uavmpc.scenarios import LinkSettings
-    from uavmpc.scenarios.faults import draw_faults
+    from uavmpc.scenarios.faults import apply_faults
     from uavmpc.scenarios.random_walk import random_walk
 
     wall0 = time.perf_counter()
-    spec = FaultSpec(**job.faults)
-    link = LinkSettings(latency_s=job.latency_s, jitter_s=job.jitter_s, loss=job.loss,
-                        burst_len=spec.burst_len)
-    sc = random_walk(job.uavs, job.area_m, job.height_m, job.duration_s, job.scenario_seed,
-                     link=link)
-    table = dict(job.avoidance_params)
-    if spec.time_reference is not None:
-        table["time_reference"] = spec.time_reference
-    if table:
-        sc = dataclasses.replace(sc, avoidance={**sc.avoidance, **table})
-    faults = draw_faults(spec, [u.uav_id for u in sc.uavs], job.duration_s, 0.0,
-                         job.world_seed)
+    scenario_seed, world_seed = trial_seeds(spec.seed, index)
+    sc = random_walk(spec.uavs, spec.area_m, spec.height_m, spec.length_s, scenario_seed,
+                     link=spec.link)
+    sc = dataclasses.replace(sc, avoidance=spec.avoidance_params)
+    sc, link, faults = apply_faults(spec.faults, sc, spec.link, duration_s=spec.length_s,
+                                    seed=world_seed)
     recorder = None
     if log_path is not None:
         from uavmpc.log import FlightRecorder
 
         recorder = FlightRecorder(log_path, [u.uav_id for u in sc.uavs],
-                                  {"campaign_trial": job.index,
-                                   "scenario_seed": job.scenario_seed,
-                                   "world_seed": job.world_seed})
-    world = World(sc, avoidance=job.avoidance, seed=job.world_seed, link=link,
-                  wind_mps=job.wind_mps, launch_check_s=job.launch_check_s,
+                                  {"campaign_trial": index, "scenario_seed": scenario_seed,
+                                   "world_seed": world_seed})
+    world = World(sc, avoidance=spec.avoidance, seed=world_seed, link=link,
+                  wind_mps=spec.wind_mps, launch_check_s=spec.launch_check_s,
                   recorder=recorder, **world_faults(faults))
     try:
-        return _fly_trial(job, sc, world, faults, wall0)
+        flown, extra = _fly_trial(spec, sc, world)
+        record = {"index": index, "scenario_seed": scenario_seed, "world_seed": world_seed,
+                  **flown, "wall_s": time.perf_counter() - wall0, **extra}
+        if spec.faults.active():
+            record["faults"] = faults.summary()
+        return record
     finally:
         if recorder is not None:
             recorder.close()
 
 
-def _fly_trial(job: TrialJob, sc: Any, world: Any, faults: Any, wall0: float
-               ) -> dict[str, Any]:
+def _fly_trial(spec: RandomWalkSpec, sc: Any, world: Any
+               ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(what the trial's flight gave, the goals it reached when they count)."""
     from uavmpc.scenarios.random_walk import waypoints_reached
 
-    if job.avoidance:
-        res = world.run(job.duration_s)
+    if spec.avoidance:
+        res = world.run(spec.length_s)
         collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
         dmin = float(res.min_distance_m.min())
         sim_s = res.duration_s
     else:  # run in chunks, stop at the first collision
         collisions, dmin, sim_s = [], math.inf, 0.0
-        total = round(job.duration_s / world.period_s)
+        total = round(spec.length_s / world.period_s)
         chunk = max(1, round(CHUNK_S / world.period_s))
         done = 0
         while done < total and not collisions:
@@ -183,268 +235,17 @@ def _fly_trial(job: TrialJob, sc: Any, world: Any, faults: Any, wall0: float
             collisions = [c for c in collisions if c[0] <= sim_s + 1e-9]
     first = collisions[0] if collisions else None
     extra: dict[str, Any] = {}
-    if job.avoidance:  # without, a trial ends at its first collision: no goals to count
+    if spec.avoidance:  # without, a trial ends at its first collision: no goals to count
         reached, due = waypoints_reached(sc, res.t_s, res.positions_m)
         extra = {"waypoints_reached": reached, "waypoints_due": due}
-    if job.faults:
-        extra["faults"] = faults.summary()
     return {
-        "index": job.index,
-        "scenario_seed": job.scenario_seed,
-        "world_seed": job.world_seed,
         "sim_s": sim_s,
         "collisions": len(collisions),
         "first_collision_s": first[0] if first else None,
         "first_collision_pair": [first[1], first[2]] if first else None,
         "min_distance_m": dmin,
-        "wall_s": time.perf_counter() - wall0,
-        **extra,
-    }
+    }, extra
 
-
-# ---------------------------------------------------------------------------- executors
-class _Serial:
-    """Runs trials in this process, one at a time (workers = 1)."""
-
-    capacity = 1
-
-    def __init__(self) -> None:
-        self._queue: list[TrialJob] = []
-
-    def submit(self, job: TrialJob) -> None:
-        self._queue.append(job)
-
-    def pending(self) -> int:
-        return len(self._queue)
-
-    def wait(self) -> list[dict[str, Any]]:
-        return [run_trial(self._queue.pop(0))]
-
-    def close(self, cancel: bool = False) -> None:
-        self._queue.clear()
-
-
-class _Pool:
-    """A local process pool."""
-
-    def __init__(self, workers: int) -> None:
-        self.capacity = 2 * workers
-        self._ex = cf.ProcessPoolExecutor(max_workers=workers)
-        self._futures: set[cf.Future] = set()
-
-    def submit(self, job: TrialJob) -> None:
-        self._futures.add(self._ex.submit(run_trial, job))
-
-    def pending(self) -> int:
-        return len(self._futures)
-
-    def wait(self) -> list[dict[str, Any]]:
-        done, self._futures = cf.wait(self._futures, return_when=cf.FIRST_COMPLETED)
-        return [f.result() for f in done]
-
-    def close(self, cancel: bool = False) -> None:
-        self._ex.shutdown(wait=not cancel, cancel_futures=cancel)
-
-
-class _Ray:
-    """A Ray cluster (``address``: 'auto', 'local' for a fresh local one, or ray://host:port)."""
-
-    def __init__(self, address: str) -> None:
-        try:
-            import ray
-        except ImportError:
-            raise CampaignError(
-                "--ray needs Ray, which is not installed: pip install 'uavmpc[cluster]'"
-            ) from None
-        self._ray = ray
-        if not ray.is_initialized():
-            # "local" is Ray's own word for "always start a new local instance" (None would
-            # attach to a cluster that `ray start` left running on this machine)
-            try:
-                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-            except (ConnectionError, ValueError) as exc:
-                raise CampaignError(f"--ray {address}: cannot connect to Ray ({exc})") from None
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        self.capacity = 2 * max(cpus, 1)
-        self._remote = ray.remote(num_cpus=1)(run_trial)
-        self._refs: list[Any] = []
-
-    def submit(self, job: TrialJob) -> None:
-        self._refs.append(self._remote.remote(job))
-
-    def pending(self) -> int:
-        return len(self._refs)
-
-    def wait(self) -> list[dict[str, Any]]:
-        done, self._refs = self._ray.wait(self._refs, num_returns=1)
-        return list(self._ray.get(done))
-
-    def close(self, cancel: bool = False) -> None:
-        if cancel:
-            for ref in self._refs:
-                self._ray.cancel(ref, force=True)
-        self._refs = []
-
-
-# ------------------------------------------------------------------------------ storage
-def _check_parameters(out: Path, params: dict[str, Any]) -> None:
-    path = out / CAMPAIGN_FILE
-    if path.exists():
-        try:
-            stored = json.loads(path.read_text())["parameters"]
-        except (ValueError, KeyError, TypeError) as exc:
-            raise CampaignError(f"{path}: unreadable campaign file ({exc})") from None
-        if stored != params:
-            diff = ", ".join(f"{k}: {stored.get(k)!r} there, {params.get(k)!r} now"
-                             for k in sorted(set(stored) | set(params))
-                             if stored.get(k) != params.get(k))
-            raise CampaignError(
-                f"{out} holds a campaign with other parameters ({diff}); use another --out "
-                f"folder, or the same parameters to continue it")
-        return
-    from uavmpc import __version__
-
-    path.write_text(json.dumps({"format": FORMAT, "version": __version__,
-                                "parameters": params}, indent=2) + "\n")
-
-
-def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
-    """The finished trials of the campaign in ``out_dir`` (a torn last line is dropped)."""
-    path = Path(out_dir) / TRIALS_FILE
-    if not path.exists():
-        return {}
-    data = path.read_bytes()
-    end = data.rfind(b"\n") + 1
-    if end < len(data):  # a crash mid-write: drop the partial line so appends stay valid
-        with open(path, "r+b") as f:
-            f.truncate(end)
-        data = data[:end]
-    trials: dict[int, dict[str, Any]] = {}
-    for n, line in enumerate(data.decode().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-            i = int(rec["index"])
-        except (ValueError, KeyError, TypeError) as exc:
-            raise CampaignError(f"{path}:{n}: not a trial record ({exc})") from None
-        if (rec.get("scenario_seed"), rec.get("world_seed")) != trial_seeds(seed, i):
-            raise CampaignError(f"{path}:{n}: trial {i} has seeds that do not derive from "
-                                f"the campaign seed {seed}; the file belongs elsewhere")
-        trials.setdefault(i, rec)
-    return trials
-
-
-def _append(f: Any, rec: dict[str, Any]) -> None:
-    f.write(json.dumps(rec) + "\n")
-    f.flush()
-    os.fsync(f.fileno())
-
-
-# ------------------------------------------------------------------------------ progress
-class _Progress:
-    def __init__(self, enabled: bool, stream: Any = None) -> None:
-        self.enabled = enabled
-        self.stream = stream if stream is not None else sys.stderr
-        self.t0 = time.perf_counter()
-        self.width = 0
-
-    def show(self, done: int, total: int | None, sim_h: float, new: int) -> None:
-        if not self.enabled:
-            return
-        el = time.perf_counter() - self.t0
-        tot = f"{total}" if total is not None else "?"
-        eta = "?"
-        if new > 0 and total is not None:
-            eta = _hms(el / new * max(total - done, 0))
-        frac = done / total if total else 0.0
-        bar = "#" * int(20 * min(frac, 1.0))
-        line = (f"\r[{bar:<20}] {done}/{tot} trials, {sim_h:.2f} h simulated, "
-                f"{_hms(el)} elapsed, ETA {eta}")
-        self.width = max(self.width, len(line))
-        self.stream.write(line.ljust(self.width))
-        self.stream.flush()
-
-    def end(self) -> None:
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
-def _hms(seconds: float) -> str:
-    s = round(seconds)
-    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
-
-
-# ------------------------------------------------------------------------------ selection
-def _selected(trials: dict[int, dict[str, Any]], n_trials: int | None,
-              target_s: float | None) -> tuple[list[dict[str, Any]], bool]:
-    """The trials the report covers (an index prefix) and whether that prefix is complete."""
-    out: list[dict[str, Any]] = []
-    total = 0.0
-    i = 0
-    while True:
-        if n_trials is not None and i >= n_trials:
-            return out, True
-        if target_s is not None and total >= target_s - 1e-9:
-            return out, True
-        rec = trials.get(i)
-        if rec is None:
-            return out, False
-        out.append(rec)
-        total += rec["sim_s"]
-        i += 1
-
-
-def _execute(out: Path, jobs: Callable[[int], TrialJob], trials: dict[int, dict[str, Any]],
-             n_trials: int | None, target_s: float | None, max_trial_s: float, executor: Any,
-             progress: _Progress) -> None:
-    """Runs the missing trials until the selection is complete."""
-    in_flight: set[int] = set()
-    nxt = 0
-    new = 0
-
-    def status() -> None:
-        sel, _ = _selected(trials, n_trials, target_s)
-        sim_h = sum(r["sim_s"] for r in sel) / 3600.0
-        total = n_trials
-        if total is None and target_s is not None:
-            mean = (sum(r["sim_s"] for r in trials.values()) / len(trials)) if trials else 0
-            total = max(len(sel), math.ceil(target_s / mean)) if mean > 0 else None
-        progress.show(len(sel), total, sim_h, new)
-
-    def want_more() -> bool:
-        if n_trials is not None:
-            return nxt < n_trials
-        # hours: submit while the done prefix plus in-flight trials at their longest might
-        # still fall short of the target
-        assert target_s is not None
-        bound = sum(trials[i]["sim_s"] if i in trials else max_trial_s for i in range(nxt))
-        return bound < target_s - 1e-9
-
-    status()
-    with open(out / TRIALS_FILE, "a") as f:
-        try:
-            while True:
-                while executor.pending() < executor.capacity and want_more():
-                    if nxt not in trials:
-                        executor.submit(jobs(nxt))
-                        in_flight.add(nxt)
-                    nxt += 1
-                if not executor.pending():
-                    break
-                for rec in executor.wait():
-                    in_flight.discard(rec["index"])
-                    trials[rec["index"]] = rec
-                    _append(f, rec)
-                    new += 1
-                    status()
-        except BaseException:
-            executor.close(cancel=True)
-            progress.end()
-            raise
-    executor.close()
-    progress.end()
 
 
 # ------------------------------------------------------------------------------ report
@@ -454,12 +255,8 @@ def _percentiles(times: list[float | None]) -> dict[str, float | None]:
     no trial collided, as the report's schema asks)."""
     if not any(t is not None for t in times):
         return {f"p{q}": None for q in PERCENTILES}
-    x = np.array([math.inf if t is None else t for t in times])
-    out = {}
-    for q in PERCENTILES:
-        v = float(np.percentile(x, q, method="inverted_cdf"))
-        out[f"p{q}"] = v if math.isfinite(v) else None
-    return out
+    x = [math.inf if t is None else t for t in times]
+    return {f"p{q}": percentile(x, q) for q in PERCENTILES}
 
 
 def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
@@ -487,8 +284,7 @@ def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
         "time_to_first_collision_s": _percentiles(firsts),
         "min_distance_m": float(dmins.min()) if dmins.size else None,
         "min_distance_per_trial_m": (
-            {f"p{q}": float(np.percentile(dmins, q, method="inverted_cdf"))
-             for q in (1, 5, 50)} if dmins.size else None),
+            {f"p{q}": percentile(dmins, q) for q in (1, 5, 50)} if dmins.size else None),
         "wall_s": wall_s,
         "trial_wall_s": float(sum(r["wall_s"] for r in selected)),
         **_goals(selected),
@@ -651,7 +447,7 @@ def run_campaign(
     ray_address: str | None = None,
     progress: bool = True,
     faults: FaultSpec | None = None,
-    avoidance_params: dict[str, Any] | None = None,
+    avoidance_params: dict[str, Any] | AvoidanceParams | None = None,
     launch_check_s: float | None = None,
     logs: int = 3,
 ) -> dict[str, Any]:
@@ -660,8 +456,8 @@ def run_campaign(
     ``faults``: what goes wrong in every trial, drawn per trial from its world seed
     (:mod:`uavmpc.scenarios.faults`). ``avoidance_params``: fields of
     :class:`~uavmpc.avoidance.AvoidanceParams` to fly instead of the defaults (e.g. a larger
-    cylinder for a coarser position estimate). ``launch_check_s``: every UAV holds at its
-    start until it has heard every other one, at most this long
+    cylinder for a coarser position estimate), or the parameters. ``launch_check_s``: every
+    UAV holds at its start until it has heard every other one, at most this long
     (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``). ``logs``: the ``logs``
     trials with the closest approach are re-flown from their seeds into flight logs
     (``logs/trial_<index>.mcap``; a full campaign's would be gigabytes), linked from
@@ -671,59 +467,47 @@ def run_campaign(
     prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
     ``trial_s``; without, until its first collision or ``cap_s``.
     """
-    from uavmpc.scenarios import LinkSettings
-
-    _check_campaign_size(hours=hours, trials=trials, uavs=uavs, seed=seed, wind=wind,
-                         lengths=(("trial_s", trial_s), ("cap_s", cap_s), ("area_m", area_m),
-                                  ("height_m", height_m)))
-    link = LinkSettings.from_dict({"loss": loss, "latency_s": latency, "jitter_s": jitter})
-    fault_fields, avoidance_table = _check_faults_and_avoidance(faults, avoidance_params,
-                                                                uavs=uavs, link_loss=link.loss)
-    workers = _check_launch_logs_workers(launch_check_s, logs, workers, trial_s=trial_s)
-    length = float(trial_s if avoidance else cap_s)
-    params = _campaign_parameters(
-        uavs=uavs, area_m=area_m, height_m=height_m, avoidance=avoidance, seed=seed, link=link,
-        wind=wind, length=length, fault_fields=fault_fields, avoidance_table=avoidance_table,
-        launch_check_s=launch_check_s)
+    _check_size(hours=hours, trials=trials, logs=logs)
+    for name, v in (("trial_s", trial_s), ("cap_s", cap_s)):
+        if not (math.isfinite(v) and v > 0):
+            raise CampaignError(f"{name}: must be > 0, got {v}")
+    spec = RandomWalkSpec(
+        uavs=uavs, area_m=area_m, height_m=height_m, avoidance=avoidance, seed=seed,
+        link=LinkSettings.from_dict({"loss": loss, "latency_s": latency, "jitter_s": jitter}),
+        wind_mps=wind, length_s=float(trial_s if avoidance else cap_s),
+        faults=faults or FaultSpec(),
+        avoidance_params=_avoidance(avoidance_params, faults),
+        launch_check_s=None if launch_check_s is None else float(launch_check_s))
+    workers = check_workers(workers)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    _check_parameters(out, params)
-    done = load_trials(out, seed)
-
-    def job(i: int) -> TrialJob:
-        return trial_job(params, i)
-
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
-    executor = _executor(done, trials, target_s, ray_address=ray_address, workers=workers)
-    if executor is not None:
-        before = len(done)
-        try:
-            _execute(out, job, done, trials, target_s, length, executor, _Progress(progress))
-        finally:  # also when interrupted: the time was spent on this campaign
-            with open(out / RUNS_FILE, "a") as f:
-                _append(f, {"wall_s": time.perf_counter() - wall0,
-                            "new_trials": len(done) - before, "workers": workers,
-                            "ray": ray_address})
-    selected, complete = _selected(done, trials, target_s)
-    assert complete
-    return _write_report(out, selected, params, _campaign_wall_s(out, wall0), job, logs)
+    selected = run_trials(out, spec, RandomWalkSpec.from_json, trials=trials,
+                          target_s=target_s, max_trial_s=spec.length_s, workers=workers,
+                          ray_address=ray_address, progress=progress)
+    from uavmpc.apps.campaign_engine import campaign_wall_s
+
+    return _write_report(out, selected, spec, campaign_wall_s(out, wall0), logs)
 
 
-def _write_report(out: Path, selected: list[dict[str, Any]], params: dict[str, Any],
-                  wall_s: float, job: Callable[[int], TrialJob], logs: int) -> dict[str, Any]:
+def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
+    """The finished trials of the random-walk campaign seeded ``seed`` in ``out_dir``."""
+    return load_records(out_dir, RandomWalkSpec(seed=seed).foreign)
+
+
+def _write_report(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
+                  wall_s: float, logs: int) -> dict[str, Any]:
     """Write the selected trials' report, figures, flight logs and page to ``out``."""
-    report = aggregate(selected, params, wall_s)
+    report = aggregate(selected, spec.to_json(), wall_s)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     (out / "report.md").write_text(report_markdown(report))
     _figures(out, selected, report)
-    _write_html(out, report, selected, _flight_logs(out, selected, job, logs))
+    _write_html(out, report, selected, _flight_logs(out, selected, spec, logs))
     return report
 
 
-def _check_campaign_size(*, hours: float | None, trials: int | None, uavs: int, seed: int,
-                         wind: float, lengths: tuple[tuple[str, float], ...]) -> None:
-    """Raise a CampaignError for a size, seed, length or wind out of range."""
+def _check_size(*, hours: float | None, trials: int | None, logs: int) -> None:
+    """Raise a CampaignError for a size or a number of logs out of range."""
     if (hours is None) == (trials is None):
         raise CampaignError("give exactly one of hours (--hours) or trials (--trials)")
     if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int)
@@ -731,96 +515,23 @@ def _check_campaign_size(*, hours: float | None, trials: int | None, uavs: int, 
         raise CampaignError(f"trials: must be an integer ≥ 1, got {trials!r}")
     if hours is not None and not (math.isfinite(hours) and hours > 0):
         raise CampaignError(f"hours: must be > 0, got {hours}")
-    if isinstance(uavs, bool) or not isinstance(uavs, int) or not 2 <= uavs <= 1000:
-        raise CampaignError(f"uavs: must be an integer in [2, 1000], got {uavs!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise CampaignError(f"seed: must be a non-negative integer, got {seed!r}")
-    for name, v in lengths:
-        if not (math.isfinite(v) and v > 0):
-            raise CampaignError(f"{name}: must be > 0, got {v}")
-    if not (math.isfinite(wind) and wind >= 0):
-        raise CampaignError(f"wind: must be ≥ 0, got {wind}")
-
-
-def _check_faults_and_avoidance(faults: FaultSpec | None,
-                                avoidance_params: dict[str, Any] | None, *, uavs: int,
-                                link_loss: float) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The active fault fields and the avoidance table, checked against the campaign."""
-    fault_fields = (faults or FaultSpec()).active()
-    if faults is not None:
-        faults.check_uavs(uavs)
-        if faults.burst_len and not link_loss:
-            raise CampaignError("burst loss needs a loss rate: give --loss P with --burst-loss")
-    avoidance_table = dict(avoidance_params or {})
-    if avoidance_table:
-        from uavmpc.avoidance import AvoidanceParams
-
-        AvoidanceParams.from_dict(avoidance_table)  # a bad field fails here, not in a worker
-        if faults is not None and faults.time_reference is not None \
-                and "time_reference" in avoidance_table:
-            raise CampaignError("time_reference: give it once, in the avoidance file or as "
-                                "--time-reference")
-    return fault_fields, avoidance_table
-
-
-def _check_launch_logs_workers(launch_check_s: float | None, logs: int, workers: int | None,
-                               *, trial_s: float) -> int:
-    """Check the launch check, logs and workers; the workers (default: one per CPU)."""
-    if launch_check_s is not None and not (math.isfinite(launch_check_s)
-                                           and 0.0 <= launch_check_s <= trial_s):
-        raise CampaignError(f"launch check: must be a time in [0, trial_s] [s], got "
-                            f"{launch_check_s!r}")
     if isinstance(logs, bool) or not isinstance(logs, int) or not 0 <= logs <= 100:
         raise CampaignError(f"logs: must be an integer in [0, 100], got {logs!r}")
-    if workers is None:
-        workers = os.cpu_count() or 1
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise CampaignError(f"workers: must be an integer ≥ 1, got {workers!r}")
-    return workers
 
 
-def _campaign_parameters(*, uavs: int, area_m: float, height_m: float, avoidance: bool,
-                         seed: int, link: Any, wind: float, length: float,
-                         fault_fields: dict[str, Any], avoidance_table: dict[str, Any],
-                         launch_check_s: float | None) -> dict[str, Any]:
-    """The parameters that define a campaign's trials (stored in its campaign.json)."""
-    params = {
-        "scenario": "random_walk", "uavs": uavs, "area_m": float(area_m),
-        "height_m": float(height_m), "avoidance": bool(avoidance), "seed": seed,
-        "loss": link.loss, "latency_s": link.latency_s, "jitter_s": link.jitter_s,
-        "wind_mps": float(wind),
-    }
-    # only the length that applies defines the trials
-    params["trial_s" if avoidance else "cap_s"] = length
-    if fault_fields:  # a clean campaign's parameters stay what they were
-        params["faults"] = fault_fields
-    if avoidance_table:
-        params["avoidance_params"] = avoidance_table
-    if launch_check_s is not None:
-        params["launch_check_s"] = float(launch_check_s)
-    return params
+def _avoidance(given: dict[str, Any] | AvoidanceParams | None,
+               faults: FaultSpec | None) -> AvoidanceParams:
+    """The avoidance parameters of a campaign (a bad field fails here, not in a worker)."""
+    if isinstance(given, AvoidanceParams):
+        return given
+    table = dict(given or {})
+    if faults is not None and faults.time_reference is not None and "time_reference" in table:
+        raise CampaignError("time_reference: give it once, in the avoidance file or as "
+                            "--time-reference")
+    return avoidance_params(table)
 
 
-def _executor(done: dict[int, dict[str, Any]], trials: int | None, target_s: float | None, *,
-              ray_address: str | None, workers: int) -> Any:
-    """Where the missing trials run (Ray, here or a pool); None when none is missing."""
-    if _selected(done, trials, target_s)[1]:
-        return None
-    if ray_address is not None:
-        return _Ray(ray_address)
-    if workers == 1:
-        return _Serial()
-    return _Pool(workers)
-
-
-def _campaign_wall_s(out: Path, wall0: float) -> float:
-    """The wall time spent on the campaign over all its runs so far."""
-    runs = out / RUNS_FILE
-    return (sum(json.loads(line)["wall_s"] for line in runs.read_text().splitlines()
-                if line.strip()) if runs.exists() else time.perf_counter() - wall0)
-
-
-def _flight_logs(out: Path, selected: list[dict[str, Any]], job: Callable[[int], TrialJob],
+def _flight_logs(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
                  n: int) -> dict[int, str]:
     """The flight logs of the ``n`` closest trials (re-flown from their seeds when missing):
     trial index → path relative to ``out``."""
@@ -831,7 +542,7 @@ def _flight_logs(out: Path, selected: list[dict[str, Any]], job: Callable[[int],
         rel = f"logs/trial_{i}.mcap"
         if not (out / rel).exists():
             part = out / f"{rel}.part"  # a log is there whole or not at all
-            run_trial(job(i), part)
+            run_trial(spec, i, part)
             part.rename(out / rel)
         logs[i] = rel
     return logs
@@ -846,20 +557,11 @@ def _write_html(out: Path, report: dict[str, Any], selected: list[dict[str, Any]
     (out / "report.html").write_text(page)
 
 
-def iter_trials(out_dir: str | Path) -> Iterator[dict[str, Any]]:
-    """The trial records of a campaign folder, in file order."""
-    path = Path(out_dir) / TRIALS_FILE
-    if path.exists():
-        for line in path.read_text().splitlines():
-            if line.strip():
-                yield json.loads(line)
-
-
 # ------------------------------------------------------------------------------ CLI glue
 def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
     """Adds ``campaign random-walk ...`` to the CLI's subparsers; sets ``func``."""
     p = subparsers.add_parser(
-        "campaign", help="statistical campaign: many seeded random_walk trials (resumable), "
+        "campaign", help="statistical campaign (resumable): many seeded random_walk trials, "
                          "many landings on the moving deck, or dense traffics flown with and "
                          "without avoidance")
     p.add_argument("kind", choices=["random-walk", "landing", "traffic"],
@@ -882,8 +584,9 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: CPU count)")
     p.add_argument("--out", default=None,
-                   help="campaign folder (default out/campaign-{with,without}-avoidance); "
-                        "re-run the same command to continue it")
+                   help="campaign folder (default out/campaign-{with,without}-avoidance, "
+                        "out/campaign-landing, out/campaign-traffic); re-run the same command "
+                        "to continue it")
     p.add_argument("--loss", type=float, default=0.0, help="message loss probability")
     p.add_argument("--latency", type=float, default=0.05, help="link latency [s]")
     p.add_argument("--wind", type=float, default=0.0, help="mean wind along x [m/s]")
@@ -896,7 +599,7 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
                    help="random-walk: fly the [avoidance] table of this file (any "
                         "AvoidanceParams field) instead of the defaults")
     p.add_argument("--ray", default=None, metavar="ADDRESS",
-                   help="run on Ray ('auto', 'local' or ray://host:port); "
+                   help="run the trials on Ray ('auto', 'local' or ray://host:port); "
                         "pip install 'uavmpc[cluster]'")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--logs", type=int, default=3, metavar="N",
@@ -966,9 +669,12 @@ def _landing_command(args: argparse.Namespace) -> int:
     if args.trials is None:
         raise CampaignError("campaign landing: give --trials N")
     out = args.out or "out/campaign-landing"
-    r = run_landing_campaign(out, trials=args.trials, seed=args.seed, scenario=args.scenario,
-                             speed_kmh=args.speed_kmh, duration_s=args.duration,
-                             workers=args.workers)
+    r = _interruptible(out, lambda: run_landing_campaign(
+        out, trials=args.trials, seed=args.seed, scenario=args.scenario,
+        speed_kmh=args.speed_kmh, duration_s=args.duration, workers=args.workers,
+        ray_address=args.ray, progress=not args.no_progress))
+    if r is None:
+        return 130
     t = r["time_to_land_s"]
     fmt = (lambda v: "–" if v is None else f"{v:.1f} s")  # noqa: E731
     print(f"landing at {r['speed_kmh']:g} km/h: {r['landed']} of {r['trials']} landed "
@@ -986,12 +692,26 @@ def _traffic_command(args: argparse.Namespace) -> int:
     if args.trials is None:
         raise CampaignError("campaign traffic: give --trials N")
     out = args.out or "out/campaign-traffic"
-    r = run_traffic_campaign(out, trials=args.trials, uavs=300 if args.uavs is None
-                             else args.uavs, seed=args.seed, duration_s=args.duration,
-                             workers=args.workers)
+    r = _interruptible(out, lambda: run_traffic_campaign(
+        out, trials=args.trials, uavs=300 if args.uavs is None else args.uavs, seed=args.seed,
+        duration_s=args.duration, workers=args.workers, ray_address=args.ray,
+        progress=not args.no_progress))
+    if r is None:
+        return 130
     print("\n".join(report_lines(r)))
     print(f"wrote {out}/report.json, trials.jsonl")
     return 0 if r["with_avoidance"]["collisions"] == 0 else 1
+
+
+def _interruptible(out: str, run: Callable[[], dict[str, Any]]) -> dict[str, Any] | None:
+    """``run()``'s report; None after Ctrl-C (saying what is saved and how to go on)."""
+    try:
+        return run()
+    except KeyboardInterrupt:
+        n = sum(1 for _ in iter_trials(out))
+        print(f"\ninterrupted: {n} finished trial(s) are saved in {out}/{TRIALS_FILE}; run "
+              f"the same command again to continue", file=sys.stderr)
+        return None
 
 
 def campaign_command(args: argparse.Namespace) -> int:
@@ -1000,12 +720,8 @@ def campaign_command(args: argparse.Namespace) -> int:
     if args.kind == "traffic":
         return _traffic_command(args)
     out = args.out or f"out/campaign-{'with' if args.avoidance else 'without'}-avoidance"
-    try:
-        r = _run_from_args(out, args)
-    except KeyboardInterrupt:
-        n = sum(1 for _ in iter_trials(out))
-        print(f"\ninterrupted: {n} finished trial(s) are saved in {out}/{TRIALS_FILE}; run "
-              f"the same command again to continue", file=sys.stderr)
+    r = _interruptible(out, lambda: _run_from_args(out, args))
+    if r is None:
         return 130
     ttc = r["time_to_first_collision_s"]
     pct = ", ".join(f"{k} {_fmt_ttc(r, k)}" for k in ttc) if ttc else "none"
@@ -1020,9 +736,10 @@ def campaign_command(args: argparse.Namespace) -> int:
 
 __all__ = [
     "CampaignError",
-    "TrialJob",
+    "RandomWalkSpec",
     "aggregate",
     "build_parser_campaign",
+    "iter_trials",
     "load_trials",
     "markdown_table",
     "merge_reports",

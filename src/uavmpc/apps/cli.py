@@ -47,17 +47,10 @@ def _run_link_and_faults(sc: Any, *, seed: int, duration: float | None, loss: fl
         link = dataclasses.replace(link, latency_s=latency)
     drawn = None
     if faults is not None and faults.active():
-        from uavmpc.scenarios.faults import draw_faults
+        from uavmpc.scenarios.faults import apply_faults
 
-        if faults.burst_len:
-            if not link.loss:
-                raise scenarios.ConfigError("--burst-loss needs a loss rate (--loss P)")
-            link = dataclasses.replace(link, burst_len=faults.burst_len)
-        if faults.time_reference is not None:
-            sc = dataclasses.replace(sc, avoidance={**sc.avoidance,
-                                                    "time_reference": faults.time_reference})
-        drawn = draw_faults(faults, [u.uav_id for u in sc.uavs],
-                            sc.duration_s if duration is None else duration, 0.0, seed)
+        sc, link, drawn = apply_faults(faults, sc, link, seed=seed,
+                                       duration_s=sc.duration_s if duration is None else duration)
     link = scenarios.LinkSettings.from_dict(dataclasses.asdict(link))  # validate overrides
     return sc, link, drawn
 

@@ -307,6 +307,76 @@ def _cell(text: str) -> str:
     return "`".join(parts)
 
 
+#: What each key of a campaign's ``campaign.json`` spec means, per kind (checked against the
+#: specs' own ``to_json`` by :func:`campaign_tables`).
+CAMPAIGN_KEYS: dict[str, dict[str, str]] = {
+    "random_walk": {
+        "scenario": "always `random_walk`",
+        "uavs": "UAVs per trial", "area_m": "side of the square area [m]",
+        "height_m": "the flight height [m]", "avoidance": "flown with avoidance or without",
+        "seed": "the campaign seed (trial `i`: `SeedSequence(seed, spawn_key=(i,))`)",
+        "loss": "the link's loss probability", "latency_s": "the link's latency [s]",
+        "jitter_s": "the link's jitter [s]", "wind_mps": "mean wind along x [m/s]",
+        "trial_s": "with avoidance: every trial's length [s]",
+        "cap_s": "without avoidance: a trial's longest flight [s] (it ends at its first "
+                 "collision)",
+        "faults": "the fault fields not at their defaults (`--clock-offset`, ...)",
+        "avoidance_params": "the `[avoidance]` fields not at their defaults",
+        "launch_check_s": "the launch check's longest wait [s]",
+    },
+    "landing": {
+        "scenario": "the landing scenario: a built-in name or a file",
+        "seed": "the campaign seed", "speed_kmh": "the car's speed (null: the scenario's)",
+        "duration_s": "each flight's length [s] (null: the scenario's)",
+    },
+    "traffic": {
+        "uavs": "UAVs per trial", "seed": "the campaign seed",
+        "duration_s": "each flight's length [s] (null: each scenario's own)",
+        "options": "more arguments of the traffic scenario (density, cruise heights, ...)",
+    },
+}
+
+
+def campaign_tables() -> dict[str, list[tuple[str, str]]]:
+    """Per campaign kind: (key, meaning) of its spec in ``campaign.json``; every key a spec
+    writes (with every option set) has its meaning, and no meaning is of a key none writes."""
+    from uavmpc.apps.campaign import RandomWalkSpec
+    from uavmpc.apps.landing_campaign import LandingSpec
+    from uavmpc.apps.traffic_campaign import TrafficSpec
+    from uavmpc.avoidance import AvoidanceParams
+    from uavmpc.scenarios.faults import FaultSpec
+
+    full = {
+        "random_walk": {**RandomWalkSpec(faults=FaultSpec(gnss="rtk"), launch_check_s=1.0,
+                                         avoidance_params=AvoidanceParams(radius_m=6.0))
+                        .to_json(), **{"cap_s": 0.0}},
+        "landing": LandingSpec().to_json(),
+        "traffic": TrafficSpec().to_json(),
+    }
+    out = {}
+    for kind, spec in full.items():
+        keys = CAMPAIGN_KEYS[kind]
+        if set(spec) != set(keys):
+            raise AssertionError(f"campaign.json {kind}: keys {sorted(spec)} against the "
+                                 f"described {sorted(keys)}")
+        out[kind] = list(keys.items())
+    return out
+
+
+def _campaign_markdown() -> str:
+    from uavmpc.apps.campaign_engine import FORMAT
+
+    parts = [f"\n## `campaign.json` (a campaign folder)\n\n`{{\"format\": {FORMAT}, "
+             "\"kind\": KIND, \"version\": UAVMPC, \"spec\": {...}}`: the campaign's "
+             "specification, read back as the same object when the campaign continues. Format 1 "
+             "(a random walk's `parameters`) is read as a random walk; any other format is an "
+             "error naming it ([campaign.md](../campaign.md#running-it)).\n"]
+    for kind, rows in campaign_tables().items():
+        parts.append(f"\n### spec of kind `{kind}`\n\n| key | meaning |\n|---|---|\n")
+        parts += [f"| `{k}` | {_cell(t)} |\n" for k, t in rows]
+    return "".join(parts)
+
+
 def reference_markdown() -> str:
     """The page ``docs/reference/files.md``."""
     head = (
@@ -334,4 +404,5 @@ def reference_markdown() -> str:
                  f"airframe: `[{name.split('.', 1)[1]}]`")
         parts.append(f"\n## {title}\n\n| field | default | meaning |\n|---|---|---|\n")
         parts += [f"| `{f}` | {f'`{d}`' if d else ''} | {_cell(t)} |\n" for f, d, t in rows]
+    parts.append(_campaign_markdown())
     return "".join(parts)

@@ -5,22 +5,77 @@ car starting at a random point of its track and its own seeded fix noise and dro
 is one :class:`~uavmpc.drivers.world.World` run. The report gives the success rate, the
 time-to-land percentiles (from the start of the approach), touchdowns off the deck and hard
 ones, and where the time went (mean time per phase).
+
+A campaign is a :class:`LandingSpec` in a folder kept by the one campaign engine
+(:mod:`uavmpc.apps.campaign_engine`): ``campaign.json`` (the spec), ``trials.jsonl`` (one line
+per landing, appended as it ends: re-running the same command continues the campaign),
+``runs.jsonl``, ``report.json``.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import dataclasses
 import json
-import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from uavmpc import scenarios
+from uavmpc.apps.campaign_engine import Task, check_workers, run_trials
 from uavmpc.config import ConfigError
 from uavmpc.plant.ground_vehicle import KMH, GroundVehicle
+from uavmpc.scenarios.stats import percentile
+
+
+@dataclass(frozen=True)
+class LandingSpec:
+    """What every landing of a campaign flies: the scenario (built-in name or file), the
+    campaign seed, the car's speed (None: the scenario's) and the flight's length (None: the
+    scenario's)."""
+
+    kind: ClassVar[str] = "landing"
+
+    scenario: str = "moving_target_landing"
+    seed: int = 0
+    speed_kmh: float | None = None
+    duration_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"--seed: must be a non-negative integer, got {self.seed!r}")
+        if self.speed_kmh is not None and not 0.0 <= self.speed_kmh <= 200.0:
+            raise ConfigError(f"--speed-kmh: must be in [0, 200], got {self.speed_kmh}")
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise ConfigError(f"--duration: must be > 0, got {self.duration_s}")
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> LandingSpec:
+        return cls(**data)
+
+    def tasks(self, index: int) -> list[Task]:
+        return [Task(index, 0, landing_trial, (self.scenario, index, self.seed,
+                                               self.speed_kmh, self.duration_s))]
+
+    def record(self, index: int, results: list[dict[str, Any]]) -> dict[str, Any]:
+        return results[0]
+
+    def foreign(self, index: int, record: dict[str, Any]) -> str | None:
+        if record.get("seed") != _trial_seed(self.seed, index):
+            return f"has a seed that does not derive from the campaign seed {self.seed}"
+        return None
+
+
+def _trial_seed(seed: int, index: int) -> int:
+    """Trial ``index``'s world seed, as :func:`landing_trial` draws it (after the car's
+    start)."""
+    rng = np.random.default_rng([seed, index])
+    rng.uniform(0.0, 1.0)
+    return int(rng.integers(0, 2**31))
 
 
 def landing_trial(scenario: str, index: int, seed: int, speed_kmh: float | None,
@@ -49,10 +104,6 @@ def landing_trial(scenario: str, index: int, seed: int, speed_kmh: float | None,
             **{k: s[k] for k in keep}}
 
 
-def _pct(values: list[float], q: float) -> float | None:
-    return float(np.percentile(values, q)) if values else None
-
-
 def landing_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
     """The campaign's figures from its trials."""
     n = len(trials)
@@ -76,13 +127,13 @@ def landing_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         "trials": n, "speed_kmh": trials[0]["speed_kmh"] if trials else None,
         "landed": len(landed), "success_rate": len(landed) / n if n else None,
-        "time_to_land_s": {f"p{q}": _pct(times, q) for q in (5, 50, 95, 100)},
+        "time_to_land_s": {f"p{q}": percentile(times, q) for q in (5, 50, 95, 100)},
         "touchdowns_off_the_deck": len(off_deck), "hard_touchdowns": len(hard),
         "edge_strikes": sum(t["edge_strikes"] for t in trials),
         "no_touchdown": n - len(touched),
         "not_landed_in_time": len(late),
-        "touchdown_vertical_speed_mps": {"p50": _pct(vz, 50), "max": max(vz, default=None)},
-        "touchdown_offset_m": {"p50": _pct(off, 50), "max": max(off, default=None)},
+        "touchdown_vertical_speed_mps": {"p50": percentile(vz, 50), "max": max(vz, default=None)},
+        "touchdown_offset_m": {"p50": percentile(off, 50), "max": max(off, default=None)},
         "mean_phase_s_of_landed": {k: round(v, 2) for k, v in phases.items()},
         "aborts": aborts,
     }
@@ -91,25 +142,18 @@ def landing_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
 def run_landing_campaign(out: str | Path, *, trials: int, seed: int = 0,
                          scenario: str = "moving_target_landing",
                          speed_kmh: float | None = None, duration_s: float | None = None,
-                         workers: int | None = None) -> dict[str, Any]:
-    """Fly ``trials`` landings (``workers`` processes) and write trials.jsonl, report.json."""
-    if trials < 1:
+                         workers: int | None = None, ray_address: str | None = None,
+                         progress: bool = False) -> dict[str, Any]:
+    """Fly (or continue) ``trials`` landings (``workers`` processes, or Ray at
+    ``ray_address``) and write trials.jsonl, report.json; return the report."""
+    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ConfigError(f"--trials: must be ≥ 1, got {trials}")
-    if speed_kmh is not None and not 0.0 <= speed_kmh <= 200.0:
-        raise ConfigError(f"--speed-kmh: must be in [0, 200], got {speed_kmh}")
+    spec = LandingSpec(scenario, seed, speed_kmh, duration_s)
+    workers = check_workers(workers)
     landing_trial(scenario, 0, seed, speed_kmh, 0.1)  # a bad scenario fails here, at once
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    workers = workers or os.cpu_count() or 1
-    args = [(scenario, i, seed, speed_kmh, duration_s) for i in range(trials)]
-    if workers == 1:
-        results = [landing_trial(*a) for a in args]
-    else:
-        with cf.ProcessPoolExecutor(max_workers=workers) as ex:
-            results = list(ex.map(landing_trial, *zip(*args, strict=True)))
-    with (out / "trials.jsonl").open("w") as f:
-        for r in results:
-            f.write(json.dumps(r) + "\n")
+    results = run_trials(out, spec, LandingSpec.from_json, trials=trials, workers=workers,
+                         ray_address=ray_address, progress=progress)
     report = {"scenario": scenario, "seed": seed, **landing_report(results)}
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     return report

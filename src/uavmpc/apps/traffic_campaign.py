@@ -8,25 +8,94 @@ gives, per side, the collisions, the closest approach, the goals reached and the
 percentiles, and the trip-time penalty of avoidance: for each UAV that arrived in both
 flights, its trip with avoidance minus its trip without (pooled over the trials).
 
-Each of the 2 × trials flights is a job of its own on the worker processes (a flight is
-single-threaded), so two workers already fly both sides of a trial at once.
+A campaign is a :class:`TrafficSpec` in a folder kept by the one campaign engine
+(:mod:`uavmpc.apps.campaign_engine`): ``campaign.json`` (the spec), ``trials.jsonl`` (one line
+per trial, both sides, appended as it ends: re-running the same command continues the
+campaign), ``runs.jsonl``, ``report.json``. Each side of a trial is a job of its own on the
+workers (a flight is single-threaded), so two workers already fly both sides of a trial at once.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import json
-import os
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from uavmpc.apps.campaign_engine import Task, campaign_wall_s, check_workers, run_trials
 from uavmpc.config import ConfigError
+from uavmpc.scenarios.stats import percentile
 from uavmpc.scenarios.traffic import MAX_UAVS, traffic, traffic_outcome
 
 SIDES = ("with_avoidance", "without_avoidance")
+
+
+def _frozen(value: Any) -> Any:
+    """A JSON value with its lists as tuples (an option read back from JSON equals the one
+    given)."""
+    if isinstance(value, list | tuple):
+        return tuple(_frozen(v) for v in value)
+    return value
+
+
+@dataclass(frozen=True)
+class TrafficSpec:
+    """What every trial of a traffic campaign flies: ``uavs`` UAVs, the campaign seed, the
+    flights' length (None: each scenario's own) and more keyword arguments of
+    :func:`~uavmpc.scenarios.traffic.traffic` (``options``: (name, value) pairs, sorted)."""
+
+    kind: ClassVar[str] = "traffic"
+
+    uavs: int = 300
+    seed: int = 0
+    duration_s: float | None = None
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        u = self.uavs
+        if isinstance(u, bool) or not isinstance(u, int) or not 1 <= u <= MAX_UAVS:
+            raise ConfigError(f"--uavs: must be an integer in [1, {MAX_UAVS}], got {u!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"--seed: must be a non-negative integer, got {self.seed!r}")
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise ConfigError(f"--duration: must be > 0, got {self.duration_s}")
+        object.__setattr__(self, "options", tuple(sorted(
+            (str(k), _frozen(v)) for k, v in dict(self.options).items())))
+
+    @property
+    def scenario_options(self) -> dict[str, Any]:
+        return dict(self.options)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"uavs": self.uavs, "seed": self.seed, "duration_s": self.duration_s,
+                "options": self.scenario_options}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> TrafficSpec:
+        return cls(data["uavs"], data["seed"], data["duration_s"],
+                   tuple(dict(data["options"]).items()))
+
+    def tasks(self, index: int) -> list[Task]:
+        return [Task(index, part, traffic_flight, (index, self.seed, self.uavs,
+                                                   self.duration_s, avoidance,
+                                                   self.scenario_options))
+                for part, avoidance in enumerate((True, False))]
+
+    def record(self, index: int, results: list[dict[str, Any]]) -> dict[str, Any]:
+        both = dict(zip(SIDES, results, strict=True))
+        f = both["with_avoidance"]
+        return {"index": index, "scenario_seed": f["scenario_seed"],
+                "world_seed": f["world_seed"], **both}
+
+    def foreign(self, index: int, record: dict[str, Any]) -> str | None:
+        if (record.get("scenario_seed"), record.get("world_seed")) != trial_seeds(self.seed,
+                                                                                  index):
+            return f"has seeds that do not derive from the campaign seed {self.seed}"
+        return None
 
 
 def trial_seeds(seed: int, index: int) -> tuple[int, int]:
@@ -50,10 +119,6 @@ def traffic_flight(index: int, seed: int, uavs: int, duration_s: float | None,
             "wall_s": result.wall_s, **traffic_outcome(result, sc)}
 
 
-def _pct(values: list[float], q: float) -> float | None:
-    return float(np.percentile(values, q)) if values else None
-
-
 def _side(flights: list[dict[str, Any]]) -> dict[str, Any]:
     trips = [t for f in flights for t in f["per_uav_trip_s"].values() if t is not None]
     closest = [f["closest_approach_m"] for f in flights if f["closest_approach_m"] is not None]
@@ -64,11 +129,11 @@ def _side(flights: list[dict[str, Any]]) -> dict[str, Any]:
         "trials_with_collision": sum(1 for f in flights if f["collisions"]),
         "colliding_uavs": sum(f["colliding_uavs"] for f in flights),
         "closest_approach_m": min(closest, default=None),
-        "closest_approach_p50_m": _pct(closest, 50),
+        "closest_approach_p50_m": percentile(closest, 50),
         "goals_reached": reached,
         "goals_reached_share": reached / uavs if uavs else None,
         "arrived": len(trips),
-        "trip_s": {"p50": _pct(trips, 50), "p95": _pct(trips, 95),
+        "trip_s": {"p50": percentile(trips, 50), "p95": percentile(trips, 95),
                    "max": max(trips, default=None)},
         "airborne_peak": max((f["airborne"]["peak"] for f in flights), default=0),
         "wall_s": sum(f["wall_s"] for f in flights),
@@ -96,56 +161,39 @@ def traffic_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
         "avoidance_trip_penalty_s": {
             "uavs": len(penalty),
             "mean": float(np.mean(penalty)) if penalty else None,
-            "p50": _pct(penalty, 50), "p95": _pct(penalty, 95),
+            "p50": percentile(penalty, 50), "p95": percentile(penalty, 95),
             "max": max(penalty, default=None)},
     }
 
 
 def run_traffic_campaign(out: str | Path, *, trials: int, uavs: int = 300, seed: int = 0,
                          duration_s: float | None = None, workers: int | None = None,
-                         scenario_options: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Fly ``trials`` traffics with and without avoidance (``workers`` processes); write
-    trials.jsonl (one line per trial, both sides) and report.json; return the report.
+                         scenario_options: dict[str, Any] | None = None,
+                         ray_address: str | None = None,
+                         progress: bool = False) -> dict[str, Any]:
+    """Fly (or continue) ``trials`` traffics with and without avoidance (``workers``
+    processes, or Ray at ``ray_address``); write trials.jsonl (one line per trial, both sides)
+    and report.json; return the report.
 
     ``duration_s``: simulated seconds per flight (default: each scenario's, long enough for
     every trip); ``scenario_options``: more keyword arguments of
     :func:`~uavmpc.scenarios.traffic.traffic`."""
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ConfigError(f"--trials: must be an integer ≥ 1, got {trials!r}")
-    if isinstance(uavs, bool) or not isinstance(uavs, int) or not 1 <= uavs <= MAX_UAVS:
-        raise ConfigError(f"--uavs: must be an integer in [1, {MAX_UAVS}], got {uavs!r}")
-    if duration_s is not None and not duration_s > 0:
-        raise ConfigError(f"--duration: must be > 0, got {duration_s}")
-    if workers is not None and workers < 1:
+    spec = TrafficSpec(uavs, seed, duration_s, tuple((scenario_options or {}).items()))
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise ConfigError(f"--workers: must be ≥ 1, got {workers}")
+    workers = check_workers(workers)
     for i in range(trials):  # a layout that cannot be drawn fails here, before any flight
         traffic(uavs, trial_seeds(seed, i)[0], duration_s=duration_s,
                 **(scenario_options or {}))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    workers = workers or os.cpu_count() or 1
-    jobs = [(i, seed, uavs, duration_s, avoidance, scenario_options) for i in range(trials)
-            for avoidance in (True, False)]
     wall0 = time.perf_counter()
-    if workers == 1:
-        flights = [traffic_flight(*j) for j in jobs]
-    else:
-        with cf.ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as ex:
-            flights = list(ex.map(traffic_flight, *zip(*jobs, strict=True)))
-    wall = time.perf_counter() - wall0
-    records = []
-    for i in range(trials):
-        both = {("with_avoidance" if f["avoidance"] else "without_avoidance"): f
-                for f in flights if f["index"] == i}
-        f = both["with_avoidance"]
-        records.append({"index": i, "scenario_seed": f["scenario_seed"],
-                        "world_seed": f["world_seed"], **both})
-    with (out / "trials.jsonl").open("w") as fh:
-        for r in records:
-            fh.write(json.dumps(r) + "\n")
+    records = run_trials(out, spec, TrafficSpec.from_json, trials=trials, workers=workers,
+                         ray_address=ray_address, progress=progress)
     report = {"scenario": "traffic", "seed": seed, "options": scenario_options or {},
               **traffic_report(records),
-              "workers": workers, "wall_s": wall}
+              "workers": workers, "wall_s": campaign_wall_s(out, wall0)}
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
 

@@ -463,7 +463,7 @@ class _Monitor:
         self.trace_d: list[float] = []
         self.tracks: dict[str, list[tuple[float, np.ndarray]]] = {u: [] for u in self.ids}
         self.plans: dict[str, tuple[float, np.ndarray]] = {}  # id → (wall time heard, plan)
-        self.prm = AvoidanceParams.from_dict(dict(scenario.avoidance))
+        self.prm = scenario.avoidance
         self.ground = ground_around(scenario.points_m())
         self.next_scene = -math.inf
 

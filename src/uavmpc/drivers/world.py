@@ -71,7 +71,7 @@ from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 from uavmpc.scenarios.faults import Faults
 from uavmpc.supervisor import FenceGuard, Supervisor
-from uavmpc.tracker import DynamicLimits, TrackerConfig
+from uavmpc.tracker import TrackerConfig
 from uavmpc.view.scene import UavView
 
 __all__ = ["COLLISION_DISTANCE_M", "FORMATION_SETTLE_S", "GOAL_TOLERANCE_M",
@@ -206,8 +206,7 @@ def _with_scenario_limits(config: TrackerConfig | None,
     if not scenario.limits:
         return config
     base = config if config is not None else TrackerConfig.from_toml()
-    limits = DynamicLimits.from_dict({**dataclasses.asdict(base.limits), **scenario.limits})
-    return dataclasses.replace(base, limits=limits)
+    return dataclasses.replace(base, limits=scenario.limits.apply(base.limits))
 
 
 def _strategy_of(uav_id: str, strategy: Callable[[AvoidanceParams], ResolutionStrategy],
@@ -233,14 +232,6 @@ def _silent_times(scenario: Scenario, silent_from_s: Mapping[str, float] | None
     if not all(math.isfinite(float(t)) for t in silent.values()):
         raise ValueError(f"silent_from_s: times must be finite, got {silent!r}")
     return {k: float(v) for k, v in silent.items()}
-
-
-def _avoidance_params(scenario: Scenario) -> AvoidanceParams:
-    """The scenario's avoidance parameters, every UAV's."""
-    try:
-        return AvoidanceParams.from_dict(scenario.avoidance)
-    except TypeError as exc:
-        raise ConfigError(f"avoidance: {exc}") from None
 
 
 def _link_of(scenario: Scenario, link: LinkSettings | None, positions: dict[str, np.ndarray],
@@ -440,7 +431,7 @@ class World:
         self.seed = seed
         self.recorder = recorder
         self.batched = bool(batched)
-        self.params = _avoidance_params(scenario)
+        self.params = scenario.avoidance  # validated when the scenario was
         self._positions: dict[str, np.ndarray] = {}
         self.link = _link_of(scenario, link, self._positions, seed)
         n = len(scenario.uavs)

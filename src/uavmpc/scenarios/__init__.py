@@ -107,6 +107,40 @@ class LinkSettings:
 
 
 @dataclass(frozen=True)
+class LimitOverrides:
+    """The ``[limits]`` of a scenario: the :class:`~uavmpc.tracker.params.DynamicLimits`
+    fields it sets for every UAV, validated; the others stay the tracker set-up's (so it is an
+    override, not a whole set: a tracker set-up with other limits keeps those it does not set).
+    False when it sets none."""
+
+    #: (field, value) pairs, sorted by field; each value valid for its field.
+    values: tuple[tuple[str, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        table = dict(self.values)
+        reject_unknown(table, {f.name for f in dataclasses.fields(DynamicLimits)}, "limits")
+        full = DynamicLimits(**{**dataclasses.asdict(DynamicLimits()), **table})  # validates
+        object.__setattr__(self, "values",
+                           tuple(sorted((k, getattr(full, k)) for k in table)))
+
+    @classmethod
+    def from_dict(cls, t: Any, prefix: str = "limits") -> LimitOverrides:
+        if not isinstance(t, dict):
+            raise ConfigError(f"{prefix}: must be a table")
+        return cls(tuple(t.items()))  # DynamicLimits names a bad field as limits.<field>
+
+    def __bool__(self) -> bool:
+        return bool(self.values)
+
+    def as_dict(self) -> dict[str, float]:
+        return dict(self.values)
+
+    def apply(self, base: DynamicLimits) -> DynamicLimits:
+        """``base`` with these fields replaced."""
+        return DynamicLimits(**{**dataclasses.asdict(base), **dict(self.values)})
+
+
+@dataclass(frozen=True)
 class TargetSensorSettings:
     """Fixes of an observed target: rate [Hz], white noise per horizontal axis [m], dropout
     probability."""
@@ -175,9 +209,11 @@ class Scenario:
     duration_s: float
     uavs: tuple[UavSpec, ...]
     link: LinkSettings = field(default_factory=LinkSettings)
-    avoidance: dict[str, Any] = field(default_factory=dict)
-    #: DynamicLimits fields the scenario sets for every UAV (the others: the tracker set-up's).
-    limits: dict[str, float] = field(default_factory=dict)
+    #: The avoidance parameters every UAV flies (``[avoidance]`` over the defaults), validated.
+    avoidance: AvoidanceParams = field(default_factory=AvoidanceParams)
+    #: The DynamicLimits fields the scenario sets for every UAV (the others: the tracker
+    #: set-up's).
+    limits: LimitOverrides = field(default_factory=LimitOverrides)
     ground_vehicle: GroundVehicle | None = None
     target_sensor: TargetSensorSettings = field(default_factory=TargetSensorSettings)
     #: (the lander's id, its manoeuvre), when a UAV lands on the ground vehicle.
@@ -265,16 +301,8 @@ def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:
             raise ConfigError(f"uavs[{i}].priority: duplicate of uavs[{seen_prio[u.priority]}]")
         seen_id[u.uav_id], seen_prio[u.priority] = i, i
     link = LinkSettings.from_dict(data.get("link", {}))
-    avoidance = data.get("avoidance", {})
-    if not isinstance(avoidance, dict):
-        raise ConfigError("avoidance: must be a table")
-    AvoidanceParams.from_dict(dict(avoidance))  # a bad field fails on load, not in flight
-    limits: dict[str, float] = {}
-    if "limits" in data:
-        if not isinstance(data["limits"], dict):
-            raise ConfigError("limits: must be a table")
-        limits = dict(data["limits"])
-        DynamicLimits.from_dict({**dataclasses.asdict(DynamicLimits()), **limits})  # validate
+    avoidance = avoidance_params(data.get("avoidance", {}))
+    limits = LimitOverrides.from_dict(data.get("limits", {}))
     car = _ground_vehicle(data["ground_vehicle"]) if "ground_vehicle" in data else None
     sensor = TargetSensorSettings.from_dict(data.get("target_sensor", {}))
     landing = None
@@ -304,8 +332,27 @@ def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:
                 fence.check_reference(u.mission)
             except GeofenceError as exc:
                 raise ConfigError(f"uavs[{i}] ({u.uav_id}): {exc}") from None
-    return Scenario(str(name), duration, uavs, link, dict(avoidance), limits, car, sensor,
+    return Scenario(str(name), duration, uavs, link, avoidance, limits, car, sensor,
                     landing, formation, fence)
+
+
+def avoidance_params(table: Any, prefix: str = "avoidance") -> AvoidanceParams:
+    """An ``[avoidance]`` table (any :class:`~uavmpc.avoidance.AvoidanceParams` field) as the
+    parameters, validated: a bad field fails on load, not in flight."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{prefix}: must be a table")
+    try:
+        return AvoidanceParams.from_dict(dict(table), prefix)
+    except TypeError as exc:
+        raise ConfigError(f"{prefix}: {exc}") from None
+
+
+def changed_fields(params: Any) -> dict[str, Any]:
+    """The fields of a dataclass ``params`` that differ from its defaults (what a file needs to
+    give to build it again)."""
+    default = type(params)()
+    return {f.name: getattr(params, f.name) for f in dataclasses.fields(params)
+            if getattr(params, f.name) != getattr(default, f.name)}
 
 
 def load(name_or_path: str | Path) -> Scenario:

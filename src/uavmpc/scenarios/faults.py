@@ -20,17 +20,26 @@ seed, so a trial is replayed exactly from its seeds:
 
 The draws come from ``SeedSequence(seed, spawn_key=(FAULT_STREAM,))``: they do not touch the
 scenario's or the link's random streams, so a fault changes nothing else of a trial.
+
+A spec acts in three places: the link (its burst length), the scenario (the time reference
+its avoidance judges ages by) and the world (offsets, GNSS, non-cooperative and silent UAVs:
+:func:`uavmpc.drivers.world.world_faults` of the draw). :func:`apply_faults` is the one place
+that splits it, for ``uavmpc run`` and every campaign.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from uavmpc.config import ConfigError
+
+if TYPE_CHECKING:
+    from uavmpc.scenarios import LinkSettings, Scenario
 
 #: The spawn key of the fault draws (any value other streams of a trial do not use).
 FAULT_STREAM = 0xFA17
@@ -72,6 +81,13 @@ class FaultSpec:
         """The fields not at their defaults (what a run's parameters record)."""
         return {f.name: getattr(self, f.name) for f in fields(self)
                 if getattr(self, f.name) != f.default}
+
+    def check(self, n_uavs: int, link_loss: float) -> None:
+        """Raise :class:`ConfigError` unless it can act on ``n_uavs`` UAVs over a link losing
+        ``link_loss`` of its messages."""
+        self.check_uavs(n_uavs)
+        if self.burst_len and not link_loss:
+            raise ConfigError("--burst-loss needs a loss rate: give --loss P with it")
 
     def check_uavs(self, n: int) -> None:
         """Raise :class:`ConfigError` unless ``n`` UAVs leave room for the drawn ones."""
@@ -121,3 +137,18 @@ def draw_faults(spec: FaultSpec, uav_ids: list[str], duration_s: float, start_s:
     times = rng.uniform(start_s, start_s + duration_s, len(silent_idx))
     silent = {uav_ids[i]: float(t) for i, t in zip(silent_idx, times, strict=True)}
     return Faults(spec, offsets, non_coop, silent)
+
+
+def apply_faults(spec: FaultSpec, scenario: Scenario, link: LinkSettings, *, duration_s: float,
+                 seed: int) -> tuple[Scenario, LinkSettings, Faults]:
+    """The one place a :class:`FaultSpec` acts: ``scenario`` with its avoidance's time
+    reference, ``link`` with its burst length, and the faults drawn for a flight of
+    ``duration_s`` from 0 with ``seed`` (for the world: ``world_faults`` of them)."""
+    spec.check(len(scenario.uavs), link.loss)
+    if spec.burst_len:
+        link = dataclasses.replace(link, burst_len=spec.burst_len)
+    if spec.time_reference is not None:
+        scenario = dataclasses.replace(scenario, avoidance=dataclasses.replace(
+            scenario.avoidance, time_reference=spec.time_reference))
+    drawn = draw_faults(spec, [u.uav_id for u in scenario.uavs], duration_s, 0.0, seed)
+    return scenario, link, drawn

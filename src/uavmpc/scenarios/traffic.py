@@ -73,6 +73,7 @@ import numpy as np
 from uavmpc.config import ConfigError, positive
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
+from uavmpc.scenarios.stats import percentile
 from uavmpc.tracker.params import DynamicLimits
 
 DEFAULT_UAVS = 300
@@ -224,6 +225,45 @@ def _far_enough(p: np.ndarray, pads: np.ndarray, count: int, separation: float) 
     return bool(np.min(np.sum((pads[:count] - p) ** 2, axis=1)) >= separation**2)
 
 
+def _origin_pads(rng: np.random.Generator, n_uavs: int, side: float,
+                 separation: float) -> np.ndarray:
+    """(2 n_uavs, 2): room for every pad, the first ``n_uavs`` (the origins) drawn uniformly
+    in the square of side ``side`` [m], each ``separation`` [m] from those before it."""
+    half = 0.5 * side
+    pads = np.empty((2 * n_uavs, 2))
+    count = 0
+    for _ in range(_ATTEMPTS_PER_PAD * n_uavs):
+        p = rng.uniform(-half, half, size=2)
+        if _far_enough(p, pads, count, separation):
+            pads[count] = p
+            count += 1
+            if count == n_uavs:
+                return pads
+    raise ConfigError(
+        f"density_per_km2: cannot place {n_uavs} pads {separation:g} m apart "
+        f"(min_pad_separation_m) in a {side:.0f} m square; lower the density")
+
+
+def _destination(rng: np.random.Generator, pads: np.ndarray, count: int, i: int,
+                 trip_m: tuple[float, float], side: float,
+                 separation: float) -> tuple[np.ndarray, float, float]:
+    """UAV ``i``'s destination pad, stored as ``pads[count]`` (at a uniform bearing and a
+    distance uniform in ``trip_m`` from its origin, inside the square, ``separation`` from
+    every pad so far): (pad, distance [m], compass bearing [rad])."""
+    half = 0.5 * side
+    for _ in range(_ATTEMPTS_PER_PAD):
+        dist = float(rng.uniform(trip_m[0], trip_m[1]))
+        bearing = float(rng.uniform(0.0, 2.0 * math.pi))  # compass: clockwise from north
+        q = pads[i] + dist * np.array([math.sin(bearing), math.cos(bearing)])
+        if np.all(np.abs(q) <= half) and _far_enough(q, pads, count, separation):
+            pads[count] = q
+            return q, dist, bearing
+    raise ConfigError(
+        f"min_trip_m: no destination pad {trip_m[0]:g}–{trip_m[1]:.0f} m from pad "
+        f"{i + 1} fits in the {side:.0f} m square; lower density_per_km2 or the trip "
+        "bounds")
+
+
 def traffic(n_uavs: int = DEFAULT_UAVS, seed: int = 0, *,
             density_per_km2: float = DEFAULT_DENSITY_PER_KM2, duration_s: float | None = None,
             cruise_heights_m: Sequence[float] = DEFAULT_CRUISE_HEIGHTS_M,
@@ -240,7 +280,6 @@ def traffic(n_uavs: int = DEFAULT_UAVS, seed: int = 0, *,
     heights = _check(n_uavs, density_per_km2, duration_s, cruise_heights_m, min_trip_m,
                      max_trip_m, min_pad_separation_m, departure_window_s, pad_height_m)
     side = 1000.0 * math.sqrt(n_uavs / float(density_per_km2))
-    half = 0.5 * side
     # The longest trip the square can hold (its diagonal), so the draws are not wasted.
     longest = min(float(max_trip_m), math.sqrt(2.0) * side)
     if longest < min_trip_m:
@@ -248,20 +287,9 @@ def traffic(n_uavs: int = DEFAULT_UAVS, seed: int = 0, *,
             f"min_trip_m: {min_trip_m} m does not fit in the {side:.0f} m square that "
             f"{n_uavs} UAVs at density_per_km2 = {density_per_km2:g} make")
     children = np.random.SeedSequence(int(seed)).spawn(n_uavs + 2)
-    pads = np.empty((2 * n_uavs, 2))
-    rng = np.random.default_rng(children[0])
-    count = 0
-    for _ in range(_ATTEMPTS_PER_PAD * n_uavs):
-        p = rng.uniform(-half, half, size=2)
-        if _far_enough(p, pads, count, min_pad_separation_m):
-            pads[count] = p
-            count += 1
-            if count == n_uavs:
-                break
-    else:
-        raise ConfigError(
-            f"density_per_km2: cannot place {n_uavs} pads {min_pad_separation_m:g} m apart "
-            f"(min_pad_separation_m) in a {side:.0f} m square; lower the density")
+    pads = _origin_pads(np.random.default_rng(children[0]), n_uavs, side,
+                        min_pad_separation_m)
+    count = n_uavs
     priorities = np.random.default_rng(children[1]).permutation(n_uavs) + 1
     limits = DynamicLimits()
     uavs = []
@@ -270,19 +298,9 @@ def traffic(n_uavs: int = DEFAULT_UAVS, seed: int = 0, *,
     for i in range(n_uavs):
         rng = np.random.default_rng(children[i + 2])
         depart = DEPARTURE_START_S + float(rng.uniform(0.0, departure_window_s))
-        for _ in range(_ATTEMPTS_PER_PAD):
-            dist = float(rng.uniform(min_trip_m, longest))
-            bearing = float(rng.uniform(0.0, 2.0 * math.pi))  # compass: clockwise from north
-            q = pads[i] + dist * np.array([math.sin(bearing), math.cos(bearing)])
-            if np.all(np.abs(q) <= half) and _far_enough(q, pads, count, min_pad_separation_m):
-                pads[count] = q
-                count += 1
-                break
-        else:
-            raise ConfigError(
-                f"min_trip_m: no destination pad {min_trip_m:g}–{longest:.0f} m from pad "
-                f"{i + 1} fits in the {side:.0f} m square; lower density_per_km2 or the trip "
-                "bounds")
+        q, dist, bearing = _destination(rng, pads, count, i, (min_trip_m, longest), side,
+                                        min_pad_separation_m)
+        count += 1
         height = cruise_height(bearing, heights)
         mission, leave, total = trip_reference(pads[i], q, float(pad_height_m), height, depart,
                                                limits)
@@ -310,10 +328,6 @@ def traffic(n_uavs: int = DEFAULT_UAVS, seed: int = 0, *,
 
 
 # ------------------------------------------------------------------------------ outcome
-def _pct(values: Sequence[float], q: float) -> float | None:
-    return float(np.percentile(values, q)) if len(values) else None
-
-
 def arrival_times(result: Any, scenario: TrafficScenario) -> dict[str, float | None]:
     """Per UAV: the first sample time it was within :data:`ARRIVAL_TOLERANCE_M` of its goal
     (3-D), or None if never."""
@@ -371,13 +385,13 @@ def traffic_outcome(result: Any, scenario: TrafficScenario) -> dict[str, Any]:
         "goals_reached": reached,
         "goals_reached_share": reached / n,
         "arrived": len(done),
-        "trip_s": {"p50": _pct(done, 50), "p95": _pct(done, 95),
+        "trip_s": {"p50": percentile(done, 50), "p95": percentile(done, 95),
                    "max": max(done) if done else None},
-        "nominal_trip_s": {"p50": _pct(scenario.nominal_trip_s, 50),
-                           "p95": _pct(scenario.nominal_trip_s, 95),
+        "nominal_trip_s": {"p50": percentile(scenario.nominal_trip_s, 50),
+                           "p95": percentile(scenario.nominal_trip_s, 95),
                            "max": max(scenario.nominal_trip_s)},
-        "delay_s": {"mean": float(np.mean(delay)) if delay else None, "p50": _pct(delay, 50),
-                    "p95": _pct(delay, 95)},
+        "delay_s": {"mean": float(np.mean(delay)) if delay else None, "p50": percentile(delay, 50),
+                    "p95": percentile(delay, 95)},
         "airborne": {"peak": int(airborne.max()) if airborne.size else 0,
                      "mean": float(airborne.mean()) if airborne.size else 0.0,
                      "peak_density_per_km2": (float(airborne.max()) / area
