@@ -43,11 +43,12 @@ def member_rule() -> dict:
     for name, strategy in (("with_member_cylinder", HeightOffsetStrategy),
                            ("without", without)):
         s = World(scenarios.load("formation"), seed=0, strategy=strategy).run().summary()
-        out[name] = {"formation_error_rms_m": s["formation_error_m"]["rms"],
-                     "formation_error_max_m": s["formation_error_m"]["max"],
-                     "collisions": len(s["collisions"]),
-                     "yielded_to": {k: u["yielded_to"] for k, u in s["uavs"].items()
-                                    if u["yielded_to"]}}
+        assert s.formation is not None and s.formation.error is not None
+        out[name] = {"formation_error_rms_m": s.formation.error.rms_m,
+                     "formation_error_max_m": s.formation.error.max_m,
+                     "collisions": len(s.collisions),
+                     "yielded_to": {k: u.details["yielded_to"] for k, u in s.uavs.items()
+                                    if u.details["yielded_to"]}}
         print(f"{name}: formation error rms {out[name]['formation_error_rms_m']:.2f} m, "
               f"max {out[name]['formation_error_max_m']:.2f} m; gave way: "
               f"{out[name]['yielded_to']}")

@@ -44,7 +44,7 @@ def main(seconds: float = 10.0) -> dict:
     result: dict = {}
     with tempfile.TemporaryDirectory(prefix="uavmpc-bench-dds-") as tmp:
         def fly() -> None:
-            result.update(run_swarm(scenarios.load("swap_through_static"), Path(tmp),
+            result["summary"] = (run_swarm(scenarios.load("swap_through_static"), Path(tmp),
                                     duration_s=seconds + 18.0, ros2=f"dds/{domain}"))
 
         thread = threading.Thread(target=fly, daemon=True)
@@ -82,12 +82,13 @@ def main(seconds: float = 10.0) -> dict:
               f"{reference:g} Hz); write → receive median {np.median(lat):.2f} ms, p95 "
               f"{np.percentile(lat, 95):.2f} ms; header stamp → callback median "
               f"{np.median(age):.0f} ms", flush=True)
-    final = np.array(result["uavs"]["uav1"]["final_position_m"])
+    s = result["summary"]
+    final = np.array(s.uavs["uav1"].final_position_m)
     out["goal_error_m"] = float(np.linalg.norm(final - GOAL))
     out["goal_error_at_mission_end_m"] = float(np.linalg.norm(
-        np.array(result["uavs"]["uav1"]["mission_end_position_m"]) - GOAL))
-    out["missions_rejected_uav1"] = result["uavs"]["uav1"]["node"].get("missions_rejected")
-    out["collisions"] = len(result["collisions"])
+        np.array(s.uavs["uav1"].details["mission_end_position_m"]) - GOAL))
+    out["missions_rejected_uav1"] = s.uavs["uav1"].details["node"].get("missions_rejected")
+    out["collisions"] = len(s.collisions)
     print(f"uav1 ended {out['goal_error_m']:.2f} m from the goal rclpy published", flush=True)
     return out
 

@@ -51,25 +51,25 @@ def fly(name: str, seed: int, loss: float) -> dict[str, Any]:
     result = World(sc, seed=seed, link=dataclasses.replace(sc.link, loss=loss)).run()
     s = result.summary()
     goals = time_to_goals(result, sc)
-    reached = {uid: bool(u["reached_goal"]) for uid, u in s["uavs"].items()}
-    missed = {uid: {"final_position_m": [round(v, 2) for v in s["uavs"][uid]["final_position_m"]],
+    reached = {uid: bool(u.reached_goal) for uid, u in s.uavs.items()}
+    missed = {uid: {"final_position_m": [round(v, 2) for v in s.uavs[uid].final_position_m or ()],
                     "z_offset_at_end_m": round(float(result.z_offset_m[-1, k]), 2)}
               for k, uid in enumerate(result.uav_ids) if not reached[uid]}
     return {
         "seed": seed, "loss": loss,
-        "collisions": [{"t_s": round(c["t"], 2), "a": c["a"], "b": c["b"],
-                        "closest_m": round(c["distance_m"], 3)} for c in s["collisions"]],
-        "min_distance_m": s["min_distance_m"],
+        "collisions": [{"t_s": round(c.t_s, 2), "a": c.a, "b": c.b,
+                        "closest_m": round(c.distance_m, 3)} for c in s.collisions],
+        "min_distance_m": s.min_distance_m,
         "closest": _closest(result),
         "goals_reached": sum(reached.values()), "uavs": len(reached), "missed": missed,
         "time_to_goal_s": goals,
         "time_to_all_goals_s": (max(goals.values()) if all(v is not None for v in goals.values())
                                 else None),
-        "max_z_offset_m": max(u["max_z_offset_m"] for u in s["uavs"].values()),
-        "limit_violations": sum(u["limit_violations"] for u in s["uavs"].values()),
-        "tracker_fallbacks": sum(u["tracker_fallbacks"] for u in s["uavs"].values()),
-        "dropped_share": s["messages"]["dropped"] / max(1, s["messages"]["sent"]),
-        "wall_s": s["wall_s"],
+        "max_z_offset_m": max(u.max_z_offset_m for u in s.uavs.values()),
+        "limit_violations": sum(u.details["limit_violations"] for u in s.uavs.values()),
+        "tracker_fallbacks": sum(u.details["tracker_fallbacks"] for u in s.uavs.values()),
+        "dropped_share": s.messages.dropped / max(1, s.messages.sent),
+        "wall_s": s.wall_s,
     }
 
 

@@ -29,14 +29,14 @@ def main() -> None:
                 row = {
                     "scenario": name, "link": link_name, "avoidance": avoidance,
                     "runs": len(runs),
-                    "runs_with_collision": sum(bool(r["collisions"]) for r in runs),
-                    "min_distance_m": min(r["min_distance_m"] for r in runs),
-                    "all_goals_reached": all(u["reached_goal"] for r in runs
-                                             for u in r["uavs"].values()),
-                    "max_z_offset_m": max(u["max_z_offset_m"] for r in runs
-                                          for u in r["uavs"].values()),
-                    "limit_violations": sum(u["limit_violations"] for r in runs
-                                            for u in r["uavs"].values()),
+                    "runs_with_collision": sum(bool(r.collisions) for r in runs),
+                    "min_distance_m": min(r.min_distance_m or float("inf") for r in runs),
+                    "all_goals_reached": all(u.reached_goal for r in runs
+                                             for u in r.uavs.values()),
+                    "max_z_offset_m": max(u.max_z_offset_m for r in runs
+                                          for u in r.uavs.values()),
+                    "limit_violations": sum(u.details["limit_violations"] for r in runs
+                                            for u in r.uavs.values()),
                 }
                 rows.append(row)
                 print(f"{name:20s} {link_name:18s} avoidance={avoidance!s:5s} "

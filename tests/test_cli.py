@@ -6,6 +6,7 @@ import math
 import pytest
 
 from uavmpc.apps.cli import main
+from uavmpc.drivers.summary import RunStatus, RunSummary
 
 
 def test_tracker_demo_writes_figure_and_summary(tmp_path, capsys) -> None:
@@ -46,8 +47,9 @@ def test_bad_cli_values_exit_with_a_message(argv, capsys) -> None:
 def test_demo_flies_the_swap_without_collision(tmp_path, capsys) -> None:
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "no collision" in out and "reached its goal" in out
-    assert json.loads((tmp_path / "summary.json").read_text())["collisions"] == []
+    assert "status: complete, no collision" in out and "reached its goal" in out
+    s = RunSummary.read(tmp_path / "summary.json")
+    assert s.collisions == () and s.status is RunStatus.COMPLETE
 
 
 def test_bench_loop_reports_realtime_factor_and_stages(capsys) -> None:

@@ -33,7 +33,7 @@ def test_the_getting_started_scenario_does_what_the_page_says() -> None:
     sc = scenarios.from_dict(tomllib.loads(toml), "crossing")
     res = World(sc, seed=0).run()
     assert not res.collisions and res.min_distance_m.min() > 2.0
-    s = res.summary()["uavs"]
+    s = res.summary().uavs
     assert "`north` climbs 3 m while `east` passes" in page
-    assert s["north"]["max_z_offset_m"] == 3.0 and s["east"]["max_z_offset_m"] == 0.0
-    assert s["north"]["reached_goal"] and s["east"]["reached_goal"]
+    assert s["north"].max_z_offset_m == 3.0 and s["east"].max_z_offset_m == 0.0
+    assert s["north"].reached_goal and s["east"].reached_goal

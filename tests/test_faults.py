@@ -10,6 +10,7 @@ import pytest
 from uavmpc.apps.campaign import run_campaign
 from uavmpc.apps.cli import main
 from uavmpc.config import ConfigError
+from uavmpc.drivers.summary import RunSummary
 from uavmpc.drivers.world import World, world_faults
 from uavmpc.scenarios.faults import FaultSpec, draw_faults
 from uavmpc.scenarios.random_walk import random_walk, waypoints_reached
@@ -119,7 +120,7 @@ def test_the_fault_flags_reach_a_run(tmp_path, capsys) -> None:
     out = tmp_path / "run"
     assert main(["run", "swap_through_static", "--out", str(out), "--duration", "10",
                  "--gnss", "rtk", "--clock-offset", "0.2", "--silent", "1"]) == 0
-    faults = json.loads((out / "summary.json").read_text())["faults"]
+    faults = RunSummary.read(out / "summary.json").sections["faults"]
     assert faults["gnss"] == "rtk" and len(faults["silent_from_s"]) == 1
     assert main(["run", "swap_through_static", "--out", str(out), "--burst-loss", "3"]) == 2
     assert "--burst-loss needs a loss rate" in capsys.readouterr().err
@@ -180,7 +181,7 @@ def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> Non
     wait; a radio silent from the start is waited for that long, and named."""
     sc = random_walk(3, duration_s=30.0, seed=4)
     res = World(sc, seed=1, launch_check_s=5.0).run(30.0)
-    launch = res.extra["launch"]
+    launch = res.sections["launch"]
     assert launch["max_wait_s"] == 5.0
     # A clean link: everyone heard within a broadcast period and the latency.
     assert all(0.0 < launch[u.uav_id]["launched_s"] < 1.0 and launch[u.uav_id]["not_heard"]
@@ -189,7 +190,7 @@ def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> Non
     # itself (which hears them) sets off at once; everyone still flies its mission.
     world = World(sc, seed=1, launch_check_s=5.0, silent_from_s={"uav2": 0.0})
     res = world.run(30.0)
-    launch = res.extra["launch"]
+    launch = res.sections["launch"]
     assert launch["uav2"]["launched_s"] < 1.0 and launch["uav2"]["not_heard"] == []
     for i in (0, 2):
         uid = sc.uavs[i].uav_id
@@ -204,11 +205,11 @@ def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> Non
     objects = World(sc, seed=1, launch_check_s=5.0, silent_from_s={"uav2": 0.0},
                     batched=False).run(30.0)
     assert np.array_equal(objects.positions_m, res.positions_m)
-    assert objects.extra["launch"] == launch
-    assert "launch" not in World(sc, seed=1).run(1.0).extra
+    assert objects.sections["launch"] == launch
+    assert "launch" not in World(sc, seed=1).run(1.0).sections
     # A UAV flying without avoidance ignores the others: it is not held.
     alone = World(sc, seed=1, launch_check_s=5.0, non_cooperative=["uav1"]).run(1.0)
-    assert "uav1" not in alone.extra["launch"] and "uav2" in alone.extra["launch"]
+    assert "uav1" not in alone.sections["launch"] and "uav2" in alone.sections["launch"]
     with pytest.raises(ValueError, match="launch_check_s"):
         World(sc, launch_check_s=-1.0)
 
@@ -250,9 +251,9 @@ def test_rule_8_a_uav_nobody_hears_yields_to_the_one_that_does_not_react() -> No
     assert off.collisions
     on = head_on(1.0)   # low keeps its plan through high's for 1 s: high climbs instead
     assert not on.collisions and on.min_distance_m.min() > 2.9
-    uavs = on.summary()["uavs"]
-    assert uavs["high"]["max_z_offset_m"] == 3.0 and uavs["low"]["max_z_offset_m"] == 0.0
-    assert uavs["high"]["reached_goal"] and uavs["low"]["reached_goal"]
+    uavs = on.summary().uavs
+    assert uavs["high"].max_z_offset_m == 3.0 and uavs["low"].max_z_offset_m == 0.0
+    assert uavs["high"].reached_goal and uavs["low"].reached_goal
 
 
 def test_apply_faults_is_the_one_split_of_a_spec() -> None:

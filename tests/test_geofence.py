@@ -214,7 +214,7 @@ def test_in_the_world_a_uav_outside_flies_back_in_and_offsets_respect_the_ceilin
     sc = scenarios.from_dict(_swap(fence, start1=(-40.0, 0.0, 5.0)))
     world = World(sc, seed=1)
     res = world.run(50.0)
-    report = res.extra["geofence"]
+    report = res.sections["geofence"]
     assert report["uav1"]["breaches"] == 1 and report["uav1"]["holding"]
     assert report["uav2"]["breaches"] == 0 and report["uav3"]["breaches"] == 0
     end = res.positions_m[-1, 0]
@@ -224,5 +224,5 @@ def test_in_the_world_a_uav_outside_flies_back_in_and_offsets_respect_the_ceilin
     assert np.all(res.positions_m[:, :, 2] <= 10.0)
     # Without the volume uav1 flies its mission from outside, and uav3 climbs two layers.
     free = World(scenarios.from_dict(_swap(None, start1=(-40.0, 0.0, 5.0))), seed=1).run(50.0)
-    assert "geofence" not in free.extra
+    assert "geofence" not in free.sections
     assert np.linalg.norm(free.positions_m[-1, 0] - [25.0, 0.0, 5.0]) < 0.5

@@ -18,6 +18,7 @@ import pytest
 import websockets
 
 from uavmpc import scenarios
+from uavmpc.drivers.summary import RunSummary
 from uavmpc.drivers.swarm import free_ports
 from uavmpc.drivers.world import World
 from uavmpc.view.live import LiveView
@@ -98,10 +99,10 @@ def test_a_client_receives_the_scene_while_a_run_flies_and_clients_do_not_distur
     assert {"ground", "uav1/body", "uav2/plan", "uav3/cylinder", "uav3/desired"} <= ids
     assert late["/scene"]
     # The flight is the one flown without anyone watching.
-    summary = json.loads((tmp_path / "summary.json").read_text())
+    summary = RunSummary.read(tmp_path / "summary.json")
     reference = World(scenarios.load("swap_through_static"), seed=0).run(12.0).summary()
-    assert summary["min_distance_m"] == reference["min_distance_m"]
-    assert summary["uavs"] == reference["uavs"]
+    assert summary.min_distance_m == reference.min_distance_m
+    assert summary.uavs == reference.uavs
 
 
 def test_a_busy_port_and_a_missing_extra_are_one_line_errors(tmp_path) -> None:
@@ -160,5 +161,5 @@ def test_a_swarm_of_node_processes_is_watched_live_as_its_monitor_hears_it(tmp_p
                  for s in scenes]
     assert set(cylinders[-1]) == {"uav1/cylinder", "uav2/cylinder", "uav3/cylinder"}
     assert any(c.get("uav3/cylinder") == "yielding" for c in cylinders)  # it climbs over both
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    assert not summary["collisions"]
+    summary = RunSummary.read(tmp_path / "summary.json")
+    assert not summary.collisions

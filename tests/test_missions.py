@@ -14,6 +14,7 @@ from uavmpc import scenarios
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage
 from uavmpc.config import ConfigError
+from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.missions.formation import FormationFollower, FormationSpec, slot_offsets
 from uavmpc.missions.landing import LandingMission, LandingParams, Phase
 from uavmpc.missions.mission import MissionInput
@@ -293,15 +294,15 @@ def test_moving_target_landing_lands_on_the_deck_and_rides_it(tmp_path) -> None:
 
     assert main(["run", "moving_target_landing", "--duration", "40", "--out",
                  str(tmp_path)]) == 0
-    import json
 
-    s = json.loads((tmp_path / "summary.json").read_text())
-    assert s["landed"] is True and s["edge_strikes"] == 0 and s["on_deck_at_end"]
-    assert 5.0 < s["time_to_land_s"] < 40.0
-    td = s["touchdown"]
-    assert 0.0 < td["vertical_speed_mps"] <= s["max_touchdown_speed_mps"]
-    assert td["offset_from_centre_m"] < 0.75  # on the 1.5 m deck
-    assert sum(s["phases_s"].values()) == pytest.approx(s["time_to_land_s"], abs=0.15)
+    s = RunSummary.read(tmp_path / "summary.json").landing
+    assert s is not None and s.uav == "lander"
+    assert s.landed is True and s.edge_strikes == 0 and s.on_deck_at_end
+    assert s.time_to_land_s is not None and 5.0 < s.time_to_land_s < 40.0
+    td = s.touchdown
+    assert td is not None and 0.0 < td.vertical_speed_mps <= s.max_touchdown_speed_mps
+    assert td.offset_from_centre_m < 0.75  # on the 1.5 m deck
+    assert sum(s.phases_s.values()) == pytest.approx(s.time_to_land_s, abs=0.15)
     assert (tmp_path / "landing.png").stat().st_size > 10_000
     topics = read_topics(tmp_path / "flight.mcap")
     car = topics["/ground_vehicle/state"]
@@ -319,8 +320,9 @@ def test_a_second_uav_can_share_the_landing_arena() -> None:
     sc = dataclasses.replace(sc, uavs=(*sc.uavs, crossing), duration_s=45.0)
     r = World(sc, seed=1).run()
     s = r.summary()
-    assert s["collisions"] == [] and s["min_distance_m"] > 1.0
-    assert s["landed"] is True and s["uavs"]["patrol"]["reached_goal"]
+    assert s.collisions == () and s.min_distance_m is not None and s.min_distance_m > 1.0
+    assert s.landing is not None and s.landing.landed is True
+    assert s.uavs["patrol"].reached_goal and s.status is RunStatus.COMPLETE
 
 
 def test_the_formation_keeps_its_slots_and_gives_way_to_an_outsider_as_a_whole() -> None:
@@ -329,17 +331,18 @@ def test_the_formation_keeps_its_slots_and_gives_way_to_an_outsider_as_a_whole()
     sc = dataclasses.replace(scenarios.load("formation"), duration_s=70.0)
     r = World(sc, seed=0).run()
     s = r.summary()
-    assert s["collisions"] == []
-    fe = s["formation_error_m"]
-    assert set(fe["per_follower"]) == {"f1", "f2", "f3"}
-    calm = fe["while_no_member_avoids"]
-    assert calm["rms"] < 0.3 and calm["share_of_time"] > 0.6
-    assert fe["max"] < 4.0
+    assert s.collisions == ()
+    fe = s.formation
+    assert fe is not None and fe.error is not None and fe.outsiders == ("intruder",)
+    assert set(fe.per_follower) == {"f1", "f2", "f3"}
+    calm = fe.while_no_member_avoids
+    assert calm is not None and calm.rms_m < 0.3 and calm.share_of_time > 0.6
+    assert fe.error.max_m < 4.0
     # Members never gave way to each other (the member cylinder); they did to the intruder.
     for uav in ("leader", "f1", "f2", "f3"):
-        assert set(s["uavs"][uav]["yielded_to"]) <= {"intruder"}
-    assert "intruder" in s["uavs"]["leader"]["yielded_to"]
-    assert s["uavs"]["intruder"]["max_z_offset_m"] == 0.0  # the highest priority held on
+        assert set(s.uavs[uav].details["yielded_to"]) <= {"intruder"}
+    assert "intruder" in s.uavs["leader"].details["yielded_to"]
+    assert s.uavs["intruder"].max_z_offset_m == 0.0  # the highest priority held on
 
 
 def test_the_landing_world_flies_the_same_batched_and_object_by_object() -> None:
@@ -349,7 +352,8 @@ def test_the_landing_world_flies_the_same_batched_and_object_by_object() -> None
     a = World(sc, seed=3).run(12.0)
     b = World(sc, seed=3, batched=False).run(12.0)
     assert np.array_equal(a.positions_m, b.positions_m)
-    assert a.summary()["transitions"] == b.summary()["transitions"]
+    assert a.landing is not None and b.landing is not None
+    assert a.landing.transitions == b.landing.transitions
 
 
 def test_target_fixes_come_at_their_rate_with_their_noise_and_dropouts() -> None:
@@ -399,16 +403,16 @@ def test_a_formation_of_node_processes_over_zenoh(tmp_path) -> None:
             {"id": "w2", "priority": 3, "start": [0.0, -12.0, 5.0]},
         ]})
     s = run_swarm(sc, tmp_path)
-    assert s["collisions"] == []
-    fe = s["formation_error_m"]
-    assert fe is not None and set(fe["per_follower"]) == {"w1", "w2"}
-    assert fe["rms"] < 0.5, fe
-    ends = {u: np.array(s["uavs"][u]["final_position_m"]) for u in ("lead", "w1", "w2")}
+    assert s.collisions == ()
+    fe = s.formation
+    assert fe is not None and fe.error is not None and set(fe.per_follower) == {"w1", "w2"}
+    assert fe.error.rms_m < 0.5, fe
+    ends = {u: np.array(s.uavs[u].final_position_m) for u in ("lead", "w1", "w2")}
     # After the change (square, three members): w1 behind the leader, w2 to its right.
     assert ends["lead"][0] > 45.0
     assert np.allclose(ends["w1"][:2], ends["lead"][:2] + np.array([-6.0, 0.0]), atol=1.0)
     assert np.allclose(ends["w2"][:2], ends["lead"][:2] + np.array([0.0, -6.0]), atol=1.0)
-    assert s["uavs"]["w1"]["reached_goal"] is None
+    assert s.uavs["w1"].reached_goal is None
 
 
 def test_formation_members_must_be_id_strings() -> None:

@@ -20,6 +20,7 @@ from uavmpc.comms.message import PredictionMessage, encode
 from uavmpc.comms.state import NodeState
 from uavmpc.comms.zenoh_link import ZenohTransport
 from uavmpc.drivers.node import Node
+from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.drivers.swarm import free_ports, run_swarm
 from uavmpc.plant import Airframe
 from uavmpc.reference import Reference
@@ -74,21 +75,25 @@ class _Flight:
 
 def test_swap_as_three_processes_is_collision_free_and_reaches_goals(tmp_path) -> None:
     s = run_swarm(scenarios.load("swap_through_static"), tmp_path, duration_s=28.0)
-    assert s["collisions"] == [], s["collisions"]
-    assert s["min_distance_m"] is not None and s["min_distance_m"] > 1.0
-    for uav, u in s["uavs"].items():
-        assert u["reached_goal"], (uav, u["final_position_m"])
-        assert u["node"]["ticks"] > 0  # it flew (at what pace: benchmarks/bench_node_flood.py)
-    assert s["uavs"]["uav1"]["max_z_offset_m"] == 0.0
-    assert s["uavs"]["uav3"]["max_z_offset_m"] > 0.0
-    assert s["messages"]["delivered"] > 0.8 * s["messages"]["sent"]
+    assert s.collisions == (), s.collisions
+    assert s.driver == "swarm" and s.status is RunStatus.COMPLETE, s.status
+    assert s.min_distance_m is not None and s.min_distance_m > 1.0
+    for uav, u in s.uavs.items():
+        assert u.reached_goal, (uav, u.final_position_m)
+        # it flew (at what pace: benchmarks/bench_node_flood.py)
+        assert u.details["node"]["ticks"] > 0
+    assert s.uavs["uav1"].max_z_offset_m == 0.0
+    assert s.uavs["uav3"].max_z_offset_m > 0.0
+    assert s.messages.delivered > 0.8 * s.messages.sent
+    assert RunSummary.read(tmp_path / "summary.json") == s
     assert (tmp_path / "flight.mcap").stat().st_size > 1000
 
 
 def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
     s = run_swarm(scenarios.load("swap_through_static"), tmp_path, avoidance=False,
                   duration_s=10.0)
-    assert s["collisions"], "the network path must be what carries the avoidance"
+    assert s.collisions, "the network path must be what carries the avoidance"
+    assert s.status is RunStatus.COLLISION
 
 
 def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_path,
@@ -96,15 +101,17 @@ def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_pa
     # 19 s: uav1 is killed at 5 s, and silence is not absence for silent_hold_s = 10 s
     s = run_swarm(scenarios.load(hover_pair), tmp_path / "out", kill_at_s={"uav1": 5.0},
                   duration_s=19.0)
-    uav2 = s["uavs"]["uav2"]
-    assert uav2["max_z_offset_m"] >= 3.0  # it yielded while uav1 was there
+    uav2 = s.uavs["uav2"]
+    assert uav2.max_z_offset_m >= 3.0  # it yielded while uav1 was there
     # …held it while uav1 was silent (10 s after its last message), then released it at
     # 2 m/s: back down by about 16.5 s
-    assert uav2["last_state"]["z_offset_m"] == 0.0 and not uav2["last_state"]["avoiding"]
-    assert uav2["reached_goal"]
+    last = uav2.details["last_state"]
+    assert last["z_offset_m"] == 0.0 and not last["avoiding"]
+    assert uav2.reached_goal
     # the killed node printed no report: the summary says how it ended instead
-    assert s["uavs"]["uav1"]["node"]["exit_code"] == -9
-    assert isinstance(s["uavs"]["uav1"]["node"]["stderr_tail"], list)
+    assert s.uavs["uav1"].details["node"]["exit_code"] == -9
+    assert isinstance(s.uavs["uav1"].details["node"]["stderr_tail"], list)
+    assert s.status is RunStatus.VEHICLE_STOPPED
 
 
 def test_forged_or_unsigned_predictions_are_ignored_with_a_key() -> None:
@@ -220,6 +227,15 @@ def test_node_process_shuts_down_cleanly_on_signal(sig: str) -> None:
     assert proc.returncode == 0, err
     stats = json.loads(out.strip().splitlines()[-1])
     assert stats["uav_id"] == "solo" and stats["ticks"] > 0
+    assert stats["status"] == RunStatus.INTERRUPTED.value  # stopped before its time (none)
+
+
+def test_a_node_that_flies_its_time_says_complete() -> None:
+    flight = _Flight(duration_s=2.0)
+    with flight:
+        wait_until(lambda: not flight.thread.is_alive(), 60.0, "the node to end its 2 s")
+    assert flight.node.stats.run_status is RunStatus.COMPLETE
+    assert flight.node.stats.ticks > 0
 
 
 def test_a_follower_node_flies_its_slot_and_changes_shape_on_command() -> None:

@@ -68,8 +68,8 @@ def test_the_keyword_is_the_same_as_the_toml_flag(tmp_path) -> None:
     np.testing.assert_array_equal(r1.positions_m, r2.positions_m)
     for r in (r1, r2):
         s = r.summary()
-        assert s["non_cooperative"] == ["b"]
-        json.dumps(s)  # JSON-serialisable
+        assert s.sections["non_cooperative"] == ["b"]
+        json.dumps(s.to_json(), allow_nan=False)  # JSON-serialisable
 
 
 def test_cooperative_is_world_avoidance_and_spec_and_not_listed(tmp_path) -> None:
@@ -80,8 +80,8 @@ def test_cooperative_is_world_avoidance_and_spec_and_not_listed(tmp_path) -> Non
     assert off.non_cooperative == ("a", "b")
     assert all(u.stack.avoidance is None for u in off.uavs)
     # Nobody singled out: the summary says nothing (with avoidance off, "avoidance": false).
-    assert "non_cooperative" not in World(sc).run(1.0).summary()
-    assert "non_cooperative" not in off.run(1.0).summary()
+    assert "non_cooperative" not in World(sc).run(1.0).summary().sections
+    assert "non_cooperative" not in off.run(1.0).summary().sections
 
 
 def test_a_non_cooperative_uav_flies_the_same_on_every_path(tmp_path) -> None:
@@ -103,21 +103,21 @@ def test_an_all_cooperative_world_flies_as_before(tmp_path) -> None:
 def test_a_cooperative_uav_climbs_over_a_non_cooperative_one(tmp_path) -> None:
     result = World(_swap(tmp_path, "avoidance = false")).run()
     s = result.summary()
-    assert s["collisions"] == [] and s["min_distance_m"] > 2.0
-    a, b = s["uavs"]["a"], s["uavs"]["b"]
+    assert s.collisions == () and s.min_distance_m is not None and s.min_distance_m > 2.0
+    a, b = s.uavs["a"], s.uavs["b"]
     # "a" has the higher priority, yet yields: "b" will not.
-    assert "b" in a["yielded_to"] and a["max_z_offset_m"] >= DZ
-    assert b["max_z_offset_m"] == 0.0 and b["yielded_to"] == {}
+    assert "b" in a.details["yielded_to"] and a.max_z_offset_m >= DZ
+    assert b.max_z_offset_m == 0.0 and b.details["yielded_to"] == {}
     assert np.all(result.z_offset_m[:, 1] == 0.0)
-    assert a["reached_goal"] and b["reached_goal"]
+    assert a.reached_goal and b.reached_goal
     assert result.z_offset_m[-1, 0] == 0.0  # back down once "b" has passed
 
 
 def test_two_non_cooperative_uavs_collide(tmp_path) -> None:
     s = World(_swap(tmp_path), non_cooperative=["a", "b"]).run(15.0).summary()
-    assert s["collisions"] and s["collisions"][0]["a"] == "a"
-    assert s["min_distance_m"] < 1.0
-    assert s["non_cooperative"] == ["a", "b"]
+    assert s.collisions and s.collisions[0].a == "a"
+    assert s.min_distance_m is not None and s.min_distance_m < 1.0
+    assert s.sections["non_cooperative"] == ["a", "b"]
 
 
 # ------------------------------------------------------------------ validation
@@ -193,27 +193,27 @@ def test_dense_scenario_under_loss_no_collision_every_goal_in_time(name: str) ->
     link = dataclasses.replace(sc.link, loss=0.3)
     result = World(sc, seed=1, link=link).run()
     s = result.summary()
-    assert s["collisions"] == [], s["collisions"]
-    assert s["min_distance_m"] > 2.0
-    assert s["messages"]["dropped"] > 0.2 * s["messages"]["sent"]
+    assert s.collisions == (), s.collisions
+    assert s.min_distance_m is not None and s.min_distance_m > 2.0
+    assert s.messages.dropped > 0.2 * s.messages.sent
     first = time_to_goals(result, sc, settled=False)
     after = result.t_s >= BUDGET_S[name]
-    for k, (uid, u) in enumerate(s["uavs"].items()):
-        assert u["reached_goal"], uid
+    for k, (uid, u) in enumerate(s.uavs.items()):
+        assert u.reached_goal, uid
         assert first[uid] is not None and first[uid] < BUDGET_S[name], (uid, first[uid])
         # No endless climbing: below the ceiling, and at its goal most of the time after.
         goal = np.asarray(sc.uavs[k].goal_m)
         at_goal = np.linalg.norm(result.positions_m[after, k] - goal, axis=1) < 1.0
-        assert u["max_z_offset_m"] < 30.0 and at_goal.mean() >= AT_GOAL_SHARE, (uid,
+        assert u.max_z_offset_m < 30.0 and at_goal.mean() >= AT_GOAL_SHARE, (uid,
                                                                                at_goal.mean())
     if name == "noncooperative_crossing":
         # The intruder flies straight through; the group gets out of its way, and back.
-        assert s["non_cooperative"] == ["intruder"]
-        assert s["uavs"]["intruder"]["max_z_offset_m"] == 0.0
-        ids = list(s["uavs"])
+        assert s.sections["non_cooperative"] == ["intruder"]
+        assert s.uavs["intruder"].max_z_offset_m == 0.0
+        ids = list(s.uavs)
         for uid in ("west", "north", "east", "south"):
-            assert "intruder" in s["uavs"][uid]["yielded_to"]
-            assert s["uavs"][uid]["max_z_offset_m"] >= DZ
+            assert "intruder" in s.uavs[uid].details["yielded_to"]
+            assert s.uavs[uid].max_z_offset_m >= DZ
             assert first[uid] == pytest.approx(result.t_s[0])  # where it started
             k = ids.index(uid)
             off = np.linalg.norm(result.positions_m[~after, k] - np.asarray(sc.uavs[k].goal_m),
@@ -227,7 +227,7 @@ def test_dense_scenario_under_loss_no_collision_every_goal_in_time(name: str) ->
 def test_antipodal_12_is_resolved() -> None:
     assert "antipodal_12" in scenarios.DENSE
     s = World(scenarios.load("antipodal_12")).run(15.0).summary()
-    assert s["collisions"] == [], s["collisions"]
+    assert s.collisions == (), s.collisions
 
 
 def test_time_to_goals_needs_the_scenario_of_the_result(tmp_path) -> None:

@@ -372,25 +372,29 @@ def test_nodes_flying_stand_ins_avoid_each_other_and_without_avoidance_collide(
     test): the pair with avoidance keeps clear, the pair without collides, all land."""
     sc = scenarios.load(head_on_pairs("f550"))
     s = run_swarm(sc, tmp_path / "run", mavlink=True)
-    closest = s["closest_by_pair_m"]
+    closest = s.sections["closest_by_pair_m"]
     assert closest["a1-a2"] > 2.0, closest
     # Without avoidance they fly through each other; the stand-in's estimator drift (as EKF2's)
     # may offset the true paths by up to about a metre, so a collision is likely, not certain.
     assert closest["b1-b2"] < 1.5, closest
-    assert {(c["a"], c["b"]) for c in s["collisions"]} <= {("b1", "b2")}, s["collisions"]
-    assert all(u["reached_goal"] for u in s["uavs"].values()), s["uavs"]
-    for uav, u in s["uavs"].items():  # a node without a report says why (exit code, errors)
-        assert u["node"].get("vehicle", {}).get("phase") == "landed", (uav, u["node"])
+    assert {(c.a, c.b) for c in s.collisions} <= {("b1", "b2")}, s.collisions
+    assert all(u.reached_goal for u in s.uavs.values()), s.uavs
+    for uav, u in s.uavs.items():  # a node without a report says why (exit code, errors)
+        node = u.details["node"]
+        assert node.get("vehicle", {}).get("phase") == "landed", (uav, node)
+        assert node["status"] != "vehicle_stopped", (uav, node)
     # Tracking through MAVLink and the stand-in's attitude loop, against the built-in plant
     # (the same scenario in the simulated world, whose tracking equals the node's plant). The
     # stand-in's estimates come at PX4's 30 Hz and wander as EKF2's do, so the bound is
     # absolute: a decimetre-scale error, not a multiple of the ideal plant's centimetres.
     world = World(sc, seed=0).run(sc.duration_s)
-    for uav, u in s["uavs"].items():
+    for uav, u in s.uavs.items():
         built_in = world.per_uav[uav].tracking_rmse_m
-        assert u["tracking_rmse_m"] < max(2.0 * built_in, 0.25), (uav, u["tracking_rmse_m"],
-                                                                  built_in)
+        assert u.tracking_rmse_m is not None
+        assert u.tracking_rmse_m < max(2.0 * built_in, 0.25), (uav, u.tracking_rmse_m,
+                                                                built_in)
         # The stream never paused as long as PX4 allows before it leaves offboard (it needs
         # setpoints faster than 2 Hz); the tail of the period is the machine's, not ours.
-        assert u["node"]["vehicle"]["setpoint_period_max_ms"] < 500.0, u["node"]["vehicle"]
+        vehicle = u.details["node"]["vehicle"]
+        assert vehicle["setpoint_period_max_ms"] < 500.0, vehicle
 

@@ -231,12 +231,12 @@ def test_two_real_px4_vehicles_head_on_keep_2_m_with_avoidance_and_not_without(
 
     s = run_swarm(scenarios.load(head_on_pairs("x500")), tmp_path / "run", px4_sitl=px4_sitl_build,
                   px4_first_instance=6)
-    closest = s["closest_by_pair_m"]
+    closest = s.sections["closest_by_pair_m"]
     assert closest["a1-a2"] >= 2.0, closest
     assert closest["b1-b2"] < 1.5, closest
-    for uav, u in s["uavs"].items():
-        px4 = u["node"].get("vehicle", {})
+    for uav, u in s.uavs.items():
+        px4 = u.details["node"].get("vehicle", {})
         assert px4.get("phase") == "landed", (uav, px4.get("stop_reason"), px4.get("phases"))
         assert px4["origin_source"].startswith("GPS_GLOBAL_ORIGIN"), px4["origin_source"]
     # Each PX4's own log is kept in the run folder.
-    assert all((tmp_path / "run" / "px4" / uav / "px4.log").exists() for uav in s["uavs"])
+    assert all((tmp_path / "run" / "px4" / uav / "px4.log").exists() for uav in s.uavs)

@@ -286,7 +286,7 @@ def test_a_swarm_on_the_graph_publishes_every_uavs_topics(tmp_path: Path) -> Non
     result: dict = {}
 
     def fly() -> None:
-        result.update(run_swarm(scenarios.load("swap_through_static"), tmp_path,
+        result["summary"] = (run_swarm(scenarios.load("swap_through_static"), tmp_path,
                                 duration_s=10.0, ros2=endpoint))
 
     thread = threading.Thread(target=fly, daemon=True)
@@ -312,7 +312,7 @@ def test_a_swarm_on_the_graph_publishes_every_uavs_topics(tmp_path: Path) -> Non
     finally:
         obs.close()
         router.close()
-    assert not result["collisions"]
+    assert not result["summary"].collisions
     for uav in ("uav1", "uav2", "uav3"):  # every topic of every UAV kept coming (rates:
         for kind in ("pose", "odom", "prediction"):  # `uavmpc bench ros2`, not asserted here)
             assert samples[f"/{uav}/{kind}"], (uav, kind)

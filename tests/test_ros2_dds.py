@@ -231,7 +231,7 @@ def test_a_swarm_on_dds_is_seen_by_real_rclpy_and_flies_its_goal(rclpy_py: Path,
     goal = [-25.0, 4.0, 6.0]  # uav1 starts at (-25, 0, 5); it has the right of way
 
     def fly() -> None:
-        result.update(run_swarm(scenarios.load("swap_through_static"), tmp_path,
+        result["summary"] = (run_swarm(scenarios.load("swap_through_static"), tmp_path,
                                 duration_s=32.0, ros2=f"dds/{domain}"))
 
     thread = threading.Thread(target=fly, daemon=True)
@@ -267,7 +267,7 @@ def test_a_swarm_on_dds_is_seen_by_real_rclpy_and_flies_its_goal(rclpy_py: Path,
         assert odom["child_frame_id"] == f"{uav}/base_link"
     # flown there, as rclpy sees it (the swarm flies on to its end at 32 s: a bound, not a wait)
     assert seen["goal_distance_m"] < 0.5
-    assert not result["collisions"]
-    uav1 = result["uavs"]["uav1"]
-    assert np.linalg.norm(np.array(uav1["final_position_m"]) - goal) < 0.5  # and stayed
-    assert uav1["node"]["missions_rejected"] >= 2  # the goal in frame map, the empty path
+    assert not result["summary"].collisions
+    uav1 = result["summary"].uavs["uav1"]
+    assert np.linalg.norm(np.array(uav1.final_position_m) - goal) < 0.5  # and stayed
+    assert uav1.details["node"]["missions_rejected"] >= 2  # the goal in frame map, the empty path

@@ -176,7 +176,7 @@ def test_the_world_and_a_node_take_the_same_failsafe_decision() -> None:
     world = World(scenarios.from_dict(_swap(fence, start1=(-40.0, 0.0, 5.0))), seed=1)
     res = world.run(0.01)  # one tick: the failsafe looks after it
     u = world.uavs[0]
-    assert res.extra["geofence"]["uav1"]["breaches"] == 1
+    assert res.sections["geofence"]["uav1"]["breaches"] == 1
     assert u.supervisor.mission is None
     in_world = u.stack.tracker.reference
     # A node's supervisor at the same place, on its own stack.

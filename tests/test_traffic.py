@@ -10,6 +10,7 @@ import pytest
 from uavmpc.apps.cli import main
 from uavmpc.apps.traffic_campaign import run_traffic_campaign
 from uavmpc.config import ConfigError
+from uavmpc.drivers.summary import RunSummary
 from uavmpc.drivers.world import World
 from uavmpc.scenarios.traffic import (
     ARRIVAL_TOLERANCE_M,
@@ -134,10 +135,10 @@ def test_cli_run_traffic_writes_the_traffic_block(tmp_path, capsys) -> None:
     out = tmp_path / "run"
     assert main(["run", "traffic", "--uavs", "6", "--duration", "15", "--seed", "2",
                  "--out", str(out)]) == 0
-    s = json.loads((out / "summary.json").read_text())
-    t = s["traffic"]
-    assert t["uavs"] == 6 == len(s["uavs"]) and t["collisions"] == len(s["collisions"])
-    assert set(t["per_uav_trip_s"]) == set(s["uavs"]) and s["duration_s"] == pytest.approx(15.0)
+    s = RunSummary.read(out / "summary.json")
+    t = s.sections["traffic"]
+    assert t["uavs"] == 6 == len(s.uavs) and t["collisions"] == len(s.collisions)
+    assert set(t["per_uav_trip_s"]) == set(s.uavs) and s.duration_s == pytest.approx(15.0)
     assert t["airborne"]["peak"] >= 1  # departures from 2 s on: some are climbing by 15 s
     for name in ("top_view.png", "altitude.png", "traffic.png", "min_distance.png"):
         assert (out / name).stat().st_size > 5_000
@@ -161,8 +162,8 @@ def test_cli_run_traffic_with_two_layers_and_without_a_log_above_the_limit(tmp_p
     assert main(["run", "traffic", "--uavs", "6", "--duration", "4", "--cruise-heights",
                  "30,40", "--out", str(out)]) == 0
     assert not (out / "flight.mcap").exists()
-    s = json.loads((out / "summary.json").read_text())
-    assert s["flight_log"] is None and "no flight.mcap" in capsys.readouterr().out
+    s = RunSummary.read(out / "summary.json")
+    assert s.sections["flight_log"] is None and "no flight.mcap" in capsys.readouterr().out
 
 
 def test_campaign_flies_each_trial_with_and_without_avoidance(tmp_path, capsys) -> None:

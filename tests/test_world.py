@@ -1,6 +1,5 @@
 """Many UAVs, one sky: the built-in scenarios with and without avoidance, over a lossy link."""
 
-import json
 import math
 
 import numpy as np
@@ -9,6 +8,7 @@ import pytest
 from uavmpc import ConfigError, scenarios
 from uavmpc.apps.cli import main
 from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.drivers.world import World
 from uavmpc.log import read_topics
 from uavmpc.scenarios import LinkSettings
@@ -23,9 +23,10 @@ def _run(name: str, avoidance: bool, seed: int = 0, link: LinkSettings | None = 
 @pytest.mark.parametrize("name", scenarios.CONFLICTS)
 def test_scenario_collides_without_avoidance(name: str) -> None:
     s = _run(name, avoidance=False).summary()
-    assert s["collisions"], "the scenario must be a real conflict"
-    assert s["min_distance_m"] < 1.0
-    assert all(u["max_z_offset_m"] == 0.0 for u in s["uavs"].values())
+    assert s.collisions, "the scenario must be a real conflict"
+    assert s.status is RunStatus.COLLISION
+    assert s.min_distance_m is not None and s.min_distance_m < 1.0
+    assert all(u.max_z_offset_m == 0.0 for u in s.uavs.values())
 
 
 @pytest.mark.slow
@@ -35,15 +36,15 @@ def test_scenario_collides_without_avoidance(name: str) -> None:
 def test_scenario_is_collision_free_with_avoidance(name: str, link: LinkSettings | None) -> None:
     result = _run(name, avoidance=True, seed=3, link=link)
     s = result.summary()
-    assert s["collisions"] == []
-    assert s["min_distance_m"] > 1.0
-    top = min(s["uavs"], key=lambda u: next(x.priority for x in scenarios.load(name).uavs
+    assert s.collisions == ()
+    assert s.min_distance_m is not None and s.min_distance_m > 1.0
+    top = min(s.uavs, key=lambda u: next(x.priority for x in scenarios.load(name).uavs
                                              if x.uav_id == u))
     # A hovering group on a lossy link makes way, one layer up, for a neighbour silent long
     # enough to have moved (docs/avoidance.md); there, "back at its goal" is most of the time
     # after the intruder has passed, not necessarily the last sample.
     hovering = link is not None and name == "noncooperative_crossing"
-    for uav, u in s["uavs"].items():
+    for uav, u in s.uavs.items():
         k = result.uav_ids.index(uav)
         if hovering:
             goal = np.asarray(next(x.goal_m for x in scenarios.load(name).uavs
@@ -52,17 +53,17 @@ def test_scenario_is_collision_free_with_avoidance(name: str, link: LinkSettings
             at_goal = np.linalg.norm(result.positions_m[late, k] - goal, axis=1) < 1.0
             assert at_goal.mean() >= 0.8, (uav, at_goal.mean())
         else:
-            assert u["reached_goal"], uav
-        assert u["limit_violations"] == 0 and u["tracker_fallbacks"] == 0
+            assert u.reached_goal, uav
+        assert u.details["limit_violations"] == 0 and u.details["tracker_fallbacks"] == 0
         offsets = result.z_offset_m[:, k]
         if uav == top:  # the highest priority never changes its altitude reference
             assert np.all(offsets == 0.0)
         else:  # others climb by multiples of Δz, and come back down after the conflict
-            assert u["max_z_offset_m"] > 0.0
-            assert math.isclose(u["max_z_offset_m"] / DZ, round(u["max_z_offset_m"] / DZ))
+            assert u.max_z_offset_m > 0.0
+            assert math.isclose(u.max_z_offset_m / DZ, round(u.max_z_offset_m / DZ))
             assert offsets[-1] == 0.0 or hovering
     if link is not None:
-        assert s["messages"]["dropped"] > 0.2 * s["messages"]["sent"]
+        assert s.messages.dropped > 0.2 * s.messages.sent
 
 
 def test_bad_messages_are_dropped_counted_and_change_nothing() -> None:
@@ -98,15 +99,11 @@ def test_same_seed_same_flight_and_log_is_readable(tmp_path) -> None:
     out = tmp_path / "run"
     assert main(["run", "converge_center", "--seed", "7", "--duration", "25", "--loss", "0.3",
                  "--latency", "0.2", "--out", str(out)]) == 0
-    first = json.loads((out / "summary.json").read_text())
-    for key in ("scenario", "seed", "avoidance", "duration_s", "collisions", "min_distance_m",
-                "uavs", "messages"):
-        assert key in first
-    assert first["seed"] == 7 and first["avoidance"] is True and first["duration_s"] == 25.0
-    assert set(first["messages"]) >= {"sent", "delivered", "dropped"}
-    for u in first["uavs"].values():
-        assert set(u) >= {"max_z_offset_m", "avoidance_active_s", "tracking_rmse_m",
-                          "reached_goal"}
+    first = RunSummary.read(out / "summary.json")
+    assert first.driver == "world" and first.scenario == "converge_center"
+    assert first.seed == 7 and first.avoidance is True and first.duration_s == 25.0
+    assert first.sections["link"]["loss"] == 0.3
+    assert set(first.uavs) == {"uav1", "uav2", "uav3"}
     for fig in ("top_view.png", "altitude.png", "min_distance.png", "side_view.png",
                 "view_3d.png"):
         assert (out / fig).stat().st_size > 10_000
@@ -121,9 +118,9 @@ def test_same_seed_same_flight_and_log_is_readable(tmp_path) -> None:
     # same command again: the same flight
     assert main(["run", "converge_center", "--seed", "7", "--duration", "25", "--loss", "0.3",
                  "--latency", "0.2", "--out", str(tmp_path / "again")]) == 0
-    again = json.loads((tmp_path / "again" / "summary.json").read_text())
-    for k in ("collisions", "min_distance_m", "uavs", "messages"):
-        assert again[k] == first[k]
+    again = RunSummary.read(tmp_path / "again" / "summary.json")
+    assert (again.collisions, again.min_distance_m, again.uavs, again.messages) == (
+        first.collisions, first.min_distance_m, first.uavs, first.messages)
 
 
 @pytest.mark.parametrize(

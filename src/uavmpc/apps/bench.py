@@ -324,8 +324,9 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool) -> d
         "collisions": len(result.collisions),
         "min_distance_m": float(np.min(result.min_distance_m)) if n > 1 else None,
         "baseline_rss_mib": baseline, "peak_rss_mib": peak, "flight_digest": digest.hexdigest(),
-        "wall_s_by_phase": result.extra.get("wall_s_by_phase"),
-        "compiled_us_per_uav_tick": result.extra.get("compiled_us_per_uav_tick"),
+        "wall_s_by_phase": result.sections.get("timing", {}).get("wall_s_by_phase"),
+        "compiled_us_per_uav_tick": result.sections.get("timing", {}).get(
+            "compiled_us_per_uav_tick"),
         "ticks_per_s": 1.0 / world.period_s,
     }
 
@@ -501,14 +502,14 @@ def bench_px4(duration_s: float = 20.0) -> dict[str, Any]:
         for label, mavlink in (("built_in_plant", False), ("px4_stand_in", True)):
             s = run_swarm(sc, Path(tmp) / label, duration_s=duration_s, mavlink=mavlink)
             rows = {}
-            for uav, u in s["uavs"].items():
-                node = u["node"]
+            for uav, u in s.uavs.items():
+                node = u.details["node"]
                 row = {"node_cpu_percent": 100.0 * node["cpu_s"] / node["wall_s"],
                        "tick_period_p99_ms": node["period_p99_ms"],
                        "tracking_rmse_m": node["tracking_rmse_m"]}
                 veh = node.get("vehicle") or {}
                 if veh:
-                    sitl = u.get("sitl", {})
+                    sitl = u.details.get("sitl", {})
                     row.update({
                         "phase": veh["phase"],
                         "setpoint_rate_hz": 1e3 / veh["setpoint_period_p50_ms"],
@@ -520,8 +521,8 @@ def bench_px4(duration_s: float = 20.0) -> dict[str, Any]:
                         "stand_in_cpu_percent": 100.0 * sitl.get("cpu_s", float("nan"))
                         / max(sitl.get("wall_s", float("nan")), 1e-9)})
                 rows[uav] = row
-            result[label] = {"collisions": len(s["collisions"]),
-                             "min_distance_m": s["min_distance_m"], "uavs": rows}
+            result[label] = {"collisions": len(s.collisions),
+                             "min_distance_m": s.min_distance_m, "uavs": rows}
     for label in ("built_in_plant", "px4_stand_in"):
         r = result[label]
         print(f"{label}: {r['collisions']} collision(s), closest {r['min_distance_m']:.2f} m")
@@ -558,8 +559,8 @@ def bench_ros2(duration_s: float = 20.0) -> dict[str, Any]:
         with tempfile.TemporaryDirectory(prefix="uavmpc-bench-ros2-") as tmp:
             for label, endpoint in (("without_ros2", None), ("with_ros2", f"tcp/127.0.0.1:{port}")):
                 s = run_swarm(sc, Path(tmp) / label, duration_s=duration_s, ros2=endpoint)
-                result[label] = {uav: 100.0 * u["node"]["cpu_s"] / u["node"]["wall_s"]
-                                 for uav, u in s["uavs"].items()}
+                result[label] = {uav: 100.0 * u.details["node"]["cpu_s"]
+                                 / u.details["node"]["wall_s"] for uav, u in s.uavs.items()}
     finally:
         router.close()
     codec = Ros2Codec()

@@ -8,9 +8,12 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from uavmpc.drivers.summary import Formation, Landing, RunSummary
 
 #: ``uavmpc run`` writes a flight log for worlds of at most this many UAVs.
 MAX_LOGGED_UAVS = 50
@@ -78,7 +81,7 @@ def _fly_world(world: Any, sc: Any, *, duration: float | None, ros2: str | None,
                          on_scene=live.publish if live is not None else None)
 
 
-def _save_run_figures(result: Any, sc: Any, summary: dict, out: Path, *, avoidance: bool,
+def _save_run_figures(result: Any, sc: Any, summary: RunSummary, out: Path, *, avoidance: bool,
                       traffic: bool) -> list[str]:
     """Draw a run's figures into ``out``; their file names."""
     from uavmpc.apps.plots import close_figure, plot_side_and_3d, plot_world
@@ -99,12 +102,12 @@ def _save_run_figures(result: Any, sc: Any, summary: dict, out: Path, *, avoidan
                 *plot_side_and_3d(result.t_s, result.positions_m, result.uav_ids, title))
         names = ["top_view.png", "altitude.png", "min_distance.png", "side_view.png",
                  "view_3d.png"]
-    if "landing_uav" in summary:
+    if summary.landing is not None:
         from uavmpc.apps.plots import plot_landing
 
         figs = (*figs, plot_landing(result))
         names.append("landing.png")
-    if "formation_error_m" in summary:
+    if summary.formation is not None and summary.formation.error is not None:
         from uavmpc.apps.plots import plot_formation
 
         figs = (*figs, plot_formation(result))
@@ -152,17 +155,15 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                       **(world_faults(drawn) if drawn is not None else {}))
         result = _fly_world(world, sc, duration=duration, ros2=ros2, realtime=realtime,
                             live_port=live_port)
-    summary = result.summary()
-    summary["link"] = dataclasses.asdict(link)
-    summary["flight_log"] = "flight.mcap" if logged else None
+    summary = result.summary().with_sections(
+        link=dataclasses.asdict(link), flight_log="flight.mcap" if logged else None)
     if drawn is not None:
-        summary["faults"] = drawn.summary()
+        summary = summary.with_sections(faults=drawn.summary())
     if traffic_mod is not None:
-        summary["traffic"] = traffic_mod.traffic_outcome(result, sc)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    summary["figures"] = _save_run_figures(result, sc, summary, out, avoidance=avoidance,
-                                           traffic=traffic_mod is not None)
-    return summary
+        summary = summary.with_sections(traffic=traffic_mod.traffic_outcome(result, sc))
+    summary.write(out / "summary.json")
+    return summary.with_sections(figures=_save_run_figures(
+        result, sc, summary, out, avoidance=avoidance, traffic=traffic_mod is not None))
 
 
 def _goal_words(reached: bool | None) -> str:
@@ -175,53 +176,68 @@ def _times(factor: float | None) -> str:
     return "–" if factor is None else f"{factor:.0f}×" if factor >= 10 else f"{factor:.2g}×"
 
 
-def _print_world_summary(s: dict, out: Path) -> None:
-    verdict = (f"{len(s['collisions'])} collision(s)" if s["collisions"]
-               else "no collision")
-    closest = ("one UAV" if s["min_distance_m"] is None
-               else f"closest approach {s['min_distance_m']:.2f} m (collision < 1 m)")
-    print(f"{s['scenario']}, {'with' if s['avoidance'] else 'without'} avoidance, seed "
-          f"{s['seed']}: {verdict}; {closest}; {_times(s['realtime_factor'])} real time")
-    for c in s["collisions"][:5]:
-        print(f"  collision at t = {c['t']:.2f} s: {c['a']} and {c['b']}, "
-              f"{c['distance_m']:.2f} m apart")
+def _verdict(s: RunSummary) -> str:
+    """The verdict of a run: its status and its collisions."""
+    hits = f"{len(s.collisions)} collision(s)" if s.collisions else "no collision"
+    return f"status: {s.status.value}, {hits}"
+
+
+def _print_world_summary(s: RunSummary, out: Path) -> None:
+    closest = ("one UAV" if s.min_distance_m is None
+               else f"closest approach {s.min_distance_m:.2f} m (collision < 1 m)")
+    print(f"{s.scenario}, {'with' if s.avoidance else 'without'} avoidance, seed "
+          f"{s.seed}: {_verdict(s)}; {closest}; {_times(s.realtime_factor)} real time")
+    for c in s.collisions[:5]:
+        print(f"  collision at t = {c.t_s:.2f} s: {c.a} and {c.b}, "
+              f"{c.distance_m:.2f} m apart")
+    traffic = s.sections.get("traffic")
     # A line per UAV is unreadable for a traffic of hundreds: the traffic block says it all.
-    per_uav = s["uavs"].items() if "traffic" not in s or len(s["uavs"]) <= 10 else ()
+    per_uav = s.uavs.items() if traffic is None or len(s.uavs) <= 10 else ()
     for uav, u in per_uav:
-        print(f"  {uav}: climbed up to {u['max_z_offset_m']:.0f} m to avoid, avoiding for "
-              f"{u['avoidance_active_s']:.1f} s, "
-              f"{_goal_words(u['reached_goal'])}, tracking RMSE {u['tracking_rmse_m']:.3f} m")
-    m = s["messages"]
-    print(f"  link: {m['sent']} predictions sent, {m['delivered']} delivered, "
-          f"{m['dropped']} dropped")
-    if "traffic" in s:
+        print(f"  {uav}: climbed up to {u.max_z_offset_m:.0f} m to avoid, avoiding for "
+              f"{u.avoidance_active_s or 0.0:.1f} s, "
+              f"{_goal_words(u.reached_goal)}, tracking RMSE "
+              f"{u.tracking_rmse_m or float('nan'):.3f} m")
+    m = s.messages
+    print(f"  link: {m.sent} predictions sent, {m.delivered} delivered, {m.dropped} dropped")
+    if traffic is not None:
         from uavmpc.scenarios.traffic import outcome_lines
 
-        print("\n".join(outcome_lines(s["traffic"])))
-    if "landing_uav" in s:
-        td = s["touchdown"]
-        if s["landed"]:
-            print(f"  landed: {s['landing_uav']} on the deck {s['time_to_land_s']:.1f} s after "
-                  f"the approach began; touchdown at {td['vertical_speed_mps']:.2f} m/s down "
-                  f"(limit {s['max_touchdown_speed_mps']:g}), {td['horizontal_speed_mps']:.2f} "
-                  f"m/s across, {td['offset_from_centre_m']:.2f} m from the deck's centre")
-        else:
-            why = ("no touchdown" if td is None else "hard touchdown" if td["hard"]
-                   else f"{s['edge_strikes']} edge strike(s)" if s["edge_strikes"]
-                   else "not on the deck at the end")
-            print(f"  NOT landed: {why}")
-        print(f"  time: {', '.join(f'{k} {v:.1f} s' for k, v in s['phases_s'].items())}; "
-              f"aborts {s['aborts'] or 'none'}")
-    if "formation_error_m" in s:
-        fe = s["formation_error_m"]
-        per = ", ".join(f"{k} {v['rms']:.2f}/{v['max']:.2f}" for k, v in fe["per_follower"].items())
-        print(f"  formation error (from {s['formation']['measured_from_s']:g} s): rms "
-              f"{fe['rms']:.2f} m, max {fe['max']:.2f} m (rms/max: {per})")
-        calm = s["formation_error_m"].get("while_no_member_avoids")
-        if calm:
-            print(f"    while no member avoids: rms {calm['rms']:.2f} m, max {calm['max']:.2f} m")
-    log = ", flight.mcap" if s.get("flight_log") else ""
-    print(f"wrote {out}/summary.json{log}, {', '.join(s['figures'])}")
+        print("\n".join(outcome_lines(traffic)))
+    if s.landing is not None:
+        _print_landing(s.landing)
+    if s.formation is not None:
+        _print_formation(s.formation)
+    log = ", flight.mcap" if s.sections.get("flight_log") else ""
+    print(f"wrote {out}/summary.json{log}, {', '.join(s.sections.get('figures', []))}")
+
+
+def _print_landing(la: Landing) -> None:
+    td = la.touchdown
+    if la.landed and td is not None:
+        print(f"  landed: {la.uav} on the deck {la.time_to_land_s or 0.0:.1f} s after "
+              f"the approach began; touchdown at {td.vertical_speed_mps:.2f} m/s down "
+              f"(limit {la.max_touchdown_speed_mps:g}), {td.horizontal_speed_mps:.2f} "
+              f"m/s across, {td.offset_from_centre_m:.2f} m from the deck's centre")
+    else:
+        why = ("no touchdown" if td is None else "hard touchdown" if td.hard
+               else f"{la.edge_strikes} edge strike(s)" if la.edge_strikes
+               else "not on the deck at the end")
+        print(f"  NOT landed: {why}")
+    print(f"  time: {', '.join(f'{k} {v:.1f} s' for k, v in la.phases_s.items())}; "
+          f"aborts {dict(la.aborts) or 'none'}")
+
+
+def _print_formation(f: Formation) -> None:
+    if f.error is None:
+        print("  formation error: not measured (a member was not heard)")
+        return
+    per = ", ".join(f"{k} {v.rms_m:.2f}/{v.max_m:.2f}" for k, v in f.per_follower.items())
+    print(f"  formation error (from {f.measured_from_s:g} s): rms "
+          f"{f.error.rms_m:.2f} m, max {f.error.max_m:.2f} m (rms/max: {per})")
+    calm = f.while_no_member_avoids
+    if calm is not None:
+        print(f"    while no member avoids: rms {calm.rms_m:.2f} m, max {calm.max_m:.2f} m")
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -229,7 +245,7 @@ def _demo(args: argparse.Namespace) -> int:
     s = _run_scenario("swap_through_static", out, avoidance=True, seed=args.seed,
                       duration=None, loss=None, latency=None)
     _print_world_summary(s, out)
-    return 0 if not s["collisions"] else 1
+    return 0 if not s.collisions else 1
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -338,19 +354,18 @@ def _swarm_preflight(args: argparse.Namespace) -> tuple[Any, Any] | None:
     return build, geo_origin
 
 
-def _print_swarm_summary(s: dict, out: Path, *, build: Any, mavlink: bool) -> None:
+def _print_swarm_summary(s: RunSummary, out: Path, *, build: Any, mavlink: bool) -> None:
     """Print a swarm run's verdict, a line per node and the formation error."""
-    verdict = f"{len(s['collisions'])} collision(s)" if s["collisions"] else "no collision"
-    closest = s["min_distance_m"]
+    closest = s.min_distance_m
     via = (" each flying a real PX4 SITL (SIH) over MAVLink" if build is not None
            else " each flying a PX4 stand-in over MAVLink" if mavlink else "")
-    print(f"{s['scenario']} as {len(s['uavs'])} node processes over Zenoh{via}: {verdict}; "
+    print(f"{s.scenario} as {len(s.uavs)} node processes over Zenoh{via}: {_verdict(s)}; "
           f"closest approach {closest if closest is None else round(closest, 2)} m")
-    for uav, u in s["uavs"].items():
-        node = u["node"]
-        line = (f"  {uav}: climbed {u['max_z_offset_m']:.0f} m, "
-                f"{_goal_words(u['reached_goal'])}, tracking RMSE "
-                f"{u['tracking_rmse_m'] or float('nan'):.3f} m; tick period p50 "
+    for uav, u in s.uavs.items():
+        node = u.details.get("node", {})
+        line = (f"  {uav}: climbed {u.max_z_offset_m:.0f} m, "
+                f"{_goal_words(u.reached_goal)}, tracking RMSE "
+                f"{u.tracking_rmse_m or float('nan'):.3f} m; tick period p50 "
                 f"{node.get('period_p50_ms', float('nan')):.2f} ms, "
                 f"p99 {node.get('period_p99_ms', float('nan')):.2f} ms")
         px4 = node.get("vehicle") or {}
@@ -358,14 +373,11 @@ def _print_swarm_summary(s: dict, out: Path, *, build: Any, mavlink: bool) -> No
             line += (f"; MAVLink {px4.get('phase')}"
                      + (f" ({px4['stop_reason']})" if px4.get("stop_reason") else "")
                      + f", setpoints p99 {px4.get('setpoint_period_p99_ms', 0.0):.2f} ms")
-        if u.get("px4"):
-            line += f"; PX4 log {u['px4'].get('ulog') or u['px4'].get('log')}"
+        if u.details.get("px4"):
+            line += f"; PX4 log {u.details['px4'].get('ulog') or u.details['px4'].get('log')}"
         print(line)
-    fe = s.get("formation_error_m")
-    if fe:
-        per = ", ".join(f"{k} {v['rms']:.2f}/{v['max']:.2f}" for k, v in fe["per_follower"].items())
-        print(f"  formation error (from {s['formation']['measured_from_s']:g} s): rms "
-              f"{fe['rms']:.2f} m, max {fe['max']:.2f} m (rms/max: {per})")
+    if s.formation is not None:
+        _print_formation(s.formation)
     print(f"wrote {out}/summary.json, flight.mcap, min_distance.png, <id>.node.log")
 
 

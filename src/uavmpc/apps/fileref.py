@@ -19,6 +19,7 @@ from importlib import resources
 from typing import Any
 
 from uavmpc.config import ConfigError
+from uavmpc.drivers.summary import SECTIONS, SUMMARY_VERSION, summary_fields
 
 _PROBE = "zz_not_a_field"
 
@@ -405,4 +406,36 @@ def reference_markdown() -> str:
         parts.append(f"\n## {title}\n\n| field | default | meaning |\n|---|---|---|\n")
         parts += [f"| `{f}` | {f'`{d}`' if d else ''} | {_cell(t)} |\n" for f, d, t in rows]
     parts.append(_campaign_markdown())
+    return "".join(parts) + summary_markdown()
+
+
+def summary_rows() -> list[tuple[str, str, str]]:
+    """``summary.json``'s fields as (dotted name, JSON type, meaning), from the dataclasses of
+    :mod:`uavmpc.drivers.summary` and their docstrings."""
+    rows = []
+    for name, kind, cls, field in summary_fields():
+        if name == "version":
+            text = (f"the schema's version, {SUMMARY_VERSION}: a reader refuses another "
+                    "(`RunSummary.read`)")
+        else:
+            text = attribute_docs(cls).get(field) or (cls.__doc__ or "").split("\n")[0]
+        rows.append((name, kind, _markdown(text)))
+    return rows
+
+
+def summary_markdown() -> str:
+    """The section of ``summary.json`` (written by ``uavmpc run``, ``demo`` and ``swarm``)."""
+    parts = [
+        "\n## `summary.json`\n\n"
+        "What `uavmpc run`, `uavmpc demo` and `uavmpc swarm` write at the end of a run "
+        "(`uavmpc.drivers.summary.RunSummary`), one schema for the simulated world (`driver` "
+        "`world`) and for node processes (`swarm`). `a[].b`: field `b` of each item of the "
+        "list `a`; `a{}.b`: of each value of the object `a` (keyed by UAV id). The status is "
+        "the worst that applies, in this order: `collision` (two UAVs closer than 1 m), "
+        "`vehicle_stopped` (a node died or its vehicle stopped being its to fly), "
+        "`interrupted`, `goal_missed` (a UAV not at its goal, or a lander not landed, at the "
+        "end), `complete`.\n\n| field | type | meaning |\n|---|---|---|\n"]
+    parts += [f"| `{f}` | {_cell(k)} | {_cell(t)} |\n" for f, k, t in summary_rows()]
+    parts.append("\n### `summary.json`: sections\n\n| section | what it holds |\n|---|---|\n")
+    parts += [f"| `{k}` | {_cell(v)} |\n" for k, v in SECTIONS.items()]
     return "".join(parts)

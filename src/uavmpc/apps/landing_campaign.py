@@ -96,12 +96,14 @@ def landing_trial(scenario: str, index: int, seed: int, speed_kmh: float | None,
     sc = dataclasses.replace(sc, ground_vehicle=moved)
     trial_seed = int(rng.integers(0, 2**31))
     s = World(sc, seed=trial_seed).run(duration_s).summary()
+    assert s.landing is not None  # the scenario was checked for a lander above
+    landing = dataclasses.asdict(s.landing)
     keep = ("landed", "time_to_land_s", "touchdown", "landed_elsewhere", "edge_strikes",
             "touchdowns",
             "on_deck_at_end", "phases_s", "aborts", "max_touchdown_speed_mps")
     return {"index": index, "seed": trial_seed, "start_arc_m": moved.start_arc_m,
-            "speed_kmh": moved.speed_mps / KMH, "wall_s": s["wall_s"],
-            **{k: s[k] for k in keep}}
+            "speed_kmh": moved.speed_mps / KMH, "wall_s": s.wall_s,
+            **{k: landing[k] for k in keep}}
 
 
 def landing_report(trials: list[dict[str, Any]]) -> dict[str, Any]:

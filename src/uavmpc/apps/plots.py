@@ -204,14 +204,16 @@ def plot_min_distance_trace(t_s: object, d_m: object, collision_m: float,
 def plot_landing(result: Any) -> Figure:
     """The landing on the moving deck: top view of the car and the UAV, the UAV's height above
     the deck and its horizontal speed relative to the car over time, the phases shaded."""
-    s = result.summary()
-    i = int(result.traces["lander_index"])
+    la = result.landing
+    car = result.ground_vehicle_m
+    if la is None or car is None:
+        raise ValueError(f"plot_landing: {result.scenario!r} had no landing on a ground vehicle")
+    i = result.uav_ids.index(la.uav)
     t = result.t_s
-    car = result.traces["ground_vehicle_m"]
     uav = result.positions_m[:, i]
     dt = np.gradient(t)
     rel_v = np.hypot(*(np.gradient(uav[:, :2] - car[:, :2], axis=0) / dt[:, None]).T)
-    t_end = s["touchdown"]["t_s"] + 2.0 if s["touchdown"] else t[-1]
+    t_end = la.touchdown.t_s + 2.0 if la.touchdown is not None else t[-1]
     show = t <= t_end
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), gridspec_kw={"width_ratios": [1.1, 1]})
     ax = axes[0]
@@ -219,8 +221,8 @@ def plot_landing(result: Any) -> Figure:
     ax.plot(car[show, 0], car[show, 1], color="k", lw=1.5, label="car")
     ax.plot(uav[show, 0], uav[show, 1], color="C0", lw=1.5, label=result.uav_ids[i])
     ax.plot(*uav[0, :2], "o", color="C0")
-    if s["touchdown"]:
-        k = int(np.searchsorted(t, s["touchdown"]["t_s"]))
+    if la.touchdown is not None:
+        k = int(np.searchsorted(t, la.touchdown.t_s))
         ax.plot(*uav[min(k, len(t) - 1), :2], "*", ms=14, color="C3", label="touchdown")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
@@ -238,7 +240,7 @@ def plot_landing(result: Any) -> Figure:
     ax2.set_ylabel("relative horizontal speed [m/s]", color="C1")
     ax2.set_ylim(0.0, max(2.0, float(np.percentile(rel_v[show], 99))))
     colours = {"approach": "0.92", "descend": "#dcefdc", "abort": "#f6d5d5"}
-    marks = [*s["transitions"], [t_end, "end"]]
+    marks = [*la.transitions, (t_end, "end")]
     for (t0, phase), (t1, _) in itertools.pairwise(marks):
         if phase in colours:
             ax1.axvspan(t0, min(t1, t_end), color=colours[phase], zorder=0, lw=0)
@@ -246,8 +248,8 @@ def plot_landing(result: Any) -> Figure:
     lines = ax1.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
     ax1.legend(lines + handles, ["height above the deck", "relative speed", *colours],
                fontsize=8, loc="upper right")
-    verdict = (f"landed {s['time_to_land_s']:.1f} s after the approach began" if s["landed"]
-               else "not landed")
+    verdict = (f"landed {la.time_to_land_s or 0.0:.1f} s after the approach began"
+               if la.landed else "not landed")
     ax1.set_title(f"{verdict}; the phases shaded")
     fig.suptitle(f"{result.scenario}, seed {result.seed}")
     fig.tight_layout()
@@ -257,8 +259,10 @@ def plot_landing(result: Any) -> Figure:
 def plot_formation(result: Any) -> Figure:
     """The formation: every UAV's path (top view), and each follower's distance from its slot
     over time, with the times a member was avoiding shaded."""
-    s = result.summary()
-    fe = s["formation_error_m"]
+    f = result.formation
+    t, err = result.formation_t_s, result.formation_error_m
+    if f is None or f.error is None or t is None or err is None:
+        raise ValueError(f"plot_formation: {result.scenario!r} had no formation")
     fig, axes = plt.subplots(2, 1, figsize=(11, 9), gridspec_kw={"height_ratios": [1.3, 1]})
     ax = axes[0]
     for i, uav in enumerate(result.uav_ids):
@@ -266,8 +270,7 @@ def plot_formation(result: Any) -> Figure:
         line = ax.plot(p[:, 0], p[:, 1], lw=1.2, label=uav)[0]
         ax.plot(*p[0, :2], "o", color=line.get_color(), ms=4)
     step = max(1, len(result.t_s) // 12)
-    members = [result.uav_ids.index(m) for m in (s["formation"]["leader"],
-                                                  *s["formation"]["followers"])]
+    members = [result.uav_ids.index(m) for m in (f.leader, *f.followers)]
     for k in range(0, len(result.t_s), step):  # the formation's shape every few seconds
         pts = result.positions_m[k, members, :2]
         ax.plot(pts[:, 0], pts[:, 1], ".", color="0.4", ms=3)
@@ -278,11 +281,9 @@ def plot_formation(result: Any) -> Figure:
     ax.legend(fontsize=8)
     ax.set_title("paths (grey dots: the members every few seconds)")
     ax = axes[1]
-    t = result.traces["formation_t_s"]
-    err = result.traces["formation_error_m"]
-    for j, f in enumerate(s["formation"]["followers"]):
-        ax.plot(t, err[:, j], lw=1, label=f)
-    avoiding = result.traces.get("members_avoiding")
+    for j, follower in enumerate(f.followers):
+        ax.plot(t, err[:, j], lw=1, label=follower)
+    avoiding = result.members_avoiding
     if avoiding is not None:
         keep = result.t_s >= t[0]
         ax.fill_between(t, 0, 1, where=avoiding[keep], color="#f6d5d5",
@@ -292,7 +293,7 @@ def plot_formation(result: Any) -> Figure:
     ax.set_ylabel("distance from its slot [m]")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(f"formation error: rms {fe['rms']:.2f} m, max {fe['max']:.2f} m")
+    ax.set_title(f"formation error: rms {f.error.rms_m:.2f} m, max {f.error.max_m:.2f} m")
     fig.suptitle(f"{result.scenario}, seed {result.seed}")
     fig.tight_layout()
     return fig

@@ -36,6 +36,7 @@ from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
 from uavmpc.comms.state import NodeState
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
+from uavmpc.drivers.summary import RunStatus, run_status
 from uavmpc.geofence import Geofence, GeofenceError
 from uavmpc.missions.format import mission_from_json
 from uavmpc.missions.mission import CommandedMission, Mission
@@ -100,6 +101,17 @@ class NodeStats:
     wall_s: float = 0.0
     #: The vehicle driver's report (the MAVLink link's phases, commands, rates), if any.
     vehicle: dict[str, Any] = field(default_factory=dict)
+    #: How the run ended as far as the node knows, a :class:`~uavmpc.drivers.summary.RunStatus`
+    #: value: ``complete`` (its time ran out), ``interrupted`` (stopped before it, SIGINT or
+    #: SIGTERM), ``vehicle_stopped`` (the vehicle stopped being ours to fly before the
+    #: landing: its autopilot failed safe, refused, or a pilot took it). Its goal it does not
+    #: judge: the swarm does, from where it ended.
+    status: str = RunStatus.COMPLETE.value
+
+    @property
+    def run_status(self) -> RunStatus:
+        """:attr:`status` as a :class:`~uavmpc.drivers.summary.RunStatus`."""
+        return RunStatus(self.status)
 
 
 @runtime_checkable
@@ -276,6 +288,9 @@ class Node:
         self.stats = NodeStats(uav_id)
         self._stop = threading.Event()
         self._stop_requests = 0
+        self._flew = False  # the vehicle has been ours to fly
+        self._vehicle_stopped = False  # ... and stopped being so before the landing
+        self._interrupted = False  # stopped before its time
         self.stack: OnboardStack | None = None
         #: The stack's supervisor (its mission, launch hold, geofence), built with it.
         self.supervisor: Supervisor | None = None
@@ -349,6 +364,7 @@ class Node:
                 if landing_until is None and (self._stop.is_set()
                                               or (t_end is not None and now >= t_end)):
                     landing_until = now + LANDING_TIMEOUT_S
+                    self._interrupted = t_end is None or now < t_end
                     self.stats.mission_end_position_m = state.position_m.tolist()
                     mission_rmse = stack.report().tracking_rmse_m
                     self._land(now, state)
@@ -359,6 +375,7 @@ class Node:
                 fresh = vehicle.update(time.time())
                 if fresh is not None:
                     state = fresh
+                self._note_vehicle(landing=landing_until is not None)
                 self._supervise(now, state, ticks, landing=landing_until is not None)
                 if commanded and not vehicle.commanding and fresh is not None \
                         and ticks % 10 == 0:
@@ -386,6 +403,14 @@ class Node:
             vehicle.close()
         return self._final_stats(state, intervals, time.perf_counter() - wall0,
                                  time.process_time() - cpu0, mission_rmse)
+
+    def _note_vehicle(self, landing: bool) -> None:
+        """Note a vehicle that stops being ours to fly before the landing (for the status)."""
+        assert self.vehicle is not None
+        if self.vehicle.flying:
+            self._flew = True
+        elif self._flew and not landing:
+            self._vehicle_stopped = True
 
     def _supervise(self, now: float, state: VehicleState, ticks: int, landing: bool) -> None:
         """The supervisor's part of a tick: the launch once the vehicle is ours to fly, the
@@ -440,6 +465,9 @@ class Node:
         s.avoidance_active_s = rep.avoidance_active_s
         s.final_position_m = state.position_m.tolist()
         s.vehicle = self.vehicle.report()
+        s.status = run_status(collisions=0, reached_goal=(),
+                              stopped=[self.uav_id] if self._vehicle_stopped else (),
+                              interrupted=self._interrupted).value
         return s
 
     def _launch(self, now: float, state: VehicleState) -> None:

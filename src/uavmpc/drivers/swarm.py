@@ -69,6 +69,15 @@ from uavmpc.drivers.px4.firmware import (
     Px4SitlBuild,
 )
 from uavmpc.drivers.px4.frames import enu_to_geodetic
+from uavmpc.drivers.summary import (
+    Contact,
+    Formation,
+    LinkCounts,
+    RunStatus,
+    RunSummary,
+    UavSummary,
+    run_status,
+)
 from uavmpc.drivers.world import (
     COLLISION_DISTANCE_M,
     FORMATION_SETTLE_S,
@@ -187,14 +196,16 @@ def start_process(spec: NodeLaunch | SitlLaunch, spec_file: Path, *,
 
 
 def _formation_summary(spec: Any, tracks: dict[str, list[tuple[float, np.ndarray]]],
-                       epoch: float, duration_s: float) -> dict[str, Any]:
+                       epoch: float, duration_s: float, ids: list[str]) -> Formation:
     """The formation error from the states the monitor received: every member's track
-    resampled at 20 Hz from FORMATION_SETTLE_S after the epoch to the end of the mission."""
+    resampled at 20 Hz from FORMATION_SETTLE_S after the epoch to the end of the mission
+    (no error when a member was heard less than twice)."""
+    outsiders = [u for u in ids if u not in spec.members]
     grid = epoch + np.arange(FORMATION_SETTLE_S, duration_s, 0.05)
     positions = {}
     for m in spec.members:
         if len(tracks[m]) < 2:
-            return {"formation_error_m": None}
+            return Formation.of(spec, FORMATION_SETTLE_S, None, outsiders)
         t = np.array([x[0] for x in tracks[m]])
         p = np.array([x[1] for x in tracks[m]])
         order = np.argsort(t)
@@ -203,9 +214,7 @@ def _formation_summary(spec: Any, tracks: dict[str, list[tuple[float, np.ndarray
     err = formation_error(dataclasses.replace(spec, changes=tuple(
         (t + epoch, shape) for t, shape in spec.changes)), grid, positions)
     err.pop("series_m")
-    return {"formation_error_m": err,
-            "formation": {"leader": spec.leader, "followers": list(spec.followers),
-                          "measured_from_s": FORMATION_SETTLE_S}}
+    return Formation.of(spec, FORMATION_SETTLE_S, err, outsiders)
 
 
 class LiveSink(Protocol):
@@ -565,35 +574,45 @@ class _Monitor:
 
 def _uav_summary(uav: str, goal: np.ndarray, follower: bool, monitor: _Monitor,
                  ended: _Ended, px4_reports: dict[str, dict[str, Any]],
-                 opts: _Options) -> dict[str, Any]:
+                 opts: _Options) -> UavSummary:
     """One UAV's entry of the summary, from its node's report and what the monitor heard."""
     st = ended.nodes[uav][0] if uav in ended.nodes else None
     final = np.array((st.final_position_m if st is not None else None)
                      or monitor.latest.get(uav, [np.nan] * 3))
     judged = monitor.at_end.get(uav, final) if opts.mavlink else final
-    entry = {
-        "max_z_offset_m": monitor.offsets[uav],
-        "avoidance_active_s": st.avoidance_active_s if st is not None else None,
-        "tracking_rmse_m": st.tracking_rmse_m if st is not None else None,
-        "reached_goal": (None if follower
-                         else bool(np.linalg.norm(judged - goal) < GOAL_TOLERANCE_M)),
-        "mission_end_position_m": np.asarray(judged).tolist(),
-        "final_position_m": final.tolist(),
+    details: dict[str, Any] = {
+        "mission_end_position_m": (np.asarray(judged).tolist()
+                                   if np.isfinite(judged).all() else None),
         "last_state": (dataclasses.asdict(monitor.last_state[uav])
                        if uav in monitor.last_state else {}),
         "node": ended.nodes[uav][1] if uav in ended.nodes else {},
     }
     if opts.real_px4:
-        entry["px4"] = px4_reports.get(uav, {})
+        details["px4"] = px4_reports.get(uav, {})
     elif opts.mavlink:
-        entry["sitl"] = ended.sitls.get(uav, {})
-    return entry
+        details["sitl"] = ended.sitls.get(uav, {})
+    return UavSummary(
+        max_z_offset_m=monitor.offsets[uav],
+        avoidance_active_s=st.avoidance_active_s if st is not None else None,
+        tracking_rmse_m=st.tracking_rmse_m if st is not None else None,
+        reached_goal=(None if follower
+                      else bool(np.linalg.norm(judged - goal) < GOAL_TOLERANCE_M)),
+        final_position_m=((float(final[0]), float(final[1]), float(final[2]))
+                          if np.isfinite(final).all() else None),
+        details=details)
+
+
+def _stopped(ended: _Ended) -> list[str]:
+    """The UAVs whose node ended without a report (killed, or failed) or whose vehicle
+    stopped being its to fly before the landing."""
+    return [uav for uav, (st, _) in ended.nodes.items()
+            if st is None or st.run_status is RunStatus.VEHICLE_STOPPED]
 
 
 def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ended,
              px4_sitl: Px4SitlBuild | None,
-             px4_reports: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The run's summary (``summary.json``), the same keys as ``uavmpc run`` writes."""
+             px4_reports: dict[str, dict[str, Any]]) -> RunSummary:
+    """The run's summary (``summary.json``), the same schema as ``uavmpc run`` writes."""
     stats = [st for st, _ in ended.nodes.values() if st is not None]
     sent = sum(st.predictions_sent for st in stats) * (len(scenario.uavs) - 1)
     delivered = sum(st.accepted for st in stats)
@@ -602,27 +621,34 @@ def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ende
         u.uav_id, np.array(u.goal_m),
         formation is not None and u.uav_id in formation.followers,
         monitor, ended, px4_reports, opts) for u in scenario.uavs}
-    summary = {
-        "scenario": scenario.name, "avoidance": opts.avoidance, "duration_s": opts.duration,
+    contacts = tuple(Contact(c["t"], c["a"], c["b"], c["distance_m"])
+                     for c in monitor.collisions)
+    sections: dict[str, Any] = {
         "transport": "zenoh (peer to peer, 127.0.0.1)",
         "vehicles": (f"real PX4 SITL firmware with SIH over MAVLink/UDP, {opts.setpoints} "
                      "setpoints" if opts.real_px4 else
                      f"PX4 stand-ins over MAVLink/UDP, {opts.setpoints} setpoints"
                      if opts.mavlink else "simulated plants in the nodes"),
-        "collisions": monitor.collisions,
-        "min_distance_m": monitor.min_d if math.isfinite(monitor.min_d) else None,
         "closest_by_pair_m": {f"{a}-{b}": round(d, 3)
                               for (a, b), d in sorted(monitor.closest.items())},
-        "uavs": uavs,
-        "messages": {"sent": sent, "delivered": delivered, "dropped": max(sent - delivered, 0)},
     }
     if px4_sitl is not None:
-        summary["px4_sitl"] = {"build": str(px4_sitl.root),
-                               "geo_origin": list(opts.geo_origin)}
-    if formation is not None:
-        summary.update(_formation_summary(formation, monitor.tracks, opts.epoch,
-                                          opts.duration))
-    return summary
+        sections["px4_sitl"] = {"build": str(px4_sitl.root),
+                                "geo_origin": list(opts.geo_origin)}
+    return RunSummary(
+        driver="swarm",
+        # A node the swarm stopped at the end says "interrupted": that is the swarm's way of
+        # ending it, not the run's; only a stopped vehicle counts.
+        status=run_status(collisions=len(contacts),
+                          reached_goal=[u.reached_goal for u in uavs.values()],
+                          stopped=_stopped(ended)),
+        scenario=scenario.name, seed=None, avoidance=opts.avoidance,
+        duration_s=opts.duration, collisions=contacts,
+        min_distance_m=monitor.min_d if math.isfinite(monitor.min_d) else None,
+        uavs=uavs, messages=LinkCounts(sent, delivered, max(sent - delivered, 0)),
+        formation=(None if formation is None else _formation_summary(
+            formation, monitor.tracks, opts.epoch, opts.duration, monitor.ids)),
+        sections=sections)
 
 
 def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
@@ -633,8 +659,9 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               ros2: str | None = None, live: LiveSink | None = None,
               px4_sitl: Px4SitlBuild | None = None,
               geo_origin: tuple[float, float, float] = DEFAULT_GEO_ORIGIN,
-              px4_first_instance: int = 0) -> dict[str, Any]:
-    """Fly ``scenario`` as separate node processes; returns the summary (also written).
+              px4_first_instance: int = 0) -> RunSummary:
+    """Fly ``scenario`` as separate node processes; returns its summary (also written to
+    ``out/summary.json``).
 
     ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
     (a UAV that drops out of the sky, as far as the link can tell). ``on_trace(t_s, d_m)``
@@ -694,7 +721,7 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
                 transport.close()
     px4_reports = {uav: inst.report() for uav, inst in fleet.px4s.items()}
     summary = _summary(scenario, opts, monitor, ended, px4_sitl, px4_reports)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    summary.write(out / "summary.json")
     if monitor.trace_t and on_trace is not None:
         on_trace(monitor.trace_t, monitor.trace_d)
     return summary

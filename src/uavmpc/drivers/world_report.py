@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from uavmpc.drivers.summary import Formation, Landing
 from uavmpc.missions.formation import formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 
@@ -123,23 +124,23 @@ def fleet_extras(result: WorldResult, uavs: Sequence[WorldUav], *,
     """The geofence, the launch check and who flew without avoidance, into ``result``."""
     fenced = [(u.uav_id, u.supervisor.fence) for u in uavs]
     if any(f is not None for _, f in fenced):
-        result.extra["geofence"] = {uid: f.watch.report() for uid, f in fenced if f is not None}
+        result.sections["geofence"] = {uid: f.watch.report() for uid, f in fenced if f is not None}
     if launch_check_s is not None:
-        result.extra["launch"] = {
+        result.sections["launch"] = {
             "max_wait_s": launch_check_s, **launches,
             **{u.uav_id: {"launched_s": None, "not_heard": None}
                for u in uavs if not u.supervisor.launched}}
     if avoidance and non_cooperative:
         # Who flew without avoidance while the others avoided (with ``avoidance`` off,
         # the summary's "avoidance": false already says everyone did).
-        result.extra["non_cooperative"] = list(non_cooperative)
+        result.sections["non_cooperative"] = list(non_cooperative)
 
 
 def applications(result: WorldResult, uavs: Sequence[WorldUav], car: GroundVehicle | None,
                  spec: FormationSpec | None) -> None:
     """The field applications' outcomes (landing, formation) into ``result``."""
     if car is not None:
-        result.traces["ground_vehicle_m"] = np.array(
+        result.ground_vehicle_m = np.array(
             [car.state(t).position_m for t in result.t_s])
     for i, u in enumerate(uavs):
         mission = u.supervisor.mission
@@ -151,8 +152,7 @@ def applications(result: WorldResult, uavs: Sequence[WorldUav], car: GroundVehic
                          and car.on_deck(end, final))
             out = landing_outcome(mission, u.plant.deck_touch(),
                                   u.stack.airframe.max_touchdown_speed_mps, rests, end)
-            result.extra.update({"landing_uav": u.uav_id, **out})
-            result.traces["lander_index"] = np.array(i)
+            result.landing = Landing.of(u.uav_id, out)
     if spec is not None:
         _formation(result, spec)
 
@@ -163,18 +163,17 @@ def _formation(result: WorldResult, spec: FormationSpec) -> None:
     err = formation_error(spec, result.t_s[keep],
                           {m: result.positions_m[keep, index[m]] for m in spec.members})
     series = err.pop("series_m")
-    calm = ~result.traces["members_avoiding"][keep]
+    assert result.members_avoiding is not None
+    calm = ~result.members_avoiding[keep]
     if calm.any():
         err["while_no_member_avoids"] = {
             "rms": float(np.sqrt(np.mean(series[calm] ** 2))),
             "max": float(series[calm].max()), "share_of_time": float(calm.mean())}
-    result.traces["formation_error_m"] = series
-    result.traces["formation_t_s"] = result.t_s[keep]
-    result.extra["formation_error_m"] = err
-    result.extra["formation"] = {
-        "leader": spec.leader, "followers": list(spec.followers),
-        "measured_from_s": FORMATION_SETTLE_S,
-        "outsiders": [uid for uid in result.uav_ids if uid not in spec.members]}
+    result.formation_error_m = series
+    result.formation_t_s = result.t_s[keep]
+    result.formation = Formation.of(
+        spec, FORMATION_SETTLE_S, err,
+        outsiders=[uid for uid in result.uav_ids if uid not in spec.members])
 
 
 @dataclasses.dataclass
@@ -219,7 +218,7 @@ def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
                          tr.t_s, tr.pos, tr.zoff, tr.dmin, contacts.collisions,
                          uav_outcomes(world.uavs, tr.pos[-1]), messages, wall_s)
     if tr.members.size:
-        result.traces["members_avoiding"] = tr.members_avoiding
+        result.members_avoiding = tr.members_avoiding
     if world.batched:
         _timing_extras(result, world.phase_wall_s, world.ticker.cycles, cycles_per_s)
     fleet_extras(result, world.uavs, launch_check_s=world.launch_check_s,
@@ -232,12 +231,13 @@ def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
 def _timing_extras(result: WorldResult, phase_wall_s: Sequence[float], cycles: np.ndarray,
                    cycles_per_s: float) -> None:
     """Where a batched run's wall time went: the numbers of a scale benchmark."""
-    result.extra["wall_s_by_phase"] = dict(zip(
+    timing: dict[str, Any] = {"wall_s_by_phase": dict(zip(
         ("receive_and_plan", "compiled_tick", "broadcast"),
-        (round(v, 6) for v in phase_wall_s), strict=True))
+        (round(v, 6) for v in phase_wall_s), strict=True))}
+    result.sections["timing"] = timing
     c = cycles
     if c.size and c[3] > 0 and cycles_per_s > 0:
         # Per UAV and tick, inside the compiled call: the floor of a UAV-second.
-        result.extra["compiled_us_per_uav_tick"] = {
+        timing["compiled_us_per_uav_tick"] = {
             name: round(float(c[j] / c[3] / cycles_per_s * 1e6), 3)
             for j, name in enumerate(("stack", "plant", "trace"))}
