@@ -34,6 +34,7 @@ from uavmpc.comms.ros2 import (
     Ros2Stats,
     _need,
     dds_type_name,
+    graph_identity,
 )
 
 __all__ = ["DdsGraph", "DdsPublisher", "DdsSubscriber", "dds_topic_name", "require", "user_data"]
@@ -231,15 +232,7 @@ class DdsGraph:
     def __init__(self, domain_id: int | None = None, *, node_name: str = "uavmpc",
                  namespace: str = "/") -> None:
         domain = _need("cyclonedds.domain")
-        if domain_id is None:
-            domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
-        if not 0 <= int(domain_id) <= 232:
-            raise ValueError(f"domain_id: must be in 0..232, got {domain_id!r}")
-        if not node_name or not all(c.isalnum() or c == "_" for c in node_name) \
-                or node_name[0].isdigit():
-            raise ValueError(f"node_name: ROS names are [A-Za-z_][A-Za-z0-9_]*, got {node_name!r}")
-        self.domain_id = int(domain_id)
-        self.node_name = node_name
+        self.domain_id, self.node_name = graph_identity(domain_id, node_name)
         self.namespace = namespace
         self.codec = Ros2Codec()
         self.types = _DdsTypes(self.codec)

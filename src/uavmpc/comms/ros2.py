@@ -301,6 +301,23 @@ class Ros2Subscriber:
         self._sub.undeclare()
 
 
+def graph_identity(domain_id: int | None, node_name: str) -> tuple[int, str]:
+    """A graph's ROS domain (None: ``ROS_DOMAIN_ID``, else 0) and node name, checked: the
+    same rules for a graph over Zenoh and over DDS.
+
+    Raises:
+        ValueError: a domain outside 0..232, or a name ROS does not take.
+    """
+    if domain_id is None:
+        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    if not 0 <= int(domain_id) <= 232:
+        raise ValueError(f"domain_id: must be in 0..232, got {domain_id!r}")
+    if not node_name or not all(c.isalnum() or c == "_" for c in node_name) \
+            or node_name[0].isdigit():
+        raise ValueError(f"node_name: ROS names are [A-Za-z_][A-Za-z0-9_]*, got {node_name!r}")
+    return int(domain_id), node_name
+
+
 def gid_of(token_key: str) -> bytes:
     """rmw_zenoh's GID of an entity: XXH3-128 of its token, low 64 bits then high, each LE."""
     xxhash = _need("xxhash")
@@ -348,15 +365,7 @@ class Ros2Graph:
         zenoh = _need("zenoh")
         (self.router,) = check_endpoints([router], "router")
         self.listen = check_endpoints(listen, "listen")
-        if domain_id is None:
-            domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
-        if not 0 <= int(domain_id) <= 232:
-            raise ValueError(f"domain_id: must be in 0..232, got {domain_id!r}")
-        if not node_name or not all(c.isalnum() or c == "_" for c in node_name) \
-                or node_name[0].isdigit():
-            raise ValueError(f"node_name: ROS names are [A-Za-z_][A-Za-z0-9_]*, got {node_name!r}")
-        self.domain_id = int(domain_id)
-        self.node_name = node_name
+        self.domain_id, self.node_name = graph_identity(domain_id, node_name)
         self.namespace = namespace
         self.codec = Ros2Codec()
         self.stats = Ros2Stats()
