@@ -28,7 +28,7 @@ from waiting import wait_until
 
 from uavmpc import scenarios
 from uavmpc.comms import ros2
-from uavmpc.comms.zenoh_link import ZenohTransport
+from uavmpc.comms.zenoh_link import ZenohTransport, loopback_router
 from uavmpc.drivers.node import Node
 from uavmpc.drivers.swarm import free_ports, run_swarm
 from uavmpc.plant import Airframe
@@ -76,11 +76,7 @@ def test_ros_and_our_quaternions_round_trip() -> None:
 
 def _router() -> tuple[object, str]:
     (port,) = free_ports(1)
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"router"')
-    cfg.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(cfg), f"tcp/127.0.0.1:{port}"
+    return loopback_router(port), f"tcp/127.0.0.1:{port}"
 
 
 class Observer:

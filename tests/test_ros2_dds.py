@@ -146,14 +146,10 @@ def test_the_node_is_announced_and_cdr_goes_through_unchanged_and_bad_commands_c
 
 def _zenoh_payloads() -> dict[str, bytes]:
     """One message of each topic a UAV publishes, as it arrived on a Zenoh router."""
-    import zenoh
+    from uavmpc.comms.zenoh_link import loopback_router
 
     (port,) = free_ports(1)
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"router"')
-    cfg.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    router = zenoh.open(cfg)
+    router = loopback_router(port)
     got: dict[str, bytes] = {}
     try:
         with ros2.Ros2Graph(f"tcp/127.0.0.1:{port}", node_name="uavmpc_z") as graph:

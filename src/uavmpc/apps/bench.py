@@ -541,18 +541,14 @@ def bench_ros2(duration_s: float = 20.0) -> dict[str, Any]:
     import tempfile
 
     import numpy as np
-    import zenoh
 
     from uavmpc import scenarios
     from uavmpc.comms.ros2 import Ros2Codec
+    from uavmpc.comms.zenoh_link import loopback_router
     from uavmpc.drivers.swarm import free_ports, run_swarm
 
     (port,) = free_ports(1)
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"router"')
-    cfg.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    router = zenoh.open(cfg)
+    router = loopback_router(port)
     sc = scenarios.load("swap_through_static")
     result: dict[str, Any] = {"duration_s": duration_s, "cores": os.cpu_count()}
     try:

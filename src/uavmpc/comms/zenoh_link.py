@@ -439,6 +439,14 @@ def _check_suffix(suffix: Any) -> None:
             f"got {suffix!r}")
 
 
+def loopback_router(port: int) -> Any:
+    """A Zenoh router listening on ``tcp/127.0.0.1:<port>`` only, without multicast scouting
+    (a stand-in for ROS 2's ``rmw_zenohd`` in benchmarks and tests); close it when done."""
+    config = _config([f"tcp/127.0.0.1:{int(port)}"], [], {})
+    config.insert_json5("mode", '"router"')
+    return zenoh.open(config)
+
+
 def _config(listen: list[str], connect: list[str], overrides: Mapping[str, str]) -> Any:
     config = zenoh.Config()
     base = {
