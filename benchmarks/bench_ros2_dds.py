@@ -30,6 +30,7 @@ from rclpy_env import rclpy_python, run_probe
 
 from uavmpc import scenarios
 from uavmpc.drivers.swarm import run_swarm
+from uavmpc.scenarios.run import RunSpec
 
 UAVS = ("uav1", "uav2", "uav3")
 PUBLISHED_HZ = {"pose": 50.0, "odom": 50.0, "prediction": 2.0}
@@ -44,8 +45,9 @@ def main(seconds: float = 10.0) -> dict:
     result: dict = {}
     with tempfile.TemporaryDirectory(prefix="uavmpc-bench-dds-") as tmp:
         def fly() -> None:
-            result["summary"] = (run_swarm(scenarios.load("swap_through_static"), Path(tmp),
-                                    duration_s=seconds + 18.0, ros2=f"dds/{domain}"))
+            result["summary"] = (run_swarm(
+                RunSpec(scenarios.load("swap_through_static"), duration_s=seconds + 18.0),
+                Path(tmp), ros2=f"dds/{domain}"))
 
         thread = threading.Thread(target=fly, daemon=True)
         thread.start()

@@ -379,10 +379,11 @@ def test_target_fixes_come_at_their_rate_with_their_noise_and_dropouts() -> None
 @pytest.mark.realtime
 def test_node_processes_refuse_scenarios_whose_missions_only_the_world_runs(tmp_path) -> None:
     from uavmpc.drivers.swarm import run_swarm
+    from uavmpc.scenarios.run import RunSpec
 
     for name in ("moving_target_landing", "moving_target_landing_30kmh"):
         with pytest.raises(ConfigError, match=f"need the simulated world.*uavmpc run {name}"):
-            run_swarm(scenarios.load(name), tmp_path)
+            run_swarm(RunSpec(scenarios.load(name)), tmp_path)
 
 
 @pytest.mark.realtime
@@ -390,6 +391,7 @@ def test_a_formation_of_node_processes_over_zenoh(tmp_path) -> None:
     """The same follower mission in real node processes: slots from the leader's plans as they
     arrive over Zenoh, a shape change on the swarm's wall clock."""
     from uavmpc.drivers.swarm import run_swarm
+    from uavmpc.scenarios.run import RunSpec
 
     sc = scenarios.from_dict({
         "name": "formation_nodes", "duration_s": 22.0,
@@ -402,7 +404,7 @@ def test_a_formation_of_node_processes_over_zenoh(tmp_path) -> None:
             {"id": "w1", "priority": 2, "start": [0.0, -6.0, 5.0]},
             {"id": "w2", "priority": 3, "start": [0.0, -12.0, 5.0]},
         ]})
-    s = run_swarm(sc, tmp_path)
+    s = run_swarm(RunSpec(sc), tmp_path)
     assert s.collisions == ()
     fe = s.formation
     assert fe is not None and fe.error is not None and set(fe.per_follower) == {"w1", "w2"}

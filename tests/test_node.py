@@ -24,6 +24,7 @@ from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.drivers.swarm import free_ports, run_swarm
 from uavmpc.plant import Airframe
 from uavmpc.reference import Reference
+from uavmpc.scenarios.run import RunSpec
 
 pytestmark = pytest.mark.realtime  # flies on the wall clock
 
@@ -74,7 +75,7 @@ class _Flight:
 
 
 def test_swap_as_three_processes_is_collision_free_and_reaches_goals(tmp_path) -> None:
-    s = run_swarm(scenarios.load("swap_through_static"), tmp_path, duration_s=28.0)
+    s = run_swarm(RunSpec(scenarios.load("swap_through_static"), duration_s=28.0), tmp_path)
     assert s.collisions == (), s.collisions
     assert s.driver == "swarm" and s.status is RunStatus.COMPLETE, s.status
     assert s.min_distance_m is not None and s.min_distance_m > 1.0
@@ -90,8 +91,8 @@ def test_swap_as_three_processes_is_collision_free_and_reaches_goals(tmp_path) -
 
 
 def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
-    s = run_swarm(scenarios.load("swap_through_static"), tmp_path, avoidance=False,
-                  duration_s=10.0)
+    s = run_swarm(RunSpec(scenarios.load("swap_through_static"), avoidance=False,
+                          duration_s=10.0), tmp_path)
     assert s.collisions, "the network path must be what carries the avoidance"
     assert s.status is RunStatus.COLLISION
 
@@ -99,8 +100,8 @@ def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
 def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_path,
                                                                           hover_pair) -> None:
     # 19 s: uav1 is killed at 5 s, and silence is not absence for silent_hold_s = 10 s
-    s = run_swarm(scenarios.load(hover_pair), tmp_path / "out", kill_at_s={"uav1": 5.0},
-                  duration_s=19.0)
+    s = run_swarm(RunSpec(scenarios.load(hover_pair), duration_s=19.0), tmp_path / "out",
+                  kill_at_s={"uav1": 5.0})
     uav2 = s.uavs["uav2"]
     assert uav2.max_z_offset_m >= 3.0  # it yielded while uav1 was there
     # …held it while uav1 was silent (10 s after its last message), then released it at

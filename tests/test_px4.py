@@ -34,6 +34,7 @@ from uavmpc.drivers.px4.vehicle import Px4Vehicle
 from uavmpc.drivers.swarm import free_ports, run_swarm
 from uavmpc.drivers.world import World
 from uavmpc.plant import Airframe
+from uavmpc.scenarios.run import RunSpec
 
 pytestmark = pytest.mark.realtime  # flies on the wall clock
 
@@ -371,7 +372,7 @@ def test_nodes_flying_stand_ins_avoid_each_other_and_without_avoidance_collide(
     """Four node + stand-in pairs in one swarm (the same two head-on pairs as the real-PX4
     test): the pair with avoidance keeps clear, the pair without collides, all land."""
     sc = scenarios.load(head_on_pairs("f550"))
-    s = run_swarm(sc, tmp_path / "run", mavlink=True)
+    s = run_swarm(RunSpec(sc), tmp_path / "run", mavlink=True)
     closest = s.sections["closest_by_pair_m"]
     assert closest["a1-a2"] > 2.0, closest
     # Without avoidance they fly through each other; the stand-in's estimator drift (as EKF2's)

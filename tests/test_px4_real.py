@@ -228,9 +228,10 @@ def test_two_real_px4_vehicles_head_on_keep_2_m_with_avoidance_and_not_without(
     avoidance keeps 2 m; the pair without comes within 1.5 m (by PX4's estimates); all land."""
     from uavmpc import scenarios
     from uavmpc.drivers.swarm import run_swarm
+    from uavmpc.scenarios.run import RunSpec
 
-    s = run_swarm(scenarios.load(head_on_pairs("x500")), tmp_path / "run", px4_sitl=px4_sitl_build,
-                  px4_first_instance=6)
+    s = run_swarm(RunSpec(scenarios.load(head_on_pairs("x500"))), tmp_path / "run",
+                  px4_sitl=px4_sitl_build, px4_first_instance=6)
     closest = s.sections["closest_by_pair_m"]
     assert closest["a1-a2"] >= 2.0, closest
     assert closest["b1-b2"] < 1.5, closest

@@ -32,6 +32,7 @@ from uavmpc.comms.zenoh_link import ZenohTransport, loopback_router
 from uavmpc.drivers.node import Node
 from uavmpc.drivers.swarm import free_ports, run_swarm
 from uavmpc.plant import Airframe
+from uavmpc.scenarios.run import RunSpec
 
 pytestmark = pytest.mark.realtime  # flies on the wall clock
 
@@ -282,8 +283,9 @@ def test_a_swarm_on_the_graph_publishes_every_uavs_topics(tmp_path: Path) -> Non
     result: dict = {}
 
     def fly() -> None:
-        result["summary"] = (run_swarm(scenarios.load("swap_through_static"), tmp_path,
-                                duration_s=10.0, ros2=endpoint))
+        result["summary"] = (run_swarm(
+            RunSpec(scenarios.load("swap_through_static"), duration_s=10.0), tmp_path,
+            ros2=endpoint))
 
     thread = threading.Thread(target=fly, daemon=True)
     try:

@@ -35,6 +35,7 @@ from uavmpc import scenarios
 from uavmpc.comms import dds, ros2
 from uavmpc.drivers.ros2 import open_graph, ros2_mission
 from uavmpc.drivers.swarm import free_ports, run_swarm
+from uavmpc.scenarios.run import RunSpec
 
 pytestmark = pytest.mark.realtime  # discovery and flights on the wall clock
 
@@ -227,8 +228,9 @@ def test_a_swarm_on_dds_is_seen_by_real_rclpy_and_flies_its_goal(rclpy_py: Path,
     goal = [-25.0, 4.0, 6.0]  # uav1 starts at (-25, 0, 5); it has the right of way
 
     def fly() -> None:
-        result["summary"] = (run_swarm(scenarios.load("swap_through_static"), tmp_path,
-                                duration_s=32.0, ros2=f"dds/{domain}"))
+        result["summary"] = (run_swarm(
+            RunSpec(scenarios.load("swap_through_static"), duration_s=32.0), tmp_path,
+            ros2=f"dds/{domain}"))
 
     thread = threading.Thread(target=fly, daemon=True)
     thread.start()

@@ -495,12 +495,14 @@ def bench_px4(duration_s: float = 20.0) -> dict[str, Any]:
 
     from uavmpc import scenarios
     from uavmpc.drivers.swarm import run_swarm
+    from uavmpc.scenarios.run import RunSpec
 
     sc = scenarios.load("swap_through_static")
     result: dict[str, Any] = {"duration_s": duration_s, "cores": os.cpu_count()}
     with tempfile.TemporaryDirectory(prefix="uavmpc-bench-px4-") as tmp:
         for label, mavlink in (("built_in_plant", False), ("px4_stand_in", True)):
-            s = run_swarm(sc, Path(tmp) / label, duration_s=duration_s, mavlink=mavlink)
+            s = run_swarm(RunSpec(sc, duration_s=duration_s), Path(tmp) / label,
+                          mavlink=mavlink)
             rows = {}
             for uav, u in s.uavs.items():
                 node = u.details["node"]
@@ -546,6 +548,7 @@ def bench_ros2(duration_s: float = 20.0) -> dict[str, Any]:
     from uavmpc.comms.ros2 import Ros2Codec
     from uavmpc.comms.zenoh_link import loopback_router
     from uavmpc.drivers.swarm import free_ports, run_swarm
+    from uavmpc.scenarios.run import RunSpec
 
     (port,) = free_ports(1)
     router = loopback_router(port)
@@ -554,7 +557,8 @@ def bench_ros2(duration_s: float = 20.0) -> dict[str, Any]:
     try:
         with tempfile.TemporaryDirectory(prefix="uavmpc-bench-ros2-") as tmp:
             for label, endpoint in (("without_ros2", None), ("with_ros2", f"tcp/127.0.0.1:{port}")):
-                s = run_swarm(sc, Path(tmp) / label, duration_s=duration_s, ros2=endpoint)
+                s = run_swarm(RunSpec(sc, duration_s=duration_s), Path(tmp) / label,
+                              ros2=endpoint)
                 result[label] = {uav: 100.0 * u.details["node"]["cpu_s"]
                                  / u.details["node"]["wall_s"] for uav, u in s.uavs.items()}
     finally:

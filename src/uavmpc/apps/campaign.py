@@ -60,6 +60,7 @@ from uavmpc.apps.campaign_engine import (
 from uavmpc.avoidance import AvoidanceParams
 from uavmpc.scenarios import LinkSettings, avoidance_params, changed_fields
 from uavmpc.scenarios.faults import FaultSpec
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.scenarios.stats import percentile
 
 PERCENTILES = (50, 75, 95, 99)
@@ -169,36 +170,42 @@ class RandomWalkSpec:
         return None
 
 
-def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) -> dict[str, Any]:
-    """Fly trial ``index`` of ``spec``; returns its JSON record. ``log_path``: also write its
-    flight log there (the flight is the same)."""
-    from uavmpc.drivers.world import World, world_faults
-    from uavmpc.scenarios.faults import apply_faults
+def trial_run(spec: RandomWalkSpec, index: int) -> RunSpec:
+    """Trial ``index`` of ``spec`` as the world flies it: its random walk, link, faults, wind
+    and launch check, seeded from the campaign's seed (:func:`trial_seeds`)."""
     from uavmpc.scenarios.random_walk import random_walk
 
-    wall0 = time.perf_counter()
     scenario_seed, world_seed = trial_seeds(spec.seed, index)
     sc = random_walk(spec.uavs, spec.area_m, spec.height_m, spec.length_s, scenario_seed,
                      link=spec.link)
-    sc = dataclasses.replace(sc, avoidance=spec.avoidance_params)
-    sc, link, faults = apply_faults(spec.faults, sc, spec.link, duration_s=spec.length_s,
-                                    seed=world_seed)
+    return RunSpec(dataclasses.replace(sc, avoidance=spec.avoidance_params),
+                   avoidance=spec.avoidance, seed=world_seed, link=spec.link,
+                   faults=spec.faults, wind_mps=spec.wind_mps,
+                   launch_check_s=spec.launch_check_s, duration_s=spec.length_s)
+
+
+def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) -> dict[str, Any]:
+    """Fly trial ``index`` of ``spec``; returns its JSON record. ``log_path``: also write its
+    flight log there (the flight is the same)."""
+    from uavmpc.drivers.world import World
+
+    wall0 = time.perf_counter()
+    scenario_seed, world_seed = trial_seeds(spec.seed, index)
+    run = trial_run(spec, index)
     recorder = None
     if log_path is not None:
         from uavmpc.log import FlightRecorder
 
-        recorder = FlightRecorder(log_path, [u.uav_id for u in sc.uavs],
+        recorder = FlightRecorder(log_path, [u.uav_id for u in run.scenario.uavs],
                                   {"campaign_trial": index, "scenario_seed": scenario_seed,
                                    "world_seed": world_seed})
-    world = World(sc, avoidance=spec.avoidance, seed=world_seed, link=link,
-                  wind_mps=spec.wind_mps, launch_check_s=spec.launch_check_s,
-                  recorder=recorder, **world_faults(faults))
+    world = World.from_spec(run, recorder=recorder)
     try:
-        flown, extra = _fly_trial(spec, sc, world)
+        flown, extra = _fly_trial(spec, run.scenario, world)
         record = {"index": index, "scenario_seed": scenario_seed, "world_seed": world_seed,
                   **flown, "wall_s": time.perf_counter() - wall0, **extra}
         if spec.faults.active():
-            record["faults"] = faults.summary()
+            record["faults"] = run.flown.faults.summary()
         return record
     finally:
         if recorder is not None:

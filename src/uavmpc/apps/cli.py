@@ -36,26 +36,23 @@ def _load_run_scenario(scenario: str, *, seed: int, duration: float | None,
     return scenarios.load(scenario), None
 
 
-def _run_link_and_faults(sc: Any, *, seed: int, duration: float | None, loss: float | None,
-                         latency: float | None, faults: Any) -> tuple[Any, Any, Any]:
-    """The scenario, its link with the overrides checked, and the faults drawn (or None)."""
+def _run_spec(sc: Any, *, avoidance: bool, seed: int, duration: float | None,
+              loss: float | None, latency: float | None, wind: float, faults: Any,
+              launch_check: float | None) -> Any:
+    """The flight ``uavmpc run`` asks for: ``sc`` with the flags' link, faults and the rest."""
     import dataclasses
 
-    from uavmpc import scenarios
+    from uavmpc.scenarios.faults import FaultSpec
+    from uavmpc.scenarios.run import RunSpec
 
     link = sc.link
     if loss is not None:
         link = dataclasses.replace(link, loss=loss)
     if latency is not None:
         link = dataclasses.replace(link, latency_s=latency)
-    drawn = None
-    if faults is not None and faults.active():
-        from uavmpc.scenarios.faults import apply_faults
-
-        sc, link, drawn = apply_faults(faults, sc, link, seed=seed,
-                                       duration_s=sc.duration_s if duration is None else duration)
-    link = scenarios.LinkSettings.from_dict(dataclasses.asdict(link))  # validate overrides
-    return sc, link, drawn
+    return RunSpec(sc, avoidance=avoidance, seed=seed, link=link,
+                   faults=FaultSpec() if faults is None else faults, wind_mps=wind,
+                   launch_check_s=launch_check, duration_s=duration)
 
 
 def _fly_world(world: Any, sc: Any, *, duration: float | None, ros2: str | None,
@@ -131,13 +128,14 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
 
     # matplotlib (Agg) before the flight, not after it: a missing one fails before the flight
     import uavmpc.apps.plots  # noqa: F401
-    from uavmpc.drivers.world import GROUND_VEHICLE_ID, World, world_faults
+    from uavmpc.drivers.world import GROUND_VEHICLE_ID, World
     from uavmpc.log import FlightRecorder
 
     sc, traffic_mod = _load_run_scenario(scenario, seed=seed, duration=duration, uavs=uavs,
                                          cruise_heights=cruise_heights)
-    sc, link, drawn = _run_link_and_faults(sc, seed=seed, duration=duration, loss=loss,
-                                           latency=latency, faults=faults)
+    spec = _run_spec(sc, avoidance=avoidance, seed=seed, duration=duration, loss=loss,
+                     latency=latency, wind=wind, faults=faults, launch_check=launch_check)
+    sc, link = spec.flown.scenario, spec.flown.link
     out.mkdir(parents=True, exist_ok=True)
     meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
             "latency_s": link.latency_s}
@@ -150,15 +148,13 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
               "UAVs)")
     with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
           if logged else contextlib.nullcontext()) as rec:
-        world = World(sc, avoidance=avoidance, seed=seed, link=link, wind_mps=wind,
-                      recorder=rec, launch_check_s=launch_check,
-                      **(world_faults(drawn) if drawn is not None else {}))
+        world = World.from_spec(spec, recorder=rec)
         result = _fly_world(world, sc, duration=duration, ros2=ros2, realtime=realtime,
                             live_port=live_port)
     summary = result.summary().with_sections(
         link=dataclasses.asdict(link), flight_log="flight.mcap" if logged else None)
-    if drawn is not None:
-        summary = summary.with_sections(faults=drawn.summary())
+    if spec.faults.active():
+        summary = summary.with_sections(faults=spec.flown.faults.summary())
     if traffic_mod is not None:
         summary = summary.with_sections(traffic=traffic_mod.traffic_outcome(result, sc))
     summary.write(out / "summary.json")
@@ -388,6 +384,7 @@ def _swarm(args: argparse.Namespace) -> int:
     from uavmpc import scenarios
     from uavmpc.drivers.swarm import run_swarm
     from uavmpc.drivers.world import COLLISION_DISTANCE_M
+    from uavmpc.scenarios.run import RunSpec
 
     out = Path(args.out)
 
@@ -412,8 +409,9 @@ def _swarm(args: argparse.Namespace) -> int:
                 print(f"uavmpc swarm: --live: {exc}", file=sys.stderr)
                 return 2
             print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
-        s = run_swarm(scenarios.load(args.scenario), out, avoidance=not args.no_avoidance,
-                      duration_s=args.duration, key_file=args.key_file, on_trace=draw,
+        spec = RunSpec(scenarios.load(args.scenario), avoidance=not args.no_avoidance,
+                       duration_s=args.duration)
+        s = run_swarm(spec, out, key_file=args.key_file, on_trace=draw,
                       mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2,
                       live=live, px4_sitl=build, px4_first_instance=args.px4_first_instance,
                       **({"geo_origin": geo_origin} if build is not None else {}))

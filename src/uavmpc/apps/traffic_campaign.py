@@ -28,6 +28,7 @@ import numpy as np
 
 from uavmpc.apps.campaign_engine import Task, campaign_wall_s, check_workers, run_trials
 from uavmpc.config import ConfigError
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.scenarios.stats import percentile
 from uavmpc.scenarios.traffic import MAX_UAVS, traffic, traffic_outcome
 
@@ -113,7 +114,8 @@ def traffic_flight(index: int, seed: int, uavs: int, duration_s: float | None,
 
     scenario_seed, world_seed = trial_seeds(seed, index)
     sc = traffic(uavs, scenario_seed, duration_s=duration_s, **(options or {}))
-    result = World(sc, avoidance=avoidance, seed=world_seed).run(duration_s)
+    result = World.from_spec(RunSpec(sc, avoidance=avoidance, seed=world_seed,
+                                     duration_s=duration_s)).run()
     return {"index": index, "avoidance": avoidance, "scenario_seed": scenario_seed,
             "world_seed": world_seed, "duration_s": result.duration_s,
             "wall_s": result.wall_s, **traffic_outcome(result, sc)}

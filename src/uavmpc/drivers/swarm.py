@@ -90,6 +90,7 @@ from uavmpc.missions.formation import formation_error, formation_table
 from uavmpc.plant import Airframe
 from uavmpc.reference import Reference
 from uavmpc.scenarios import Scenario
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.view.scene import (
     UavView,
     detail_of,
@@ -282,8 +283,18 @@ def _report_of(p: subprocess.Popen[bytes], report_file: Path, cls: type[R],
     return None, why
 
 
-def _check_flyable(scenario: Scenario, mavlink: bool, px4_sitl: Px4SitlBuild | None) -> None:
-    """Refuse what node processes cannot fly, and the two kinds of vehicle at once."""
+def swarm_flyable(spec: RunSpec, mavlink: bool, px4_sitl: Px4SitlBuild | None) -> None:
+    """Refuse what node processes cannot fly (a :class:`ConfigError` naming it), and the two
+    kinds of vehicle at once."""
+    scenario = spec.scenario
+    simulated = [name for name, asked in (
+        ("a link's latency and loss", spec.link is not None),
+        ("faults", bool(spec.faults.active())), ("wind", bool(spec.wind_mps)),
+        ("a launch check", spec.launch_check_s is not None)) if asked]
+    if simulated:
+        raise ConfigError(f"{scenario.name}: {', '.join(simulated)} are the simulated world's; "
+                          "node processes fly over the real network (fly it with: uavmpc run "
+                          f"{scenario.name})")
     if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
         what = ", ".join(k for k, v in (("[landing]", scenario.landing),
                                          ("[ground_vehicle]", scenario.ground_vehicle),
@@ -651,8 +662,7 @@ def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ende
         sections=sections)
 
 
-def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
-              duration_s: float | None = None, key_file: str | None = None,
+def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
               kill_at_s: dict[str, float] | None = None,
               on_trace: Callable[[list[float], list[float]], None] | None = None,
               mavlink: bool = False, setpoints: str = "attitude",
@@ -660,8 +670,10 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
               px4_sitl: Px4SitlBuild | None = None,
               geo_origin: tuple[float, float, float] = DEFAULT_GEO_ORIGIN,
               px4_first_instance: int = 0) -> RunSummary:
-    """Fly ``scenario`` as separate node processes; returns its summary (also written to
-    ``out/summary.json``).
+    """Fly ``spec`` (its scenario, with or without avoidance, for its duration) as separate
+    node processes; returns its summary (also written to ``out/summary.json``). The nodes talk
+    over the real network: a spec that asks for the simulated world's link, faults, wind or
+    launch check is refused (:func:`swarm_flyable`).
 
     ``kill_at_s``: UAV id → seconds after the mission start at which its node is SIGKILLed
     (a UAV that drops out of the sky, as far as the link can tell). ``on_trace(t_s, d_m)``
@@ -677,10 +689,10 @@ def run_swarm(scenario: Scenario, out: Path, *, avoidance: bool = True,
     the first instance number); excludes ``mavlink``."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
-    _check_flyable(scenario, mavlink, px4_sitl)
+    swarm_flyable(spec, mavlink, px4_sitl)
+    scenario, avoidance, duration = spec.scenario, spec.avoidance, spec.flight_s
     real_px4 = px4_sitl is not None
     mavlink = mavlink or real_px4  # the nodes fly over MAVLink either way
-    duration = scenario.duration_s if duration_s is None else float(duration_s)
     auth_key = load_key(key_file) if key_file else None
     out.mkdir(parents=True, exist_ok=True)
     swarm = f"s{os.getpid()}"

@@ -79,6 +79,7 @@ from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 from uavmpc.scenarios.faults import Faults
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.supervisor import FenceGuard, Supervisor
 from uavmpc.tracker import TrackerConfig
 from uavmpc.view.scene import UavView
@@ -463,6 +464,8 @@ class World:
         launch_check_s: float | None = None,
     ) -> None:
         self.scenario = scenario
+        #: How long :meth:`run` flies by default [s] (the scenario's, or its run spec's).
+        self.flight_s = scenario.duration_s
         self.avoidance = avoidance
         #: The ids of the UAVs flying without avoidance (all of them when ``avoidance`` is
         #: off), in the scenario's order.
@@ -523,6 +526,22 @@ class World:
         #: planning, the compiled tick, broadcasting.
         self.phase_wall_s = [0.0, 0.0, 0.0]
 
+    @classmethod
+    def from_spec(cls, spec: RunSpec, *, recorder: FlightRecorder | None = None,
+                  strategy: Callable[[AvoidanceParams], ResolutionStrategy] = HeightOffsetStrategy,
+                  tracker_config: TrackerConfig | None = None, batched: bool = True,
+                  index: bool | None = None) -> World:
+        """The world flying ``spec``: its scenario, link and faults as :attr:`RunSpec.flown`
+        gives them, its seed, wind and launch check; :meth:`run` flies ``spec.flight_s`` by
+        default. The keywords are the world's own wiring (see the class)."""
+        flown = spec.flown
+        world = cls(flown.scenario, avoidance=spec.avoidance, seed=spec.seed, link=flown.link,
+                    wind_mps=spec.wind_mps, launch_check_s=spec.launch_check_s,
+                    recorder=recorder, strategy=strategy, tracker_config=tracker_config,
+                    batched=batched, index=index, **world_faults(flown.faults))
+        world.flight_s = spec.flight_s
+        return world
+
     def _add_uavs(self, airframes: dict[str, Airframe],
                   strategy: Callable[[AvoidanceParams], ResolutionStrategy], wind_mps: float,
                   offsets: np.ndarray) -> list[WorldUav]:
@@ -548,7 +567,7 @@ class World:
             on_log: Callable[[World], None] | None = None,
             on_scene: Callable[[float, dict[str, Any], dict[str, Any]], None] | None = None,
             ) -> WorldResult:
-        """Fly for ``duration_s`` (default: the scenario's) and return the result.
+        """Fly for ``duration_s`` (default: :attr:`flight_s`) and return the result.
 
         ``realtime``: pace the simulated clock at this many times the wall clock (1.0: real
         time; default: as fast as it goes). ``on_log(world)`` is called at the log rate
@@ -556,7 +575,7 @@ class World:
         ``on_scene(t_s, scene, metrics)`` every :data:`SCENE_PERIOD_S` with the 3-D scene
         (:meth:`scene`) and the metrics (:meth:`metrics`) the log also gets, e.g. to serve
         them live (:class:`uavmpc.view.live.LiveView`)."""
-        ticks = _ticks_of(self.scenario.duration_s if duration_s is None else duration_s,
+        ticks = _ticks_of(self.flight_s if duration_s is None else duration_s,
                           realtime, self.period_s)
         ids = [u.uav_id for u in self.uavs]
         tr = Traces.empty(ticks, len(ids), self.scenario.formation, ids)

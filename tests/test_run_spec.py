@@ -1,0 +1,107 @@
+"""One flight's specification (uavmpc.scenarios.run): validated when made, faults applied once,
+and the same flight whichever driver or campaign takes it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uavmpc import scenarios
+from uavmpc.apps.campaign import RandomWalkSpec, trial_run
+from uavmpc.config import ConfigError
+from uavmpc.drivers.swarm import run_swarm
+from uavmpc.drivers.world import World
+from uavmpc.scenarios import LinkSettings
+from uavmpc.scenarios.faults import FaultSpec
+from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
+
+
+@pytest.mark.parametrize(("changes", "named"), [
+    ({"seed": -1}, "seed"), ({"seed": 1.5}, "seed"), ({"avoidance": 1}, "avoidance"),
+    ({"wind_mps": -2.0}, "wind_mps"), ({"wind_mps": float("nan")}, "wind_mps"),
+    ({"duration_s": 0.0}, "duration_s"), ({"duration_s": float("inf")}, "duration_s"),
+    ({"launch_check_s": 99.0, "duration_s": 10.0}, "launch_check_s"),
+    ({"link": LinkSettings(loss=1.5)}, "link.loss"),
+    ({"faults": FaultSpec(non_cooperative=3)}, "non_cooperative"),
+    ({"faults": FaultSpec(burst_len=4.0)}, "--burst-loss"),
+    ({"faults": {"gnss": "rtk"}}, "faults"),
+])
+def test_a_bad_field_is_refused_by_name(changes: dict, named: str) -> None:
+    with pytest.raises(ConfigError, match=named):
+        RunSpec(scenarios.load("swap_through_static"), **changes)
+
+
+def test_the_faults_act_once_and_in_one_place() -> None:
+    sc = random_walk(4, duration_s=20.0, seed=2)
+    spec = RunSpec(sc, seed=9, link=LinkSettings(loss=0.2),
+                   faults=FaultSpec(burst_len=3.0, time_reference="receive",
+                                    clock_offset_s=0.4, silent=1))
+    flown = spec.flown
+    assert spec.flown is flown  # drawn once, not per access
+    assert flown.link.burst_len == 3.0 and flown.link.loss == 0.2
+    assert flown.scenario.avoidance.time_reference == "receive"
+    assert sc.avoidance.time_reference != "receive"  # the spec's scenario is left as it was
+    assert flown.faults.clock_offsets_s is not None
+    assert all(abs(v) <= 0.4 for v in flown.faults.clock_offsets_s)
+    (silent_uav, silent_at), = flown.faults.silent_from_s.items()
+    assert silent_uav in {u.uav_id for u in sc.uavs} and 0.0 <= silent_at <= 20.0
+    # the same seed draws the same faults; another seed other ones
+    assert RunSpec(sc, seed=9, link=LinkSettings(loss=0.2),
+                   faults=spec.faults).flown.faults == flown.faults
+    assert spec.replace(seed=10).flown.faults != flown.faults
+    described = json.loads(json.dumps(spec.describe()))
+    assert described["faults"]["silent_from_s"] == {silent_uav: round(silent_at, 3)}
+    assert described["link"]["burst_len"] == 3.0 and described["duration_s"] == 20.0
+
+
+def test_from_spec_flies_what_the_world_flies_given_the_same_settings_by_hand() -> None:
+    sc = random_walk(3, duration_s=8.0, seed=4)
+    spec = RunSpec(sc, seed=5, link=LinkSettings(loss=0.3, latency_s=0.1), wind_mps=2.0,
+                   faults=FaultSpec(clock_offset_s=0.2, non_cooperative=1), duration_s=6.0)
+    by_spec = World.from_spec(spec).run()
+    f = spec.flown
+    by_hand = World(f.scenario, seed=5, link=f.link, wind_mps=2.0,
+                    clock_offsets_s=f.faults.clock_offsets_s,
+                    non_cooperative=f.faults.non_cooperative).run(6.0)
+    assert by_spec.duration_s == pytest.approx(6.0)
+    np.testing.assert_array_equal(by_spec.positions_m, by_hand.positions_m)
+
+
+def test_a_campaign_trial_is_a_run_spec_rebuilt_alike_from_campaign_json() -> None:
+    spec = RandomWalkSpec(uavs=3, length_s=30.0, seed=7, wind_mps=1.0,
+                          link=LinkSettings(loss=0.1), launch_check_s=4.0,
+                          faults=FaultSpec(clock_offset_s=0.3))
+    reloaded = RandomWalkSpec.from_json(json.loads(json.dumps(spec.to_json())))
+    a, b = trial_run(spec, 2), trial_run(reloaded, 2)
+    for name in ("avoidance", "seed", "link", "faults", "wind_mps", "launch_check_s",
+                 "duration_s"):
+        assert getattr(a, name) == getattr(b, name), name
+    assert a.flown.faults == b.flown.faults
+    assert [u.start_m for u in a.scenario.uavs] == [u.start_m for u in b.scenario.uavs]
+    assert a.launch_check_s == 4.0 and a.wind_mps == 1.0 and a.flight_s == 30.0
+    assert trial_run(spec, 3).seed != a.seed
+
+
+@pytest.mark.parametrize(("changes", "named"), [
+    ({"link": LinkSettings(loss=0.2)}, "link"), ({"faults": FaultSpec(silent=1)}, "faults"),
+    ({"wind_mps": 3.0}, "wind"), ({"launch_check_s": 2.0}, "launch check"),
+])
+def test_the_swarm_refuses_what_only_the_simulated_world_can_fly(
+        changes: dict, named: str, tmp_path: Path) -> None:
+    spec = RunSpec(scenarios.load("swap_through_static"), **changes)
+    with pytest.raises(ConfigError, match=named):
+        run_swarm(spec, tmp_path)
+    assert not any(tmp_path.iterdir())  # refused before a process or a file
+
+
+def test_a_replaced_field_is_validated_again() -> None:
+    spec = RunSpec(scenarios.load("swap_through_static"))
+    with pytest.raises(ConfigError, match="seed"):
+        spec.replace(seed=-3)
+    with pytest.raises(ConfigError, match=r"link\.latency_s"):
+        dataclasses.replace(spec, link=LinkSettings(latency_s=-1.0))
