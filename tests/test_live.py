@@ -18,7 +18,7 @@ import pytest
 import websockets
 
 from uavmpc import scenarios
-from uavmpc.drivers.summary import RunSummary
+from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.drivers.swarm import free_ports
 from uavmpc.drivers.world import World
 from uavmpc.view.live import LiveView
@@ -132,10 +132,12 @@ def _yielding(scene: dict, entity: str) -> bool:
                for e in scene["entities"] if e["cylinders"])
 
 
-def test_a_swarm_of_node_processes_is_watched_live_as_its_monitor_hears_it(tmp_path) -> None:
+def test_a_swap_of_three_node_processes_is_collision_free_and_watched_live(tmp_path) -> None:
+    """``uavmpc swarm --live``: three node processes swap through one point over Zenoh,
+    without collision, each to its goal, and the live view shows what the monitor hears."""
     port = free_ports(1)[0]
     swarm = subprocess.Popen([sys.executable, "-m", "uavmpc.apps.cli", "swarm",
-                              "swap_through_static", "--duration", "20", "--out", str(tmp_path),
+                              "swap_through_static", "--duration", "28", "--out", str(tmp_path),
                               "--live", str(port)], stdout=subprocess.PIPE, text=True)
     try:
         assert swarm.stdout is not None
@@ -156,10 +158,21 @@ def test_a_swarm_of_node_processes_is_watched_live_as_its_monitor_hears_it(tmp_p
     scenes = [m for _, m in got["/scene"]]
     assert len(scenes) >= 10
     t = np.array([ns for ns, _ in got["/scene"]]) * 1e-9
-    assert np.median(np.diff(t)) == pytest.approx(0.1, abs=0.05)
+    # stamped in order (their pace is the wall clock's, a benchmark's business, not a test's)
+    assert np.all(np.diff(t) > 0.0)
     cylinders = [{e["id"]: e["metadata"][0]["value"] for e in s["entities"] if e["cylinders"]}
                  for s in scenes]
     assert set(cylinders[-1]) == {"uav1/cylinder", "uav2/cylinder", "uav3/cylinder"}
     assert any(c.get("uav3/cylinder") == "yielding" for c in cylinders)  # it climbs over both
-    summary = RunSummary.read(tmp_path / "summary.json")
-    assert not summary.collisions
+    s = RunSummary.read(tmp_path / "summary.json")
+    assert s.collisions == (), s.collisions
+    assert s.driver == "swarm" and s.status is RunStatus.COMPLETE, s.status
+    assert s.min_distance_m is not None and s.min_distance_m > 1.0
+    for uav, u in s.uavs.items():
+        assert u.reached_goal, (uav, u.final_position_m)
+        # it flew (at what pace: benchmarks/bench_node_flood.py)
+        assert u.details["node"]["ticks"] > 0
+    assert s.uavs["uav1"].max_z_offset_m == 0.0
+    assert s.uavs["uav3"].max_z_offset_m > 0.0
+    assert s.messages.delivered > 0.8 * s.messages.sent
+    assert (tmp_path / "flight.mcap").stat().st_size > 1000
