@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage, encode
 from uavmpc.comms.zenoh_link import ZenohTransport
 from uavmpc.drivers.node import Node, warm_up
 from uavmpc.drivers.swarm import free_ports
@@ -41,7 +41,7 @@ def fly(seconds: float, flood_hz: float) -> dict:
         sent = 0
         while thread.is_alive() and flood_hz > 0:
             now = time.time()
-            msg = PredictionMessage(1, "flooder", 1, now, now + HORIZON_S, far, True)
+            msg = PredictionMessage(SCHEMA_VERSION, "flooder", 1, now, now + HORIZON_S, far, True)
             for _ in range(10):
                 other.publish(encode(msg), "flooder", 0.0)
                 sent += 1

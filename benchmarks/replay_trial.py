@@ -2,8 +2,7 @@
 parameters, and print its record (and write its flight log).
 
     python benchmarks/replay_trial.py out/r7/iid 141
-    python benchmarks/replay_trial.py out/r7/iid 141 \
-        --avoidance-file configs/avoidance_unheard_grace.toml
+    python benchmarks/replay_trial.py out/r7/iid 141 --avoidance-file my_avoidance.toml
     python benchmarks/replay_trial.py out/r7/iid 141 --log trial141.mcap   # open in Foxglove
 
 The replays quoted in docs/campaign.md and docs/faults.md ("replayed: ...") are this.

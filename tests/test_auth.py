@@ -6,7 +6,7 @@ import pytest
 from uavmpc.avoidance import HeightOffsetStrategy
 from uavmpc.comms.auth import SIGNATURE_BYTES, load_key, sign, verify
 from uavmpc.comms.link import Inbox, SimulatedLink
-from uavmpc.comms.message import InvalidMessageError, PredictionMessage, encode
+from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, encode
 
 KEY = bytes(range(32))
 OTHER_KEY = bytes(range(1, 33))
@@ -15,13 +15,14 @@ HORIZON = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
 
 def _msg(uav_id: str = "uav2", stamp: float = 10.0) -> bytes:
     path = np.column_stack([np.linspace(0, 10, 40), np.zeros(40), np.full(40, 5.0)])
-    return encode(PredictionMessage(1, uav_id, 2, stamp, stamp + HORIZON, path, True))
+    return encode(PredictionMessage(SCHEMA_VERSION, uav_id, 2, stamp, stamp + HORIZON, path, True))
 
 
 def _intruder(stamp: float) -> bytes:
     """A non-cooperative prediction right through our path (as in tests/test_world.py)."""
     path = np.column_stack([np.linspace(-25, 25, 40), np.zeros(40), np.full(40, 5.0)])
-    return encode(PredictionMessage(1, "intruder", 0, stamp, stamp + HORIZON, path, False))
+    return encode(PredictionMessage(SCHEMA_VERSION, "intruder", 0, stamp, stamp + HORIZON, path,
+                                    False))
 
 
 def test_round_trip() -> None:

@@ -19,6 +19,7 @@ from uavmpc.avoidance import (
     first_conflict_time,
 )
 from uavmpc.comms import PredictionMessage
+from uavmpc.comms.message import SCHEMA_VERSION
 from uavmpc.config import ConfigError
 
 #: The tracker's horizon: 0.01 s then 39 × 0.2 s.
@@ -39,7 +40,8 @@ def msg(uav_id: str, priority: int, positions: np.ndarray, stamp: float = NOW,
         avoiding: bool = True, times: np.ndarray | None = None,
         received_s: float | None = None) -> PredictionMessage:
     t = stamp + REL if times is None else times
-    return PredictionMessage(1, uav_id, priority, stamp, t, positions, avoiding, received_s)
+    return PredictionMessage(SCHEMA_VERSION, uav_id, priority, stamp, t, positions, avoiding,
+                             received_s)
 
 
 def hover(xyz: tuple[float, float, float]) -> np.ndarray:
@@ -164,7 +166,7 @@ def test_equal_altitudes_lower_priority_climbs_one_dz_higher_priority_only_slows
     assert d_hi.first_conflict_s == pytest.approx(3.61)
     assert replace(d_hi, first_conflict_s=None) == AvoidanceDecision(
         z_offset_m=0.0, avoiding=True, conflicts=("b",),
-        horizontal_scale=0.5, climb_speed_mps=5.0, climb_accel_mps2=3.0)
+        horizontal_scale=0.5, climb_speed_mps=5.0, climb_accel_mps2=3.0, heard=("b",))
     assert d_lo.z_offset_m == 3.0 and d_lo.yielding_to == ("a",) and d_lo.unresolved == ()
     assert d_lo.avoiding and d_lo.horizontal_scale == 0.5 and not d_lo.ceiling_hit
     # Next round the others see b's raised prediction: no conflict left for either.
@@ -614,3 +616,88 @@ def test_a_geofence_ceiling_caps_the_offset_and_says_so() -> None:
     assert d.z_offset_m == 3.0 and not d.ceiling_hit
     with pytest.raises(ValueError, match="ceiling_m"):
         lo.limit_offset(float("nan"))
+
+
+# ---------------------------------------------------------------- the acknowledgement
+
+
+def heard_msg(uav_id: str, priority: int, positions: np.ndarray, stamp: float,
+              heard: tuple[str, ...]) -> PredictionMessage:
+    return PredictionMessage(SCHEMA_VERSION, uav_id, priority, stamp, stamp + REL, positions,
+                             True, heard=heard)
+
+
+def test_a_uav_near_that_does_not_list_us_is_yielded_to_after_the_grace() -> None:
+    """The higher priority yields to a lower one whose messages, fresh and near, have not
+    listed it for ack_grace_s: it has not heard us and will not climb (a silent radio seen
+    from the side that hears)."""
+    t0 = NOW
+    hi = HeightOffsetStrategy()
+    a, b = head_on()
+    decisions = []
+    for k in range(6):  # 0, 0.5, ..., 2.5 s: b's messages never list a
+        now = t0 + 0.5 * k
+        decisions.append(hi.update(now, "a", 1, now + REL, a,
+                                   {"b": heard_msg("b", 2, b, now, heard=())}))
+    assert all(d.z_offset_m == 0.0 and d.deaf == () for d in decisions[:4])  # < 2 s
+    at_grace = decisions[4]
+    assert at_grace.deaf == ("b",) and at_grace.yielding_to == ("b",)
+    assert at_grace.z_offset_m == P.dz_m and decisions[-1].z_offset_m == P.dz_m
+    assert at_grace.heard == ("b",)  # and a's own next message lists b
+
+
+def test_a_waiting_uav_that_lists_us_is_not_taken_for_a_deaf_one() -> None:
+    """The case rule 8 got wrong: a lower priority holding its climb (waiting for the way up
+    to clear) keeps its plan in conflict with ours, but it lists us: it knows, we hold."""
+    hi = HeightOffsetStrategy()
+    a, b = head_on()
+    for k in range(8):  # 3.5 s of conflict
+        now = NOW + 0.5 * k
+        d = hi.update(now, "a", 1, now + REL, a, {"b": heard_msg("b", 2, b, now, ("a",))})
+    assert d.conflicts == ("b",) and d.deaf == () and d.z_offset_m == 0.0
+    assert not d.unheard
+
+
+def test_nobody_listing_us_means_nobody_hears_us_and_we_yield_to_everyone_near() -> None:
+    """Our radio is silent: no one near lists us. Once one has not for the grace, we yield
+    to everyone near, the UAV that came near a moment ago included."""
+    me = HeightOffsetStrategy()
+    t = NOW + REL
+    own = line(t, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0))
+    ahead = line(t, (20.0, 0.0, 10.0), (-5.0, 0.0, 0.0))  # priority 2: yields to us (1)
+    for k in range(5):
+        now = NOW + 0.5 * k
+        d = me.update(now, "a", 1, now + REL, own, {"c": heard_msg("c", 3, ahead, now, ())})
+    assert d.deaf == ("c",) and d.unheard
+    assert d.z_offset_m == P.dz_m  # it climbed over c
+    # a new one near, in the layer it climbed to, never listed us either: yielded to at
+    # once (nobody hears us), though it yields to us by priority
+    beside = line(t, (20.0, 1.0, 13.0), (-5.0, 0.0, 0.0))
+    now = NOW + 2.5
+    d = me.update(now, "a", 1, now + REL, own, {"c": heard_msg("c", 3, ahead, now, ()),
+                                                "d": heard_msg("d", 4, beside, now, ())})
+    assert d.unheard and d.yielding_to == ("d",) and d.deaf == ("c",)
+    assert d.z_offset_m == 2 * P.dz_m
+    # one of them lists us again: we are heard, only the deaf one is yielded to
+    now = NOW + 3.0
+    d = me.update(now, "a", 1, now + REL, own, {"c": heard_msg("c", 3, ahead, now, ()),
+                                                "d": heard_msg("d", 4, beside, now, ("a",))})
+    assert not d.unheard and d.deaf == ("c",)
+
+
+def test_the_acknowledgement_is_judged_on_fresh_messages_only_and_can_be_turned_off() -> None:
+    a, b = head_on()
+    # b's one message stays held while it goes silent: its list is old news, no count starts
+    hi = HeightOffsetStrategy()
+    old = heard_msg("b", 2, b, NOW, ())
+    for k in range(3, 10):
+        now = NOW + 0.5 * k  # 1.5 ... 4.5 s: the message is stale (silent) from 1 s on
+        d = hi.update(now, "a", 1, now + REL, a, {"b": old})
+    assert d.deaf == () and "b" in d.silent
+    off = HeightOffsetStrategy(AvoidanceParams(ack_grace_s=0.0))
+    for k in range(8):
+        now = NOW + 0.5 * k
+        d = off.update(now, "a", 1, now + REL, a, {"b": heard_msg("b", 2, b, now, ())})
+    assert d.deaf == () and d.z_offset_m == 0.0
+    with pytest.raises(ConfigError, match=r"ack_grace_s: must be 0 \(off\) or ≥ timeout_s"):
+        AvoidanceParams(ack_grace_s=0.5)

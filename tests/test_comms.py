@@ -20,21 +20,25 @@ from uavmpc.comms import (
     encode,
     validate_on_receipt,
 )
-from uavmpc.comms.message import MAX_MESSAGE_BYTES
+from uavmpc.comms.message import MAX_MESSAGE_BYTES, SCHEMA_VERSION
 
 REL = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
 NOW = 1.7e9  # GNSS/Unix-like absolute time: stamps must survive at full precision
 
 
 def make(uav_id: str = "uav_1", priority: int = 3, stamp: float = NOW, avoiding: bool = True,
-         m: int = 40, seed: int = 0) -> PredictionMessage:
+         m: int = 40, seed: int = 0, heard: tuple[str, ...] = (),
+         sigma: tuple[float, float] = (0.0, 0.0)) -> PredictionMessage:
     rng = np.random.default_rng(seed)
     times = stamp + np.cumsum(rng.uniform(0.01, 0.3, m))
-    return PredictionMessage(1, uav_id, priority, stamp, times,
-                             rng.normal(0.0, 100.0, (m, 3)), avoiding)
+    return PredictionMessage(SCHEMA_VERSION, uav_id, priority, stamp, times,
+                             rng.normal(0.0, 100.0, (m, 3)), avoiding, heard=heard,
+                             position_sigma_m=sigma)
 
 
 VALID = encode(make())
+#: The same, having heard two UAVs: b"\x02" b"\x02u2" b"\x03uav"
+HEARD = encode(make(heard=("u2", "uav")))
 HDR = 21  # bytes before the id
 ID_LEN = len("uav_1")
 T0 = HDR + ID_LEN  # offset of times_s
@@ -52,7 +56,8 @@ def patched(data: bytes, offset: int, fmt: str, value: object) -> bytes:
 
 def test_round_trip_is_bit_exact() -> None:
     for msg in (make(), make("A-b_9" * 6 + "zz", -(2**31), avoiding=False, m=2, seed=1),
-                make("x", 2**31 - 1, m=200, seed=2)):
+                make("x", 2**31 - 1, m=200, seed=2, heard=tuple(f"u{i}" for i in range(64))),
+                make(heard=("y" * 32, "b", "a"), sigma=(1.53, 2.55))):
         data = encode(msg)
         back = decode(data)
         assert (back.version, back.uav_id, back.priority, back.avoiding) == (
@@ -60,8 +65,11 @@ def test_round_trip_is_bit_exact() -> None:
         assert struct.pack("<d", back.stamp_s) == struct.pack("<d", msg.stamp_s)
         assert back.times_s.tobytes() == msg.times_s.tobytes()
         assert back.positions_m.tobytes() == msg.positions_m.tobytes()
+        assert back.heard == msg.heard  # in its order
+        assert back.position_sigma_m == msg.position_sigma_m
         assert encode(back) == data
-    assert len(VALID) == HDR + ID_LEN + 32 * 40
+    assert len(VALID) == HDR + ID_LEN + 32 * 40 + 16 + 1
+    assert HEARD == VALID[:-1] + b"\x02\x02u2\x03uav"
 
 
 @given(st.lists(st.floats(-1e5, 1e5, allow_nan=False), min_size=6, max_size=600),
@@ -72,7 +80,8 @@ def test_round_trip_property(values: list[float], stamp: float, avoiding: bool) 
     pos = np.array(values[: 3 * m]).reshape(m, 3)
     if not 2 <= m <= 200:
         return
-    msg = PredictionMessage(1, "p", 7, stamp, np.arange(m) * 0.2 + stamp, pos, avoiding)
+    msg = PredictionMessage(SCHEMA_VERSION, "p", 7, stamp, np.arange(m) * 0.2 + stamp, pos,
+                            avoiding)
     back = decode(encode(msg))
     assert back.positions_m.tobytes() == pos.tobytes() and back.stamp_s == stamp
 
@@ -82,11 +91,21 @@ def test_round_trip_property(values: list[float], stamp: float, avoiding: bool) 
     [
         (b"", "truncated: 0 bytes"),
         (VALID[:10], "truncated: 10 bytes, shorter than the 21-byte header"),
-        (VALID[:-1], "truncated: 1305 bytes, expected 1306"),
-        (VALID + b"\0", "oversized: 1307 bytes, expected 1306"),
+        (VALID[:-1], "truncated: 1322 bytes, expected 1323"),
+        (VALID + b"\0", "oversized: 1324 bytes, expected 1323"),
+        (patched(VALID, P0 + 24 * 40, "<d", -0.1), r"position_sigma_m: each must be in \[0, 100\]"),
+        (patched(VALID, P0 + 24 * 40 + 8, "<d", float("nan")), "position_sigma_m: must be finite"),
+        (HEARD[:-1], r"heard\[1\]: id length 3 outside \[1, 32\] or past the end"),
+        (HEARD[:-4], r"truncated: .* the heard list's entry 1 is missing"),
+        (patched(HEARD, len(VALID) - 1, "<B", 65), "heard: 65 UAVs, more than 64"),
+        (patched(HEARD, len(VALID), "<B", 0), r"heard\[0\]: id length 0"),
+        (patched(HEARD, len(VALID) + 1, "<B", 0xC3), r"heard\[0\]: not ASCII"),
+        (patched(HEARD, len(VALID) + 1, "<B", ord(" ")), "must be 1–32 characters"),
+        (VALID[:-1] + b"\x02\x02u2\x02u2", "heard: an id listed twice"),
+        (VALID[:-1] + b"\x01\x05uav_1", "heard: the sender 'uav_1' lists itself"),
         (VALID * 7, "oversized: .* more than the"),
         (b"XXXX" + VALID[4:], "magic"),
-        (patched(VALID, 4, "<B", 2), "version: unsupported schema version 2"),
+        (patched(VALID, 4, "<B", 1), "version: unsupported schema version 1"),
         (patched(VALID, 4, "<B", 0), "version: unsupported schema version 0"),
         (patched(VALID, 5, "<B", 0x81), "flags: unknown bits"),
         (patched(VALID, 6, "<B", 0), r"uav_id: length 0 outside \[1, 32\]"),
@@ -110,16 +129,21 @@ def test_malformed_bytes_are_rejected_naming_the_problem(data: bytes, match: str
 def test_constructor_validates_too() -> None:
     t = NOW + REL
     with pytest.raises(InvalidMessageError, match="uav_id"):
-        PredictionMessage(1, "a" * 33, 1, NOW, t, np.zeros((40, 3)), True)
+        PredictionMessage(SCHEMA_VERSION, "a" * 33, 1, NOW, t, np.zeros((40, 3)), True)
     with pytest.raises(InvalidMessageError, match=r"positions_m: must have shape \(40, 3\)"):
-        PredictionMessage(1, "a", 1, NOW, t, np.zeros((40, 2)), True)
+        PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, np.zeros((40, 2)), True)
     with pytest.raises(InvalidMessageError, match="priority: must be an integer"):
-        PredictionMessage(1, "a", 1.5, NOW, t, np.zeros((40, 3)), True)
+        PredictionMessage(SCHEMA_VERSION, "a", 1.5, NOW, t, np.zeros((40, 3)), True)
     with pytest.raises(InvalidMessageError, match="version: unsupported"):
-        PredictionMessage(2, "a", 1, NOW, t, np.zeros((40, 3)), True)
+        PredictionMessage(1, "a", 1, NOW, t, np.zeros((40, 3)), True)
+    with pytest.raises(InvalidMessageError, match="heard: must be a tuple"):
+        PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, np.zeros((40, 3)), True, heard="b")
+    with pytest.raises(InvalidMessageError, match="heard: 65 UAVs"):
+        PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, np.zeros((40, 3)), True,
+                          heard=tuple(f"u{i}" for i in range(65)))
     # The message keeps its own read-only copy: the sender may reuse its buffers.
     pos = np.zeros((40, 3))
-    msg = PredictionMessage(1, "a", 1, NOW, t, pos, True)
+    msg = PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, pos, True)
     pos[0, 0] = 99.0
     assert msg.positions_m[0, 0] == 0.0 and not msg.positions_m.flags.writeable
 
@@ -280,7 +304,7 @@ def test_lossy_link_to_strategy_end_to_end() -> None:
         nominal = {u: np.asarray(start[u]) + times[:, None] * np.asarray(vel[u]) for u in "ab"}
         if k % 5 == 0:
             for u in "ab":
-                sent = PredictionMessage(1, u, prio[u], now, times,
+                sent = PredictionMessage(SCHEMA_VERSION, u, prio[u], now, times,
                                          nominal[u] + [0.0, 0.0, offsets[u]], True)
                 link.publish(encode(sent), u, now)
         for u in "ab":

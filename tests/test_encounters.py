@@ -10,7 +10,7 @@ from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.avoidance.encounters import EncounterFinder, silent_reach_m
 from uavmpc.avoidance.proximity import align
 from uavmpc.comms.inbox import InboxTable, accept_copies
-from uavmpc.comms.message import InvalidMessageError, PredictionMessage, encode
+from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, encode
 from uavmpc.drivers.world import World
 from uavmpc.scenarios.random_walk import random_walk
 
@@ -41,7 +41,8 @@ def _world_table(seed: int, n: int, area_m: float, receive: bool):
         # Each sender's newest message is 0–12 s old: fresh, silent or ignored by the strategy.
         stamp = now - rng.choice([0.2, 0.6, 1.5, 4.0, 12.0])
         times, pos = _plan(rng, centres[i], stamp)
-        msg = PredictionMessage(1, ids[i], i + 1, stamp, times, pos, bool(rng.random() < 0.9))
+        msg = PredictionMessage(SCHEMA_VERSION, ids[i], i + 1, stamp, times, pos,
+                                bool(rng.random() < 0.9))
         slot = table.slot_for(encode(msg))
         receivers = np.flatnonzero(rng.random(n) < 0.8)  # the copies that got through
         accept_copies(table.rows, table.store, receivers, np.full(receivers.size, slot),
@@ -168,7 +169,7 @@ def test_update_from_messages_and_decide_from_a_table_agree() -> None:
 
 def test_a_broadcast_is_decoded_once_and_its_slot_reused_after_the_last_holder() -> None:
     table = InboxTable(["a", "b", "c"])
-    msg = PredictionMessage(1, "a", 1, 10.0, 10.0 + HORIZON, np.zeros((40, 3)), True)
+    msg = PredictionMessage(SCHEMA_VERSION, "a", 1, 10.0, 10.0 + HORIZON, np.zeros((40, 3)), True)
     data = encode(msg)
     slot = table.slot_for(data)
     assert table.slot_for(bytes(data)) == slot  # equal bytes: the same slot, no decoding
@@ -176,7 +177,8 @@ def test_a_broadcast_is_decoded_once_and_its_slot_reused_after_the_last_holder()
                   np.full(3, 10.05))
     table.unpin()
     assert table.store.holders[slot] == 2
-    newer = encode(PredictionMessage(1, "a", 1, 10.5, 10.5 + HORIZON, np.ones((40, 3)), True))
+    newer = encode(PredictionMessage(SCHEMA_VERSION, "a", 1, 10.5, 10.5 + HORIZON,
+                                     np.ones((40, 3)), True))
     slot2 = table.slot_for(newer)
     assert slot2 != slot
     accept_copies(table.rows, table.store, np.array([1, 2]), np.array([slot2, slot2]),
@@ -188,8 +190,8 @@ def test_a_broadcast_is_decoded_once_and_its_slot_reused_after_the_last_holder()
     capacity = table.store.holders.shape[0]
     for j in range(200):
         stamp = 11.0 + 0.5 * j
-        data_j = encode(PredictionMessage(1, "a", 1, stamp, stamp + HORIZON, np.ones((40, 3)),
-                                          True))
+        data_j = encode(PredictionMessage(SCHEMA_VERSION, "a", 1, stamp, stamp + HORIZON,
+                                          np.ones((40, 3)), True))
         s = table.slot_for(data_j)
         accept_copies(table.rows, table.store, np.array([1, 2]), np.array([s, s]),
                       np.full(3, stamp + 0.05))
@@ -205,7 +207,7 @@ def test_a_table_grows_for_new_senders_and_longer_messages() -> None:
     table = InboxTable(["a"], points=40)
     for j in range(20):
         m = 40 + 8 * j
-        msg = PredictionMessage(1, f"s{j}", j, 1.0, 1.0 + np.arange(m) * 0.1,
+        msg = PredictionMessage(SCHEMA_VERSION, f"s{j}", j, 1.0, 1.0 + np.arange(m) * 0.1,
                                 np.full((m, 3), float(j)), True)
         slot = table.slot_for(encode(msg))
         accept_copies(table.rows, table.store, np.array([0]), np.array([slot]), np.full(1, 1.0))
@@ -228,3 +230,32 @@ def test_a_world_flown_with_the_index_equals_the_same_world_flown_all_pairs() ->
     assert np.array_equal(a.z_offset_m, b.z_offset_m)
     assert a.per_uav == b.per_uav
     assert a.z_offset_m.max() > 0.0, "the scenario must make someone climb"
+
+
+@pytest.mark.parametrize("use_index", [False, True])
+def test_a_pair_widens_by_both_uavs_position_uncertainty(use_index: bool) -> None:
+    """docs/safety.md, A3: the pair's radius widens by k √(σ_own² + σ_sender²) horizontally,
+    its half height by the same of the vertical σ's; the index finds what the scan finds."""
+    now = 100.0
+    table = InboxTable(["a"])
+    sigma = (1.5, 2.5)
+    beside = np.tile([7.0, 0.0, 10.0], (40, 1))  # 7 m away: outside the bare 5 m radius
+    msg = PredictionMessage(SCHEMA_VERSION, "b", 2, now, now + HORIZON, beside, True,
+                            position_sigma_m=sigma)
+    slot = table.slot_for(encode(msg))
+    accept_copies(table.rows, table.store, np.array([0]), np.array([slot]), np.array([now]))
+    table.unpin()
+    own_t, own_p = (now + HORIZON)[None], np.tile([0.0, 0.0, 10.0], (1, 40, 1))
+
+    def found(k: float, own_sigma: tuple[float, float]):
+        finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0, use_received=False,
+                                 use_index=use_index, sigma_k=k)
+        return finder.find(np.array([0]), own_t, own_p, np.array([now]), np.array([5.0]),
+                           None, np.array([own_sigma]))[0]
+
+    assert found(0.0, sigma).ids == ()  # no widening asked for
+    assert found(2.0, (0.0, 0.0)).ids == ("b",)  # 2 × 1.5 m = 3 m: 8 m ≥ 7 m
+    wide = found(2.0, sigma)
+    assert wide.ids == ("b",) and wide.near_xy.all()
+    assert wide.widen_v_m == pytest.approx([2.0 * np.hypot(2.5, 2.5)])
+    assert found(0.4, sigma).ids == ()  # 0.4 × 2.12 m = 0.85 m: 5.85 m < 7 m

@@ -156,22 +156,20 @@ def test_a_campaign_flies_the_avoidance_file_it_is_given(tmp_path, capsys) -> No
     assert "needs an [avoidance] table" in capsys.readouterr().err
 
 
-def test_the_shipped_single_band_geometry_covers_twice_the_estimates_error() -> None:
-    """configs/avoidance_single_band_gnss.toml: valid, and its margins are at least twice the
-    RMS difference of two single-band estimates (1.3 m / 2.0 m RMS each, measured by
-    tests/test_estimation.py)."""
-    from pathlib import Path
+def test_single_band_gnss_widens_every_pair_from_what_the_predictions_state() -> None:
+    """No special geometry file: a UAV on single-band GNSS states its position uncertainty
+    in its predictions, and every pair's cylinder widens by both (docs/safety.md, A3)."""
+    from uavmpc.estimation.observer import ObserverParams
 
-    from uavmpc.apps.campaign import avoidance_file
-    from uavmpc.avoidance import AvoidanceParams
-
-    path = Path(__file__).parents[1] / "configs" / "avoidance_single_band_gnss.toml"
-    wide = AvoidanceParams.from_dict(avoidance_file(str(path)))
-    base = AvoidanceParams()
-    rel_h, rel_v = np.sqrt(2.0) * 1.3, np.sqrt(2.0) * 2.0
-    assert wide.radius_m >= base.radius_m + 2 * rel_h - 0.01
-    assert wide.height_m / 2 >= base.height_m / 2 + 2 * rel_v - 0.01
-    assert wide.max_offset_m >= 4 * wide.dz_m - 1e-9
+    world = World(random_walk(3, duration_s=4.0, seed=1), gnss="single")
+    sigma = ObserverParams.preset("single").position_sigma_m
+    assert sigma[0] > 1.0 and sigma[1] > sigma[0]  # metres, worse vertically
+    np.testing.assert_array_equal(world.onboard.position_sigma_m, np.tile(sigma, (3, 1)))
+    world.run(2.0)
+    held = [world.inboxes.message(0, world.inboxes.col_of(u)) for u in ("uav2", "uav3")]
+    assert all(m is not None and m.position_sigma_m == sigma for m in held)
+    rtk = World(random_walk(3, duration_s=4.0, seed=1), gnss="rtk")
+    assert rtk.onboard.position_sigma_m.max() < 0.05  # centimetres: next to no widening
 
 
 def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> None:
@@ -227,14 +225,16 @@ def test_a_campaign_records_its_launch_check(tmp_path, capsys) -> None:
     assert "launch check" in capsys.readouterr().err
 
 
-def test_rule_8_a_uav_nobody_hears_yields_to_the_one_that_does_not_react() -> None:
+def test_a_uav_nobody_hears_yields_to_the_one_that_does_not_list_it() -> None:
+    """The acknowledgement (docs/safety.md, A2): high's radio is dead, low never hears it and
+    never lists it; high, hearing low, yields to it though it has the priority."""
     from uavmpc import scenarios
     from uavmpc.drivers.world import World
 
     def head_on(grace_s: float):
         sc = scenarios.from_dict({
             "name": "head_on", "duration_s": 30.0,
-            "avoidance": {"unheard_grace_s": grace_s},
+            "avoidance": {"ack_grace_s": grace_s},
             "uavs": [
                 {"id": "high", "priority": 1, "start": [-25.0, 0.0, 10.0],
                  "path": {"waypoints": [[-25.0, 0.0, 10.0], [25.0, 0.0, 10.0]],
@@ -249,7 +249,7 @@ def test_rule_8_a_uav_nobody_hears_yields_to_the_one_that_does_not_react() -> No
 
     off = head_on(0.0)  # low does not know high is there; high waits for low to climb
     assert off.collisions
-    on = head_on(1.0)   # low keeps its plan through high's for 1 s: high climbs instead
+    on = head_on(2.0)   # low's messages have not listed high for 2 s: high climbs instead
     assert not on.collisions and on.min_distance_m.min() > 2.9
     uavs = on.summary().uavs
     assert uavs["high"].max_z_offset_m == 3.0 and uavs["low"].max_z_offset_m == 0.0

@@ -25,7 +25,7 @@ from uavmpc.comms.auth import (
     write_identity,
 )
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
-from uavmpc.comms.message import InvalidMessageError, PredictionMessage, encode
+from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, encode
 
 KEY = b"0123456789abcdef0123456789abcdef"
 HORIZON = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
@@ -38,7 +38,7 @@ MISSION = b'{"goto": [3.0, 0.0, 5.0, 0.0]}'
 
 def _prediction(uav: str, stamp: float = 100.0) -> bytes:
     pos = np.tile([0.0, 0.0, 5.0], (40, 1))
-    return encode(PredictionMessage(1, uav, 1, stamp, stamp + HORIZON, pos, True))
+    return encode(PredictionMessage(SCHEMA_VERSION, uav, 1, stamp, stamp + HORIZON, pos, True))
 
 
 def test_seal_round_trip_and_every_byte_matters() -> None:

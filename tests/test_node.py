@@ -16,7 +16,7 @@ from waiting import wait_until
 
 from uavmpc import scenarios
 from uavmpc.comms.auth import sign
-from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage, encode
 from uavmpc.comms.state import NodeState
 from uavmpc.comms.zenoh_link import ZenohTransport
 from uavmpc.drivers.node import Node
@@ -34,7 +34,8 @@ KEY = b"0123456789abcdef0123456789abcdef"
 
 def _prediction(uav: str, priority: int, positions: np.ndarray, cooperative: bool) -> bytes:
     now = time.time()
-    return encode(PredictionMessage(1, uav, priority, now, now + HORIZON, positions, cooperative))
+    return encode(PredictionMessage(SCHEMA_VERSION, uav, priority, now, now + HORIZON, positions,
+                                    cooperative))
 
 
 def _on_path(x: float = 0.0) -> np.ndarray:
@@ -262,7 +263,7 @@ def test_a_follower_node_flies_its_slot_and_changes_shape_on_command() -> None:
             if now >= next_send:  # the leader's plan, at 2 Hz
                 times = now + np.concatenate([[0.01], 0.01 + 0.2 * np.arange(1, 40)])
                 pos = np.array([leader_at(t) for t in times])
-                msg = PredictionMessage(1, "lead", 1, now, times, pos, True)
+                msg = PredictionMessage(SCHEMA_VERSION, "lead", 1, now, times, pos, True)
                 lead.publish(encode(msg), "lead", now)
                 next_send += 0.5
             if now > t0 + 4.0 and "line" not in seen:

@@ -7,7 +7,7 @@ import pytest
 
 from uavmpc import ConfigError, scenarios
 from uavmpc.apps.cli import main
-from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage, encode
 from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.drivers.world import World
 from uavmpc.log import read_topics
@@ -74,7 +74,8 @@ def test_bad_messages_are_dropped_counted_and_change_nothing() -> None:
 
     def intruder(stamp: float) -> bytes:  # a prediction right through everyone's path
         path = np.column_stack([np.linspace(-25, 25, 40), np.zeros(40), np.full(40, 5.0)])
-        return encode(PredictionMessage(1, "intruder", 0, stamp, stamp + horizon, path, False))
+        return encode(PredictionMessage(SCHEMA_VERSION, "intruder", 0, stamp, stamp + horizon, path,
+                                        False))
 
     valid = intruder(1.0)
     wrong_version = valid[:4] + bytes([99]) + valid[5:]

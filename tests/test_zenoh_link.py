@@ -11,7 +11,7 @@ pytest.importorskip("zenoh")
 
 from uavmpc.comms.auth import sign
 from uavmpc.comms.link import Inbox, Transport
-from uavmpc.comms.message import PredictionMessage, encode
+from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage, encode
 from uavmpc.comms.zenoh_link import ZenohTransport
 
 pytestmark = pytest.mark.realtime  # flies on the wall clock
@@ -47,7 +47,7 @@ def _recv(t: ZenohTransport) -> list[bytes]:
 def _msg(uav_id: str, stamp: float, priority: int = 1) -> PredictionMessage:
     times = stamp + np.arange(40) * 0.2
     pos = np.column_stack([np.linspace(0, 10, 40), np.zeros(40), np.full(40, 5.0)])
-    return PredictionMessage(1, uav_id, priority, stamp, times, pos, True)
+    return PredictionMessage(SCHEMA_VERSION, uav_id, priority, stamp, times, pos, True)
 
 
 def _connected(sender: ZenohTransport, receivers: list[ZenohTransport], timeout_s: float = 5.0,

@@ -227,6 +227,10 @@ class OnboardBatch:
         tracker: their virtual UAVs (:class:`~uavmpc.tracker.TrackerBatch`).
         control: their SE(3) controllers' state (:class:`~uavmpc.control.se3.ControlRows`).
         stats: their counters (:class:`StackStats`).
+        position_sigma_m: (N, 2) each one's position uncertainty, horizontal and vertical 1σ
+            [m] (0: flying on the true state or a centimetre-class fix): what its predictions
+            state and its avoidance widens its pairs by (docs/safety.md, A3). Set by the
+            driver that knows its estimator.
     """
 
     def __init__(self, tracker_config: TrackerConfig | None = None, n: int = 1) -> None:
@@ -234,6 +238,7 @@ class OnboardBatch:
         self.control = ControlRows.empty(n)
         self.stats = StackStats.empty(n)
         self.schedule = Schedule.empty(n)
+        self.position_sigma_m = np.zeros((n, 2))
         self.n = n
         self._one: tuple[ReferenceTable, object] | None = None
 
@@ -525,8 +530,12 @@ class OnboardStack:
             return None
         sched.next_broadcast_s[self.row] += self.broadcast_period_s
         pred = self.tracker.prediction()
+        # The acknowledgement (docs/safety.md, A2): whom near we hold a current plan of.
+        heard = self.decision.heard if self.decision is not None else ()
+        sigma = self.batch.position_sigma_m[self.row]
         msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
-                              avoiding=self.avoidance is not None and self.cooperative)
+                              avoiding=self.avoidance is not None and self.cooperative,
+                              heard=heard, position_sigma_m=(float(sigma[0]), float(sigma[1])))
         data = encode(msg)
         if self.key is not None:
             data = sign(data, self.key)
@@ -654,7 +663,8 @@ def avoidance_round(batch: OnboardBatch,
     radius = np.array([stacks[i].params.radius_m for i in which])
     found = finder.find(due, times, own, plan_s, radius,
                         [overrides[i] if overrides is not None
-                         else stacks[i].encounter_overrides() for i in which])
+                         else stacks[i].encounter_overrides() for i in which],
+                        batch.position_sigma_m[due])
     for j, i in enumerate(which):
         stacks[i].decide(float(plan_s[j]), times[j], found[j], float(climbed[j]))
     return due

@@ -57,6 +57,10 @@ class Encounters:
             without a silent UAV's widening (default: ``near_xy``). The way up is checked
             against this: a guess where a silent UAV may be does not hold a climb away from
             a known conflict.
+        hears_us: (k,) bool their message lists us among the UAVs they hear
+            (:attr:`~uavmpc.comms.PredictionMessage.heard`; default: all do).
+        widen_v_m: (k,) how much the pair's half height is widened for both UAVs' vertical
+            position uncertainty [m] (default 0; the horizontal widening is in ``near_xy``).
     """
 
     ids: tuple[str, ...]
@@ -67,10 +71,16 @@ class Encounters:
     dz_m: np.ndarray
     silent: tuple[str, ...] = ()
     announced_xy: np.ndarray | None = None
+    hears_us: np.ndarray | None = None
+    widen_v_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.announced_xy is None:
             object.__setattr__(self, "announced_xy", self.near_xy)
+        if self.hears_us is None:
+            object.__setattr__(self, "hears_us", np.ones(len(self.ids), dtype=bool))
+        if self.widen_v_m is None:
+            object.__setattr__(self, "widen_v_m", np.zeros(len(self.ids)))
 
     def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
         """(k,) we yield to them: their flag is down, or a higher priority (lower number;
@@ -243,6 +253,16 @@ def _pair_radius(radius: float, ov_start: np.ndarray, ov_col: np.ndarray,
 
 
 @kernel
+def _widen(store: Store, slot: int, own_sigma_m: float, sigma_k: float) -> float:
+    """How much a pair's radius (or half height) widens for both UAVs' position uncertainty
+    (1σ each, horizontal or vertical): ``sigma_k`` √(σ_own² + σ_sender²) [m]."""
+    s = store.sigma_m[slot, 0]
+    if s == 0.0 and own_sigma_m == 0.0:
+        return 0.0
+    return sigma_k * math.sqrt(own_sigma_m * own_sigma_m + s * s)
+
+
+@kernel
 def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
                radius: float, announced_radius: float, extrapolate_s: float, box_own: np.ndarray,
                own_times: np.ndarray, own_pos: np.ndarray, box: np.ndarray,
@@ -293,6 +313,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                    silent_hold_s: float, use_received: bool, silent_radius_m: float,
                    silent_speed_mps: float, silent_accel_mps2: float, radius_m: np.ndarray,
                    ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
+                   own_sigma_h_m: np.ndarray, sigma_k: float,
                    use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
                    e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
                    e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
@@ -300,7 +321,9 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
     ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
     offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
-    (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``).
+    (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``), widened for the
+    pair's horizontal position uncertainty by ``sigma_k`` √(σ_own² + σ_sender²) (receiver j's
+    σ: ``own_sigma_h_m[j]``, the sender's: its message's, docs/safety.md A3).
 
     Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
     ``e_announced`` (·, m: near along the plan as announced, without a silent sender's
@@ -334,6 +357,9 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     entries = np.zeros(0, dtype=np.int64)
     if use_index:
         start, entries = build_grid(store, timeout_s, cell_m)
+    sigma_max = 0.0  # the widest sender's uncertainty: what the index's boxes must reach
+    for s in range(store.sigma_m.shape[0]):
+        sigma_max = max(sigma_max, store.sigma_m[s, 0])
     for j in range(due.shape[0]):
         r = due[j]
         now = now_s[j]
@@ -351,7 +377,8 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             if ns < cap_s:
                 s_col[ns] = col
             ns += 1
-            announced = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
+            announced = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + _widen(
+                store, rows.held_slot[r, col], own_sigma_h_m[j], sigma_k)
             ref = _reference_s(rows, r, col, use_received)
             radius = max(announced, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
@@ -361,6 +388,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
         r_max = radius_m[j]
         for o in range(ov_start[j], ov_start[j + 1]):
             r_max = max(r_max, ov_radius[o])
+        r_max += sigma_k * math.sqrt(own_sigma_h_m[j] ** 2 + sigma_max ** 2)
         if use_index:
             for a in range(4):
                 box[a] = box_own[a] + (r_max + BOX_MARGIN_M) * (1.0 if a % 2 else -1.0)
@@ -376,7 +404,8 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             col = cand[c]
             if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) != _FRESH:
                 continue
-            radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col)
+            radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + _widen(
+                store, rows.held_slot[r, col], own_sigma_h_m[j], sigma_k)
             ne = _encounter(rows, store, r, col, False, _reference_s(rows, r, col, use_received),
                             radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
                             shifted, near, near_announced, dz, ne, e_col, e_silent, e_near,
@@ -427,8 +456,10 @@ class EncounterFinder:
                  use_received: bool, silent_radius_m: float = 0.0,
                  silent_speed_mps: float = 0.0, silent_accel_mps2: float = 0.0,
                  use_index: bool | None = None,
-                 cell_m: float | None = None) -> None:
+                 cell_m: float | None = None, sigma_k: float = 0.0) -> None:
         self.table = table
+        #: Pairs widen by this many σ of their position uncertainty (:func:`_widen`).
+        self.sigma_k = float(sigma_k)
         self.timeout_s = float(timeout_s)
         self.silent_hold_s = float(silent_hold_s)
         self.use_received = bool(use_received)
@@ -443,10 +474,13 @@ class EncounterFinder:
 
     def find(self, due: np.ndarray, own_times: np.ndarray, own_pos: np.ndarray,
              now_s: np.ndarray, radius_m: np.ndarray,
-             overrides: list[dict[int, float]] | None = None) -> list[Encounters]:
+             overrides: list[dict[int, float]] | None = None,
+             own_sigma_m: np.ndarray | None = None) -> list[Encounters]:
         """The encounters of each receiver row in ``due`` (R,), see :func:`encounter_rows`
-        (``overrides``: per receiver, column → radius)."""
+        (``overrides``: per receiver, column → radius; ``own_sigma_m`` (R, 2): each
+        receiver's own position uncertainty, horizontal and vertical 1σ [m], default 0)."""
         r_count = due.shape[0]
+        sig = np.zeros((r_count, 2)) if own_sigma_m is None else np.asarray(own_sigma_m, float)
         m = own_times.shape[1]
         ov_start = np.zeros(r_count + 1, dtype=np.int64)
         ov_col, ov_radius = _NO_COLS, _NO_RADII
@@ -472,7 +506,8 @@ class EncounterFinder:
                                     self.timeout_s, self.silent_hold_s, self.use_received,
                                     self.silent_radius_m, self.silent_speed_mps,
                                     self.silent_accel_mps2, radius_m,
-                                    ov_start, ov_col, ov_radius, use_index, cell, *out)
+                                    ov_start, ov_col, ov_radius, np.ascontiguousarray(sig[:, 0]),
+                                    self.sigma_k, use_index, cell, *out)
             if ne <= self._cap_e and ns <= self._cap_s:
                 break
             self._cap_e = max(self._cap_e, 2 * ne)
@@ -491,11 +526,17 @@ class EncounterFinder:
                 result.append(_nobody(m, silent))
                 continue
             cols_j = e_col[a:b]
-            slots = rows.held_slot[int(due[j]), cols_j]
+            r = int(due[j])
+            slots = rows.held_slot[r, cols_j]
+            me = ids[int(rows.own_col[r])]
+            sv = st.sigma_m[slots, 1]
+            widen_v = np.where((sv == 0.0) & (sig[j, 1] == 0.0), 0.0,
+                               self.sigma_k * np.sqrt(sig[j, 1] ** 2 + sv ** 2))
             result.append(Encounters(
                 tuple(ids[c] for c in cols_j.tolist()), st.priority[slots].copy(),
                 st.avoiding[slots].copy(), e_silent[a:b].copy(), e_near[a:b].copy(),
-                e_dz[a:b].copy(), silent, e_announced[a:b].copy()))
+                e_dz[a:b].copy(), silent, e_announced[a:b].copy(),
+                np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v))
         return result
 
     def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:

@@ -35,7 +35,7 @@ import numpy as np
 
 from uavmpc.avoidance.encounters import EncounterFinder, Encounters
 from uavmpc.comms.inbox import InboxTable
-from uavmpc.comms.message import PredictionMessage
+from uavmpc.comms.message import MAX_HEARD, PredictionMessage
 from uavmpc.config import ConfigError, from_table, positive
 
 #: Sanity bounds: beyond any multirotor scenario, small enough to catch unit mistakes.
@@ -86,12 +86,18 @@ class AvoidanceParams:
             could be; a hovering neighbour 6.4 m away is in the way after 2.6 s of silence,
             not after 1.9 s. Found in the 24 h campaign with burst loss: two UAVs that had
             not heard each other for 5 s, one of them off to a new waypoint, met head-on.
-        unheard_grace_s: rule 8: a UAV that must yield to us but whose plan has stayed in
-            conflict with ours this long has not heard us (it would have climbed): we yield
-            to it as if it had priority. 0 (the default) turns this off; 1.0 is measured in
-            docs/faults.md (``configs/avoidance_unheard_grace.toml``). It bounds what loss
-            hides from the lower priority, and a radio that went silent: its UAV, hearing
-            the others, yields to everyone it conflicts with.
+        ack_grace_s: the acknowledgement (docs/safety.md, A2): a UAV near our plan whose
+            current message does not list us (:attr:`~uavmpc.comms.PredictionMessage.heard`)
+            for this long has not heard us and will not make way for us: we yield to it
+            whatever its priority. While no one near lists us, nobody hears us (our radio is
+            silent): we yield to everyone near. 0 turns it off; else at least ``timeout_s``,
+            so that the fresh message judged was sent after the nearness began (the default
+            2 s leaves a broadcast period and the latency on top).
+        uncertainty_k: the pair's cylinder widens by this many σ of both UAVs' position
+            uncertainty, each as its message states it (docs/safety.md, A3): the radius by
+            k √(σ_h,own² + σ_h,other²), the half height by k √(σ_v,own² + σ_v,other²). 0 for a
+            true state or a centimetre-class fix changes nothing; a single-band receiver's
+            metres widen the cylinder so that its conflicts take several layers.
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -114,7 +120,8 @@ class AvoidanceParams:
     silent_radius_m: float = 3.0
     silent_speed_mps: float = 8.3
     silent_accel_mps2: float = 2.5
-    unheard_grace_s: float = 0.0
+    ack_grace_s: float = 2.0
+    uncertainty_k: float = 2.0
 
     def __post_init__(self) -> None:
         p = "avoidance"
@@ -135,8 +142,8 @@ class AvoidanceParams:
                  allow_zero=True)
         positive(self.silent_accel_mps2, f"{p}.silent_accel_mps2", upper=MAX_ACCEL_MPS2,
                  allow_zero=True)
-        positive(self.unheard_grace_s, f"{p}.unheard_grace_s", upper=MAX_TIME_S,
-                 allow_zero=True)
+        positive(self.ack_grace_s, f"{p}.ack_grace_s", upper=MAX_TIME_S, allow_zero=True)
+        positive(self.uncertainty_k, f"{p}.uncertainty_k", upper=10.0, allow_zero=True)
         for f in fields(self):
             if f.name != "time_reference":
                 object.__setattr__(self, f.name, float(getattr(self, f.name)))
@@ -148,6 +155,10 @@ class AvoidanceParams:
             raise ConfigError(
                 f"{p}.max_offset_m: must be ≥ dz_m = {self.dz_m} (else no correction fits), "
                 f"got {self.max_offset_m}")
+        if 0.0 < self.ack_grace_s < self.timeout_s:
+            raise ConfigError(
+                f"{p}.ack_grace_s: must be 0 (off) or ≥ timeout_s = {self.timeout_s} (a fresh "
+                f"message must have been sent after the nearness began), got {self.ack_grace_s}")
         if self.time_reference not in ("stamp", "receive"):
             raise ConfigError(
                 f"{p}.time_reference: must be 'stamp' or 'receive', got {self.time_reference!r}")
@@ -179,6 +190,11 @@ class AvoidanceDecision:
             until they have passed).
         silent: UAVs heard from recently whose latest prediction is stale (see
             ``AvoidanceParams.silent_hold_s``); those near are among the conflicts.
+        heard: the UAVs near whose current plans we hold (not silent): what our next
+            message lists (:attr:`~uavmpc.comms.PredictionMessage.heard`).
+        deaf: UAVs near that have not listed us for ``ack_grace_s``: we yield to them.
+        unheard: nobody near has listed us for ``ack_grace_s`` while some were near (our
+            radio is silent or unheard): we yield to everyone near.
     """
 
     z_offset_m: float = 0.0
@@ -193,6 +209,9 @@ class AvoidanceDecision:
     ceiling_hit: bool = False
     waiting_for: tuple[str, ...] = ()
     silent: tuple[str, ...] = ()
+    heard: tuple[str, ...] = ()
+    deaf: tuple[str, ...] = ()
+    unheard: bool = False
 
 
 @runtime_checkable
@@ -279,11 +298,17 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
         ...
 
 
+def _half(enc: Encounters, half_height_m: float) -> np.ndarray:
+    """(k, 1) each pair's half height: the cylinder's, widened for both UAVs' vertical
+    position uncertainty (docs/safety.md, A3)."""
+    return half_height_m + enc.widen_v_m[:, None]
+
+
 def _conflicts(enc: Encounters, offset_m: float | np.ndarray, half_height_m: float
                ) -> np.ndarray:
     """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets."""
     off = np.asarray(offset_m, dtype=float)[..., None, None]
-    return enc.near_xy & (np.abs(enc.dz_m + off) <= half_height_m)
+    return enc.near_xy & (np.abs(enc.dz_m + off) <= _half(enc, half_height_m))
 
 
 def _below(enc: Encounters, offset_m: float, half_height_m: float) -> np.ndarray:
@@ -291,15 +316,15 @@ def _below(enc: Encounters, offset_m: float, half_height_m: float) -> np.ndarray
 
     |dz + o| ≤ h for some o ∈ [0, z]  ⇔  −h − z ≤ dz ≤ h (an exact interval test).
     """
-    return enc.near_xy & (enc.dz_m >= -half_height_m - offset_m) & (
-        enc.dz_m <= half_height_m)
+    h = _half(enc, half_height_m)
+    return enc.near_xy & (enc.dz_m >= -h - offset_m) & (enc.dz_m <= h)
 
 
 def _subset(enc: Encounters, keep: np.ndarray) -> Encounters:
     return Encounters(tuple(i for i, k in zip(enc.ids, keep, strict=True) if k),
                       enc.priority[keep], enc.avoiding[keep], enc.silent_row[keep],
                       enc.near_xy[keep], enc.dz_m[keep], enc.silent,
-                      enc.announced_xy[keep])
+                      enc.announced_xy[keep], enc.hears_us[keep], enc.widen_v_m[keep])
 
 
 class HeightOffsetStrategy:
@@ -351,8 +376,10 @@ class HeightOffsetStrategy:
     def reset(self) -> None:
         """Forget the offset and the conflict history (e.g. after landing)."""
         self.z_offset_m = 0.0
-        #: Since when each UAV that yields to us has kept its plan in conflict with ours.
-        self._unheard_since: dict[str, float] = {}
+        #: Since when each UAV near us has not listed us (the acknowledgement).
+        self._unlisted_since: dict[str, float] = {}
+        #: When a UAV near us last listed us (None: never).
+        self._listed_s: float | None = None
         self._last_conflict_s: float | None = None
         self._last_update_s: float | None = None
 
@@ -393,7 +420,8 @@ class HeightOffsetStrategy:
                                use_received=prm.time_reference == "receive",
                                silent_radius_m=prm.silent_radius_m,
                                silent_speed_mps=prm.silent_speed_mps,
-                               silent_accel_mps2=prm.silent_accel_mps2, use_index=use_index)
+                               silent_accel_mps2=prm.silent_accel_mps2, use_index=use_index,
+                               sigma_k=prm.uncertainty_k)
 
     def overrides(self, table: InboxTable) -> dict[int, float]:
         """The per-pair radii by the table's columns."""
@@ -411,7 +439,7 @@ class HeightOffsetStrategy:
         times = own_prediction_times
         if not known.ids:
             # Nobody near: no conflict now, none on the way down; only the release runs.
-            self._unheard_since = {}
+            self._unlisted_since = {}
             self._release(now_s)
             self._last_update_s = now_s
             recent = (self._last_conflict_s is not None
@@ -426,11 +454,11 @@ class HeightOffsetStrategy:
         # a pair that cannot hear each other still resolves its conflict.
         enc = known
         must_yield = known.must_yield(own_id, own_priority)
+        deaf, unheard = self._deaf(now_s, enc)
+        must_yield = must_yield | deaf | unheard
 
         c_start = _conflicts(enc, self.z_offset_m, half_h)  # (k, m)
         hit_start = c_start.any(axis=1)
-        if prm.unheard_grace_s > 0.0:
-            must_yield = must_yield | self._unheard(now_s, enc, hit_start & ~must_yield)
         yield_hit = hit_start & must_yield
         ceiling_hit = False
         waiting_for: tuple[str, ...] = ()
@@ -473,21 +501,39 @@ class HeightOffsetStrategy:
             ceiling_hit=ceiling_hit,
             waiting_for=waiting_for,
             silent=enc.silent,
+            heard=_heard(enc),
+            deaf=tuple(i for i, d in zip(enc.ids, deaf, strict=True) if d),
+            unheard=bool(unheard),
         )
 
-    def _unheard(self, now_s: float, enc: Encounters, hit: np.ndarray) -> np.ndarray:
-        """(k,) UAVs that must yield to us and have kept their plan in conflict with ours
-        for ``unheard_grace_s`` (``hit``: those in conflict now)."""
-        # A silent spell does not restart the count: on a lossy link the other flickers
-        # between fresh and silent, and its last plan is still what it does.
-        since = {}
-        out = np.zeros(len(enc.ids), dtype=bool)
-        for k, other in enumerate(enc.ids):
-            if hit[k]:
-                since[other] = self._unheard_since.get(other, now_s)
-                out[k] = now_s - since[other] >= self.params.unheard_grace_s
-        self._unheard_since = since
-        return out
+    def _deaf(self, now_s: float, enc: Encounters) -> tuple[np.ndarray, bool]:
+        """The acknowledgement (docs/safety.md, A2): (k,) the UAVs near that have not listed
+        us for ``ack_grace_s``, and whether nobody near has (then we yield to all of them).
+
+        Only a UAV whose flag is up is judged (we yield to the others anyway), and only on a
+        fresh message: a silent UAV's last list is old news, and a silent spell neither starts
+        nor restarts the count (on a lossy link a UAV flickers between fresh and silent)."""
+        grace = self.params.ack_grace_s
+        k = len(enc.ids)
+        if grace <= 0.0:
+            return np.zeros(k, dtype=bool), False
+        since: dict[str, float] = {}
+        deaf = np.zeros(k, dtype=bool)
+        for j, other in enumerate(enc.ids):
+            if not enc.avoiding[j]:
+                continue
+            if not enc.silent_row[j] and enc.hears_us[j]:
+                self._listed_s = now_s
+                continue
+            start = self._unlisted_since.get(other)
+            if start is None and enc.silent_row[j]:
+                continue
+            since[other] = now_s if start is None else start
+            deaf[j] = now_s - since[other] >= grace
+        self._unlisted_since = since
+        unheard = bool(deaf.any()) and (self._listed_s is None
+                                        or now_s - self._listed_s >= grace)
+        return deaf, unheard
 
     def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
                ahead_s: np.ndarray, climbed: float) -> tuple[float, bool, tuple[str, ...]]:
@@ -572,6 +618,13 @@ class HeightOffsetStrategy:
         self.z_offset_m = max(0.0, self.z_offset_m - prm.release_rate_mps * (now_s - since))
 
 
+def _heard(enc: Encounters) -> tuple[str, ...]:
+    """The UAVs near whose current plans we hold, in column order, at most
+    :data:`~uavmpc.comms.message.MAX_HEARD` (what our next message lists)."""
+    return tuple(i for i, s in zip(enc.ids, enc.silent_row.tolist(), strict=True)
+                 if not s)[:MAX_HEARD]
+
+
 def _climbed(t_s: np.ndarray, prm: AvoidanceParams) -> np.ndarray:
     """Height gained after ``t_s`` by the fastest climb: from rest at the lifted acceleration
     up to the lifted speed (the virtual UAV cannot climb faster)."""
@@ -600,6 +653,7 @@ def _blocked_way(enc: Encounters, candidates: np.ndarray, z: float, climbed: flo
     escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z >= -LEVEL_M)
     # Along the plans as announced: where a silent UAV could have gone since does not
     # hold a climb away from a conflict we know of (rule 7).
+    h = _half(enc, half_h)
     in_way = (enc.announced_xy & climbing & ~escaping
-              & (enc.dz_m + hi >= -half_h) & (enc.dz_m + lo <= half_h))
+              & (enc.dz_m + hi >= -h) & (enc.dz_m + lo <= h))
     return in_way.any(axis=2)

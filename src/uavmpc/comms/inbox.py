@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from uavmpc.comms.message import InvalidMessageError, PredictionMessage, decode
+from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, decode
 from uavmpc.jit import kernel
 
 #: Outcomes of :func:`accept_copy`.
@@ -45,6 +45,7 @@ class Store(NamedTuple):
             the last segment's horizontal velocity (its extrapolation past the end).
         holders: (C,) int64 receivers holding the slot; pinned: (C,) int8 in use by a delivery
             in progress; generation: (C,) int64 bumped when a slot is reused.
+        sigma_m: (C, 2) the sender's position uncertainty, horizontal and vertical 1σ [m].
     """
 
     times_s: np.ndarray
@@ -59,6 +60,7 @@ class Store(NamedTuple):
     holders: np.ndarray
     pinned: np.ndarray
     generation: np.ndarray
+    sigma_m: np.ndarray
 
     @classmethod
     def empty(cls, slots: int, points: int) -> Store:
@@ -67,7 +69,7 @@ class Store(NamedTuple):
                    np.full(slots, -1, dtype=np.int64), np.zeros(slots, dtype=np.int64),
                    np.zeros(slots, dtype=np.bool_), np.zeros((slots, 4)), np.zeros((slots, 2)),
                    np.zeros(slots, dtype=np.int64), np.zeros(slots, dtype=np.int8),
-                   np.zeros(slots, dtype=np.int64))
+                   np.zeros(slots, dtype=np.int64), np.zeros((slots, 2)))
 
 
 class InboxRows(NamedTuple):
@@ -175,6 +177,8 @@ class InboxTable:
         n = len(self.receivers)
         self.rows = self._rows(n, max(4, n))
         self.store = Store.empty(max(8, 2 * n), points)
+        #: Per store slot: its message's heard list (compiled code never reads it).
+        self.heard: list[tuple[str, ...]] = [()] * self.store.holders.shape[0]
         for r, uid in enumerate(self.receivers):
             self.rows.own_col[r] = self.col_of(uid)
         #: Rejections the stamp check does not count (decoding, signatures), per row.
@@ -258,6 +262,8 @@ class InboxTable:
         st.col[slot] = col
         st.priority[slot] = msg.priority
         st.avoiding[slot] = msg.avoiding
+        st.sigma_m[slot] = msg.position_sigma_m
+        self.heard[slot] = msg.heard
         _bbox(st.times_s[slot], st.positions_m[slot], m, st.bbox_m[slot],
               st.end_velocity_mps[slot])
         st.pinned[slot] = 1
@@ -293,6 +299,7 @@ class InboxTable:
             else:
                 dst[:c, :m] = arr
         self.store = new
+        self.heard.extend([()] * (slots - c))
 
     def message(self, r: int, col: int) -> PredictionMessage | None:
         """Row ``r``'s message from column ``col`` as an object (None if it holds none)."""
@@ -302,10 +309,11 @@ class InboxTable:
         st = self.store
         m = int(st.points[slot])
         rec = float(self.rows.held_received_s[r, col])
-        return PredictionMessage(1, self.ids[col], int(st.priority[slot]),
+        return PredictionMessage(SCHEMA_VERSION, self.ids[col], int(st.priority[slot]),
                                  float(st.stamp_s[slot]), st.times_s[slot, :m],
                                  st.positions_m[slot, :m], bool(st.avoiding[slot]),
-                                 None if np.isnan(rec) else rec)
+                                 None if np.isnan(rec) else rec, self.heard[slot],
+                                 (float(st.sigma_m[slot, 0]), float(st.sigma_m[slot, 1])))
 
 
 class LatestView(Mapping[str, PredictionMessage]):

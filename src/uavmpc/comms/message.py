@@ -5,11 +5,11 @@ assume any byte string can arrive. :func:`decode` therefore either returns a ful
 :class:`PredictionMessage` or raises :class:`InvalidMessageError` naming the problem; it never
 raises anything else (a fuzz test holds it to that).
 
-Wire format (version 1), all little-endian, no padding::
+Wire format (version 2), all little-endian, no padding::
 
     offset  size        field
     0       4           magic b"UAVP"
-    4       1           version (uint8, = 1)
+    4       1           version (uint8, = 2)
     5       1           flags (uint8; bit 0 = avoiding, other bits must be 0)
     6       1           id length n (uint8, 1..32)
     7       2           m, number of prediction points (uint16, 2..200)
@@ -18,9 +18,24 @@ Wire format (version 1), all little-endian, no padding::
     21      n           uav_id, ASCII [A-Za-z0-9_-]
     21+n    8 m         times_s (float64)
     21+n+8m 24 m        positions_m (float64, row-major (m, 3), ENU)
+    21+n+32m 16         position_sigma_m (float64 × 2: horizontal, vertical 1σ [m])
+    37+n+32m 1          h, number of UAVs heard (uint8, 0..64)
+    ...     h × (1 + k) each: id length k (uint8, 1..32), then the id, ASCII
 
 float64 throughout keeps the round trip bit-exact and absolute stamps (≈1.7e9 s of GNSS/Unix
-time) at µs resolution. A 40-point message is 21 + n + 1280 bytes.
+time) at µs resolution. A 40-point message that heard nobody is 38 + n + 1280 bytes.
+
+Version 2 added two things (docs/safety.md):
+
+- the **position uncertainty** of the sender: how far its own estimate of where it is may be
+  from where it is (1σ per horizontal axis and vertically, from its estimator; 0 for a true
+  state or a centimetre-class fix). Receivers widen the pair's cylinder by both UAVs' (A3);
+- the **heard list**: the UAVs near the sender's plan whose current plans it holds, i.e. who it
+  knows it must keep clear of. A peer near us that does not list us has not heard us, and will
+  not make way for us (A2).
+
+A version-1 message is refused by name (``unsupported schema version 1``), as a version-1 stack
+refuses ours: an old and a new stack never read each other silently wrong.
 """
 
 from __future__ import annotations
@@ -36,7 +51,7 @@ import numpy as np
 from uavmpc.jit import kernel
 
 #: The schema version this code writes and the only one it reads.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 MAGIC = b"UAVP"
 #: Bounds on the number of prediction points (our tracker sends 40).
 MIN_POINTS = 2
@@ -44,15 +59,22 @@ MAX_POINTS = 200
 #: Positions farther than this from the origin (per axis) are a unit or frame bug, not a UAV.
 MAX_ABS_POSITION_M = 1.0e5
 MAX_ID_LEN = 32
+#: The largest position uncertainty a message may state (1σ) [m]: beyond it, no cylinder means
+#: anything.
+MAX_SIGMA_M = 100.0
+#: At most this many UAVs in a message's heard list (the nearest encounters of its sender).
+MAX_HEARD = 64
 #: Priorities travel as int32.
 PRIORITY_RANGE = (-(2**31), 2**31 - 1)
 
 _HEADER = struct.Struct("<4sBBBHid")
+_SIGMA = struct.Struct("<dd")
 _FLAG_AVOIDING = 0x01
 _ID_RE = re.compile(r"[A-Za-z0-9_-]{1,32}")
 _F64 = np.dtype("<f8")
 #: Largest valid message: anything longer is rejected before any parsing work.
-MAX_MESSAGE_BYTES = _HEADER.size + MAX_ID_LEN + 32 * MAX_POINTS
+MAX_MESSAGE_BYTES = _HEADER.size + MAX_ID_LEN + 32 * MAX_POINTS + 16 + 1 + MAX_HEARD * (
+    1 + MAX_ID_LEN)
 
 
 class InvalidMessageError(ValueError):
@@ -75,6 +97,11 @@ class PredictionMessage:
         received_s: local metadata, never sent: the receiver's clock when the message arrived
             (set by the receiving inbox; used by the receive-time fallback for unsynchronised
             clocks). ``None`` when unknown.
+        position_sigma_m: (horizontal, vertical) 1σ of the sender's own position estimate
+            [m], each in [0, :data:`MAX_SIGMA_M`].
+        heard: the UAVs near the sender's plan whose current plans it holds (at most
+            :data:`MAX_HEARD`, distinct, not the sender): a UAV near it that is not listed
+            has not been heard by it (docs/safety.md).
 
     Arrays are stored as read-only float64 copies, so a message cannot change after validation.
     """
@@ -87,6 +114,8 @@ class PredictionMessage:
     positions_m: np.ndarray
     avoiding: bool
     received_s: float | None = None
+    heard: tuple[str, ...] = ()
+    position_sigma_m: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if isinstance(self.version, bool) or not isinstance(self.version, int):
@@ -106,6 +135,8 @@ class PredictionMessage:
         if not isinstance(self.avoiding, bool | np.bool_):
             raise InvalidMessageError(f"avoiding: must be a bool, got {self.avoiding!r}")
         object.__setattr__(self, "avoiding", bool(self.avoiding))
+        object.__setattr__(self, "heard", _check_heard(self.heard, self.uav_id))
+        object.__setattr__(self, "position_sigma_m", _check_sigma(self.position_sigma_m))
         times = _float_array(self.times_s, "times_s")
         pos = _float_array(self.positions_m, "positions_m")
         _check_arrays(times, pos)
@@ -119,11 +150,13 @@ class PredictionMessage:
 
 
 def from_prediction(prediction: Any, *, uav_id: str, priority: int, stamp_s: float,
-                    avoiding: bool = True) -> PredictionMessage:
+                    avoiding: bool = True, heard: tuple[str, ...] = (),
+                    position_sigma_m: tuple[float, float] = (0.0, 0.0)) -> PredictionMessage:
     """A message from a tracker :class:`~uavmpc.tracker.Prediction` (uses ``times_s`` and
     ``position_m`` only: others need where, not how)."""
     return PredictionMessage(SCHEMA_VERSION, uav_id, priority, stamp_s,
-                             prediction.times_s, prediction.position_m, avoiding)
+                             prediction.times_s, prediction.position_m, avoiding, heard=heard,
+                             position_sigma_m=position_sigma_m)
 
 
 def encode(msg: PredictionMessage) -> bytes:
@@ -131,8 +164,10 @@ def encode(msg: PredictionMessage) -> bytes:
     uid = msg.uav_id.encode("ascii")
     header = _HEADER.pack(MAGIC, msg.version, _FLAG_AVOIDING if msg.avoiding else 0, len(uid),
                           msg.points, msg.priority, msg.stamp_s)
+    heard = [bytes((len(h),)) + h.encode("ascii") for h in msg.heard]
     return b"".join((header, uid, msg.times_s.astype(_F64).tobytes(),
-                     msg.positions_m.astype(_F64).tobytes()))
+                     msg.positions_m.astype(_F64).tobytes(), _SIGMA.pack(*msg.position_sigma_m),
+                     bytes((len(heard),)), *heard))
 
 
 def decode(data: bytes) -> PredictionMessage:
@@ -158,13 +193,10 @@ def decode(data: bytes) -> PredictionMessage:
         raise InvalidMessageError(f"uav_id: length {id_len} outside [1, {MAX_ID_LEN}]")
     if not MIN_POINTS <= m <= MAX_POINTS:
         raise InvalidMessageError(f"points: m={m} outside [{MIN_POINTS}, {MAX_POINTS}]")
-    expected = _HEADER.size + id_len + 32 * m
+    expected = _HEADER.size + id_len + 32 * m + _SIGMA.size + 1
     if len(data) < expected:
         raise InvalidMessageError(
             f"truncated: {len(data)} bytes, expected {expected} for m={m} and an id of {id_len}")
-    if len(data) > expected:
-        raise InvalidMessageError(
-            f"oversized: {len(data)} bytes, expected {expected} for m={m} and an id of {id_len}")
     start = _HEADER.size
     try:
         uav_id = data[start:start + id_len].decode("ascii")
@@ -173,8 +205,36 @@ def decode(data: bytes) -> PredictionMessage:
     start += id_len
     times = np.frombuffer(data, dtype=_F64, count=m, offset=start)
     pos = np.frombuffer(data, dtype=_F64, count=3 * m, offset=start + 8 * m).reshape(m, 3)
+    sigma = _SIGMA.unpack_from(data, start + 32 * m)
+    heard = _decode_heard(data, start + 32 * m + _SIGMA.size)
     return PredictionMessage(version, uav_id, priority, stamp, times, pos,
-                             bool(flags & _FLAG_AVOIDING))
+                             bool(flags & _FLAG_AVOIDING), heard=heard, position_sigma_m=sigma)
+
+
+def _decode_heard(data: bytes, start: int) -> tuple[str, ...]:
+    """The heard list at ``start`` (its count byte), which must end the message exactly."""
+    h = data[start]
+    if h > MAX_HEARD:
+        raise InvalidMessageError(f"heard: {h} UAVs, more than {MAX_HEARD}")
+    at = start + 1
+    out = []
+    for i in range(h):
+        if at >= len(data):
+            raise InvalidMessageError(f"truncated: {len(data)} bytes, the heard list's entry "
+                                      f"{i} is missing")
+        k = data[at]
+        if not 1 <= k <= MAX_ID_LEN or at + 1 + k > len(data):
+            raise InvalidMessageError(f"heard[{i}]: id length {k} outside [1, {MAX_ID_LEN}] or "
+                                      "past the end")
+        try:
+            out.append(data[at + 1:at + 1 + k].decode("ascii"))
+        except UnicodeDecodeError:
+            raise InvalidMessageError(f"heard[{i}]: not ASCII") from None
+        at += 1 + k
+    if at != len(data):
+        raise InvalidMessageError(f"oversized: {len(data)} bytes, expected {at} (the heard "
+                                  f"list of {h} ends there)")
+    return tuple(out)
 
 
 def validate_on_receipt(msg: PredictionMessage, now_s: float, max_future_s: float = 0.5,
@@ -211,6 +271,33 @@ def _check_id(uav_id: Any) -> None:
     if not isinstance(uav_id, str) or _ID_RE.fullmatch(uav_id) is None:
         raise InvalidMessageError(
             f"uav_id: must be 1–{MAX_ID_LEN} characters of [A-Za-z0-9_-], got {uav_id!r}")
+
+
+def _check_sigma(sigma: Any) -> tuple[float, float]:
+    try:
+        h, v = sigma
+    except (TypeError, ValueError):
+        raise InvalidMessageError(f"position_sigma_m: must be (horizontal, vertical), got "
+                                  f"{sigma!r}") from None
+    out = (_finite(h, "position_sigma_m"), _finite(v, "position_sigma_m"))
+    if not all(0.0 <= x <= MAX_SIGMA_M for x in out):
+        raise InvalidMessageError(f"position_sigma_m: each must be in [0, {MAX_SIGMA_M:g}] m, "
+                                  f"got {list(out)}")
+    return out
+
+
+def _check_heard(heard: Any, sender: str) -> tuple[str, ...]:
+    if isinstance(heard, str) or not isinstance(heard, tuple | list):
+        raise InvalidMessageError(f"heard: must be a tuple of UAV ids, got {heard!r}")
+    if len(heard) > MAX_HEARD:
+        raise InvalidMessageError(f"heard: {len(heard)} UAVs, more than {MAX_HEARD}")
+    for h in heard:
+        _check_id(h)
+    if len(set(heard)) != len(heard):
+        raise InvalidMessageError(f"heard: an id listed twice in {list(heard)}")
+    if sender in heard:
+        raise InvalidMessageError(f"heard: the sender {sender!r} lists itself")
+    return tuple(heard)
 
 
 def _finite(value: Any, field: str) -> float:

@@ -400,6 +400,7 @@ def _estimator_of(gnss: str | ObserverParams | None, onboard: OnboardBatch, n: i
     if not onboard.inline:
         raise ValueError("gnss: needs the compiled tracker solver (batchqp)")
     obs = ObserverParams.preset(gnss) if isinstance(gnss, str) else gnss
+    onboard.position_sigma_m[:] = obs.position_sigma_m  # what each UAV's predictions state
     return FleetEstimator(obs, n, period_s, seed)
 
 

@@ -108,6 +108,17 @@ class ObserverParams:
                 raise ConfigError(f"observer.gnss.{name}: must be > 0 (the filter's measurement "
                                   f"noise), got {getattr(self.gnss, name)}")
 
+
+    @property
+    def position_sigma_m(self) -> tuple[float, float]:
+        """How far a position estimate of this observer may be from the truth, 1σ per
+        horizontal axis and vertically [m]: the receiver's slowly varying bias, which no
+        filter removes without another reference, with its white noise on top (conservative:
+        the filter averages the white part down); what a UAV flying on it states in its
+        predictions (docs/safety.md, A3)."""
+        g = self.gnss
+        return (math.hypot(g.horizontal_bias_sigma_m, g.horizontal_white_sigma_m),
+                math.hypot(g.vertical_bias_sigma_m, g.vertical_white_sigma_m))
     @classmethod
     def preset(cls, name: str, imu: ImuModel | None = None) -> ObserverParams:
         """The filter for GNSS preset ``name`` (``"single"``, ``"rtk"``) and ``imu`` (default
