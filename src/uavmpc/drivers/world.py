@@ -223,6 +223,15 @@ def world_faults(faults: Faults) -> dict[str, Any]:
             "gnss": None if faults.spec.gnss == "none" else faults.spec.gnss}
 
 
+def _spec_arguments(spec: RunSpec) -> dict[str, Any]:
+    """The :class:`World` arguments of a run spec besides its scenario: its link and faults as
+    :attr:`RunSpec.flown` gives them, its seed, wind and launch check."""
+    flown = spec.flown
+    return {"avoidance": spec.avoidance, "seed": spec.seed, "link": flown.link,
+            "wind_mps": spec.wind_mps, "launch_check_s": spec.launch_check_s,
+            **world_faults(flown.faults)}
+
+
 def _flying_alone(scenario: Scenario, avoidance: bool,
                   non_cooperative: Iterable[str]) -> tuple[str, ...]:
     """The ids of the UAVs that fly without avoidance, in the scenario's order: every one
@@ -465,8 +474,7 @@ class World:
         launch_check_s: float | None = None,
     ) -> None:
         self.scenario = scenario
-        #: How long :meth:`run` flies by default [s] (the scenario's, or its run spec's).
-        self.flight_s = scenario.duration_s
+        self.flight_s = scenario.duration_s  #: :meth:`run`'s default length [s] (a spec's)
         self.avoidance = avoidance
         #: The ids of the UAVs flying without avoidance (all of them when ``avoidance`` is
         #: off), in the scenario's order.
@@ -532,14 +540,11 @@ class World:
                   strategy: Callable[[AvoidanceParams], ResolutionStrategy] = HeightOffsetStrategy,
                   tracker_config: TrackerConfig | None = None, batched: bool = True,
                   index: bool | None = None) -> World:
-        """The world flying ``spec``: its scenario, link and faults as :attr:`RunSpec.flown`
-        gives them, its seed, wind and launch check; :meth:`run` flies ``spec.flight_s`` by
-        default. The keywords are the world's own wiring (see the class)."""
-        flown = spec.flown
-        world = cls(flown.scenario, avoidance=spec.avoidance, seed=spec.seed, link=flown.link,
-                    wind_mps=spec.wind_mps, launch_check_s=spec.launch_check_s,
-                    recorder=recorder, strategy=strategy, tracker_config=tracker_config,
-                    batched=batched, index=index, **world_faults(flown.faults))
+        """The world flying ``spec`` (:func:`_spec_arguments`); :meth:`run` flies
+        ``spec.flight_s`` by default. The keywords are the world's own wiring."""
+        world = cls(spec.flown.scenario, recorder=recorder, strategy=strategy,
+                    tracker_config=tracker_config, batched=batched, index=index,
+                    **_spec_arguments(spec))
         world.flight_s = spec.flight_s
         return world
 
