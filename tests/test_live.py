@@ -81,8 +81,10 @@ def test_a_client_receives_the_scene_while_a_run_flies_and_clients_do_not_distur
         assert run.stdout is not None
         first = run.stdout.readline()
         assert f"live view on ws://127.0.0.1:{port}" in first, first
-        # a client that connects once the flight is under way…
-        got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 2.0))
+        # a client that connects once the flight is under way (its kernels may compile
+        # first, on a cold cache: it watches until 2 s of the flight have come, or 90 s)…
+        got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 90.0, until=lambda g: min(
+            len(g.get("/scene", [])), len(g.get("/metrics", []))) >= 20))
         # …one that leaves without a word, and one more after it
         asyncio.run(_watch(f"ws://127.0.0.1:{port}", 0.5, leave_abruptly=True))
         late = asyncio.run(_watch(f"ws://127.0.0.1:{port}", 0.5))
@@ -90,9 +92,8 @@ def test_a_client_receives_the_scene_while_a_run_flies_and_clients_do_not_distur
     finally:
         run.kill()
     scenes = got["/scene"]
-    # 2 s of a flight in real time: 20 updates at 10 Hz of its clock (half of them at least on
-    # a loaded machine), consecutive, each decoded and valid
-    assert len(scenes) >= 10 and len(got["/metrics"]) >= 10
+    # 2 s of a flight: 20 updates at 10 Hz of its clock, consecutive, each decoded and valid
+    assert len(scenes) >= 20 and len(got["/metrics"]) >= 20
     t = np.array([ns for ns, _ in scenes]) * 1e-9
     assert np.all(np.diff(t) > 0) and np.median(np.diff(t)) == pytest.approx(0.1, abs=1e-6)
     ids = {e["id"] for e in scenes[-1][1]["entities"]}
@@ -158,8 +159,9 @@ def test_a_swap_of_three_node_processes_is_collision_free_and_watched_live(tmp_p
     scenes = [m for _, m in got["/scene"]]
     assert len(scenes) >= 10
     t = np.array([ns for ns, _ in got["/scene"]]) * 1e-9
-    # stamped in order (their pace is the wall clock's, a benchmark's business, not a test's)
-    assert np.all(np.diff(t) > 0.0)
+    # stamped in order (several at 0 before the mission's epoch; their pace is the wall
+    # clock's, a benchmark's business, not a test's)
+    assert np.all(np.diff(t) >= 0.0) and t[-1] > t[0]
     cylinders = [{e["id"]: e["metadata"][0]["value"] for e in s["entities"] if e["cylinders"]}
                  for s in scenes]
     assert set(cylinders[-1]) == {"uav1/cylinder", "uav2/cylinder", "uav3/cylinder"}
