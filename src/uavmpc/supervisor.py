@@ -4,9 +4,10 @@
 :class:`Supervisor` chooses that trajectory, the same way under every driver (the simulated
 world, a network node, a node flying a PX4):
 
-- the **launch hold**: a UAV holds where it is, its mission waiting, until its driver launches
-  it (the world: once its inbox holds a prediction from every other UAV, :meth:`heard_from`,
-  or a deadline passed; a node: once the vehicle is its to fly);
+- the **launch hold** (docs/safety.md, A1 at the start): a UAV holds where it is, its mission
+  waiting, until its driver launches it (the world: once its inbox holds a prediction from
+  every other UAV, :meth:`heard_from`, or a deadline passed; a node: once the vehicle is its
+  to fly);
 - the **mission** stepped beside the stack (:mod:`uavmpc.missions`) at its period: a new
   trajectory, or a **motor cut**, after which the stack only follows where the UAV rests
   (:meth:`~uavmpc.onboard.OnboardStack.follow`: broadcast it, flag down);

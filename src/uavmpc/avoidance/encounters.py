@@ -83,8 +83,9 @@ class Encounters:
             object.__setattr__(self, "widen_v_m", np.zeros(len(self.ids)))
 
     def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
-        """(k,) we yield to them: their flag is down, or a higher priority (lower number;
-        equal numbers, which a valid set-up never has, are broken by id)."""
+        """(k,) we yield to them: their flag is down (docs/safety.md, A7), or a higher
+        priority (lower number; equal numbers, which a valid set-up never has, are broken by
+        id). The strategy adds those that have not heard us (A2)."""
         return np.array([(not a) or p < own_priority or (p == own_priority and i < own_id)
                          for i, p, a in zip(self.ids, self.priority.tolist(),
                                             self.avoiding.tolist(), strict=True)], dtype=bool)
@@ -366,9 +367,10 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
         e_start[j] = ne
         s_start[j] = ns
         _own_box(own_pos[j], box_own)
-        # Silence is a property of the sender's last message, near or not (the release waits
-        # for every silent UAV heard from recently). Silent senders are looked at here, all of
-        # them: their widened cylinders reach beyond the index's boxes.
+        # Silence is not absence (docs/safety.md, A1). It is a property of the sender's last
+        # message, near or not (the release waits for every silent UAV heard from recently).
+        # Silent senders are looked at here, all of them: their widened cylinders reach
+        # beyond the index's boxes.
         for col in range(n_cols):
             if rows.held_slot[r, col] < 0:
                 continue

@@ -1,4 +1,5 @@
-"""The proximity condition (SPEC §5.2), compared at the receiver's own prediction times.
+"""The proximity condition (SPEC §5.2), compared at the receiver's own prediction times
+(docs/safety.md, A1 and A5: a plan up to a timeout old, on another clock, compared in time).
 
 The reference implementation compared its prediction with a received one index to index,
 although the received one is up to ~1 s old: point i of a 0.7 s old message describes where the

@@ -18,6 +18,9 @@ them and calls ``decide``: a subclass changes the decision by overriding ``decid
 that is only a :class:`ResolutionStrategy` gets the messages through ``update``, flies no
 per-pair radii (a formation refuses it) and no geofence ceiling.
 
+The safety argument behind every rule here is docs/safety.md; each rule names the assumption
+(A1 … A7) it answers.
+
 Note on flags: :attr:`AvoidanceDecision.avoiding` says "currently avoiding" (diagnostics, logs).
 The flag a UAV *broadcasts* (:attr:`~uavmpc.comms.PredictionMessage.avoiding`) means "I run
 collision avoidance and will yield" and must stay up whenever a strategy runs, conflict or not:
@@ -365,7 +368,8 @@ class HeightOffsetStrategy:
         self.reset()
 
     def limit_offset(self, ceiling_m: float) -> None:
-        """Offsets stay at or below ``ceiling_m`` [m] (≥ 0) as well as ``max_offset_m``: a
+        """(docs/safety.md, A6.) Offsets stay at or below ``ceiling_m`` [m] (≥ 0) as well as
+        ``max_offset_m``: a
         geofence's maximum altitude over the mission (:meth:`uavmpc.geofence.Geofence.
         offset_ceiling_m`). A decision that wanted higher says so (``ceiling_hit``); an offset
         already above is not cut (it is released as usual)."""
@@ -537,9 +541,10 @@ class HeightOffsetStrategy:
 
     def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
                ahead_s: np.ndarray, climbed: float) -> tuple[float, bool, tuple[str, ...]]:
-        """The lowest offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without
-        crossing anyone, and clear of everyone else near too when such an offset exists;
-        returns (offset, ceiling hit, the UAVs in the way).
+        """(docs/safety.md: A6 the layers, A4 the way up, A1 the plans as announced.) The lowest
+        offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without crossing anyone,
+        and clear of everyone else near too when such an offset exists; returns (offset,
+        ceiling hit, the UAVs in the way).
 
         The way up is checked against every known UAV, not only those we yield to: at each
         predicted point (``ahead_s`` (m,) seconds from now) the climb is somewhere between the
@@ -605,7 +610,8 @@ class HeightOffsetStrategy:
         return z, True, in_the_way(candidates.size - 1)
 
     def _release(self, now_s: float) -> None:
-        """Lower the offset at the release rate once the hysteresis has passed. Only called
+        """(docs/safety.md, A1: the way down.) Lower the offset at the release rate once the
+        hysteresis has passed. Only called
         when the whole way down is clear of every known UAV, so no step can land in a conflict
         however long the time between updates."""
         prm = self.params
