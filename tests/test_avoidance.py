@@ -620,6 +620,9 @@ def test_a_geofence_ceiling_caps_the_offset_and_says_so() -> None:
 
 # ---------------------------------------------------------------- the acknowledgement
 
+#: The acknowledgement switched on (opt-in, docs/safety.md).
+ACK = AvoidanceParams(ack_grace_s=2.0)
+
 
 def heard_msg(uav_id: str, priority: int, positions: np.ndarray, stamp: float,
               heard: tuple[str, ...]) -> PredictionMessage:
@@ -632,7 +635,7 @@ def test_a_uav_near_that_does_not_list_us_is_yielded_to_after_the_grace() -> Non
     listed it for ack_grace_s: it has not heard us and will not climb (a silent radio seen
     from the side that hears)."""
     t0 = NOW
-    hi = HeightOffsetStrategy()
+    hi = HeightOffsetStrategy(ACK)
     a, b = head_on()
     decisions = []
     for k in range(6):  # 0, 0.5, ..., 2.5 s: b's messages never list a
@@ -649,7 +652,7 @@ def test_a_uav_near_that_does_not_list_us_is_yielded_to_after_the_grace() -> Non
 def test_a_waiting_uav_that_lists_us_is_not_taken_for_a_deaf_one() -> None:
     """The case rule 8 got wrong: a lower priority holding its climb (waiting for the way up
     to clear) keeps its plan in conflict with ours, but it lists us: it knows, we hold."""
-    hi = HeightOffsetStrategy()
+    hi = HeightOffsetStrategy(ACK)
     a, b = head_on()
     for k in range(8):  # 3.5 s of conflict
         now = NOW + 0.5 * k
@@ -661,7 +664,7 @@ def test_a_waiting_uav_that_lists_us_is_not_taken_for_a_deaf_one() -> None:
 def test_nobody_listing_us_means_nobody_hears_us_and_we_yield_to_everyone_near() -> None:
     """Our radio is silent: no one near lists us. Once one has not for the grace, we yield
     to everyone near, the UAV that came near a moment ago included."""
-    me = HeightOffsetStrategy()
+    me = HeightOffsetStrategy(ACK)
     t = NOW + REL
     own = line(t, (-20.0, 0.0, 10.0), (5.0, 0.0, 0.0))
     ahead = line(t, (20.0, 0.0, 10.0), (-5.0, 0.0, 0.0))  # priority 2: yields to us (1)
@@ -688,7 +691,7 @@ def test_nobody_listing_us_means_nobody_hears_us_and_we_yield_to_everyone_near()
 def test_the_acknowledgement_is_judged_on_fresh_messages_only_and_can_be_turned_off() -> None:
     a, b = head_on()
     # b's one message stays held while it goes silent: its list is old news, no count starts
-    hi = HeightOffsetStrategy()
+    hi = HeightOffsetStrategy(ACK)
     old = heard_msg("b", 2, b, NOW, ())
     for k in range(3, 10):
         now = NOW + 0.5 * k  # 1.5 ... 4.5 s: the message is stale (silent) from 1 s on

@@ -46,16 +46,16 @@ def test_receive_time_avoids_where_stamps_from_a_clock_ahead_are_refused(tmp_pat
     stamp_world, stamp = _fly(tmp_path, "stamp")
     uav2 = stamp_world.uavs[1].stack.inbox
     # With stamps, every message of the UAV whose clock is ahead looks future-stamped to the
-    # one that must yield: it never sees it coming, and never lists it as heard. The
-    # acknowledgement (docs/safety.md, A2) is what saves them: uav1, the higher priority,
-    # sees that uav2 does not list it and climbs over it instead.
+    # one that must yield: it never sees it coming, and they collide.
     assert uav2.accepted == 0 and uav2.rejected_total > 40
-    assert stamp.collisions == []
+    assert stamp.collisions
     assert stamp.per_uav["uav2"].max_z_offset_m == 0.0
-    assert stamp.per_uav["uav1"].max_z_offset_m == 3.0
-    # without the acknowledgement, uav1 waits for a climb that never comes
-    _, deaf = _fly(tmp_path, "stamp", "ack_grace_s = 0.0")
-    assert deaf.collisions and deaf.per_uav["uav1"].max_z_offset_m == 0.0
+    # The acknowledgement (opt-in, docs/safety.md, A2) saves them: uav2 never lists uav1 as
+    # heard, so uav1, the higher priority, climbs over it instead.
+    _, acked = _fly(tmp_path, "stamp", "ack_grace_s = 2.0")
+    assert acked.collisions == []
+    assert acked.per_uav["uav1"].max_z_offset_m == 3.0
+    assert acked.per_uav["uav2"].max_z_offset_m == 0.0
 
     receive_world, receive = _fly(tmp_path, "receive")
     assert receive_world.uavs[1].stack.inbox.rejected_total == 0

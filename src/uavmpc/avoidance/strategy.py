@@ -93,9 +93,11 @@ class AvoidanceParams:
             current message does not list us (:attr:`~uavmpc.comms.PredictionMessage.heard`)
             for this long has not heard us and will not make way for us: we yield to it
             whatever its priority. While no one near lists us, nobody hears us (our radio is
-            silent): we yield to everyone near. 0 turns it off; else at least ``timeout_s``,
-            so that the fresh message judged was sent after the nearness began (the default
-            2 s leaves a broadcast period and the latency on top).
+            silent): we yield to everyone near. 0 (the default) turns it off; else at least
+            ``timeout_s``, so that the fresh message judged was sent after the nearness began
+            (2 s, as measured in docs/safety.md, leaves a broadcast period and the latency on
+            top). Off by default while it brings a collision under burst loss that rules 1–7
+            do not have (docs/safety.md).
         uncertainty_k: the pair's cylinder widens by this many σ of both UAVs' position
             uncertainty, each as its message states it (docs/safety.md, A3): the radius by
             k √(σ_h,own² + σ_h,other²), the half height by k √(σ_v,own² + σ_v,other²). 0 for a
@@ -123,7 +125,7 @@ class AvoidanceParams:
     silent_radius_m: float = 3.0
     silent_speed_mps: float = 8.3
     silent_accel_mps2: float = 2.5
-    ack_grace_s: float = 2.0
+    ack_grace_s: float = 0.0
     uncertainty_k: float = 2.0
 
     def __post_init__(self) -> None:
@@ -193,8 +195,8 @@ class AvoidanceDecision:
             until they have passed).
         silent: UAVs heard from recently whose latest prediction is stale (see
             ``AvoidanceParams.silent_hold_s``); those near are among the conflicts.
-        heard: the UAVs near whose current plans we hold (not silent): what our next
-            message lists (:attr:`~uavmpc.comms.PredictionMessage.heard`).
+        heard: the UAVs near whose plans we count (fresh, or silent at their last plan):
+            what our next message lists (:attr:`~uavmpc.comms.PredictionMessage.heard`).
         deaf: UAVs near that have not listed us for ``ack_grace_s``: we yield to them.
         unheard: nobody near has listed us for ``ack_grace_s`` while some were near (our
             radio is silent or unheard): we yield to everyone near.
@@ -625,10 +627,12 @@ class HeightOffsetStrategy:
 
 
 def _heard(enc: Encounters) -> tuple[str, ...]:
-    """The UAVs near whose current plans we hold, in column order, at most
-    :data:`~uavmpc.comms.message.MAX_HEARD` (what our next message lists)."""
-    return tuple(i for i, s in zip(enc.ids, enc.silent_row.tolist(), strict=True)
-                 if not s)[:MAX_HEARD]
+    """The UAVs near whose plans we count, fresh or silent (their last plan, widened), in
+    column order, at most :data:`~uavmpc.comms.message.MAX_HEARD` (what our next message
+    lists). A silent one is listed too: we still make way for it, so it must not take us for
+    a UAV that does not know it is there (under burst loss that made both of a pair yield at
+    once, into one layer)."""
+    return enc.ids[:MAX_HEARD]
 
 
 def _climbed(t_s: np.ndarray, prm: AvoidanceParams) -> np.ndarray:

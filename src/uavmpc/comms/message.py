@@ -30,9 +30,9 @@ Version 2 added two things (docs/safety.md):
 - the **position uncertainty** of the sender: how far its own estimate of where it is may be
   from where it is (1σ per horizontal axis and vertically, from its estimator; 0 for a true
   state or a centimetre-class fix). Receivers widen the pair's cylinder by both UAVs' (A3);
-- the **heard list**: the UAVs near the sender's plan whose current plans it holds, i.e. who it
-  knows it must keep clear of. A peer near us that does not list us has not heard us, and will
-  not make way for us (A2).
+- the **heard list**: the UAVs near the sender's plan whose plans it counts (fresh, or silent
+  at their last plan), i.e. who it knows it must keep clear of. A peer near us that does not
+  list us has not heard us, and will not make way for us (A2).
 
 A version-1 message is refused by name (``unsupported schema version 1``), as a version-1 stack
 refuses ours: an old and a new stack never read each other silently wrong.
@@ -99,9 +99,9 @@ class PredictionMessage:
             clocks). ``None`` when unknown.
         position_sigma_m: (horizontal, vertical) 1σ of the sender's own position estimate
             [m], each in [0, :data:`MAX_SIGMA_M`].
-        heard: the UAVs near the sender's plan whose current plans it holds (at most
-            :data:`MAX_HEARD`, distinct, not the sender): a UAV near it that is not listed
-            has not been heard by it (docs/safety.md).
+        heard: the UAVs near the sender's plan whose plans it counts, fresh or silent (at
+            most :data:`MAX_HEARD`, distinct, not the sender): a UAV near it that is not
+            listed has not been heard by it (docs/safety.md).
 
     Arrays are stored as read-only float64 copies, so a message cannot change after validation.
     """
