@@ -254,13 +254,13 @@ def _pair_radius(radius: float, ov_start: np.ndarray, ov_col: np.ndarray,
 
 
 @kernel
-def _widen(store: Store, slot: int, own_sigma_m: float, sigma_k: float) -> float:
+def pair_widening_m(own_sigma_m: float, other_sigma_m: float, sigma_k: float) -> float:
     """How much a pair's radius (or half height) widens for both UAVs' position uncertainty
-    (1σ each, horizontal or vertical): ``sigma_k`` √(σ_own² + σ_sender²) [m]."""
-    s = store.sigma_m[slot, 0]
-    if s == 0.0 and own_sigma_m == 0.0:
+    (1σ each, horizontal or vertical; docs/safety.md, A3): ``sigma_k`` √(σ_own² + σ_other²)
+    [m], exactly 0 when neither has any."""
+    if own_sigma_m == 0.0 and other_sigma_m == 0.0:
         return 0.0
-    return sigma_k * math.sqrt(own_sigma_m * own_sigma_m + s * s)
+    return sigma_k * math.sqrt(own_sigma_m * own_sigma_m + other_sigma_m * other_sigma_m)
 
 
 @kernel
@@ -379,8 +379,9 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             if ns < cap_s:
                 s_col[ns] = col
             ns += 1
-            announced = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + _widen(
-                store, rows.held_slot[r, col], own_sigma_h_m[j], sigma_k)
+            widen = pair_widening_m(own_sigma_h_m[j], store.sigma_m[rows.held_slot[r, col], 0],
+                                    sigma_k)
+            announced = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
             ref = _reference_s(rows, r, col, use_received)
             radius = max(announced, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
@@ -406,8 +407,9 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             col = cand[c]
             if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) != _FRESH:
                 continue
-            radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + _widen(
-                store, rows.held_slot[r, col], own_sigma_h_m[j], sigma_k)
+            widen = pair_widening_m(own_sigma_h_m[j], store.sigma_m[rows.held_slot[r, col], 0],
+                                    sigma_k)
+            radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
             ne = _encounter(rows, store, r, col, False, _reference_s(rows, r, col, use_received),
                             radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
                             shifted, near, near_announced, dz, ne, e_col, e_silent, e_near,
@@ -460,7 +462,7 @@ class EncounterFinder:
                  use_index: bool | None = None,
                  cell_m: float | None = None, sigma_k: float = 0.0) -> None:
         self.table = table
-        #: Pairs widen by this many σ of their position uncertainty (:func:`_widen`).
+        #: Pairs widen by this many σ of their position uncertainty (:func:`pair_widening_m`).
         self.sigma_k = float(sigma_k)
         self.timeout_s = float(timeout_s)
         self.silent_hold_s = float(silent_hold_s)
@@ -531,9 +533,8 @@ class EncounterFinder:
             r = int(due[j])
             slots = rows.held_slot[r, cols_j]
             me = ids[int(rows.own_col[r])]
-            sv = st.sigma_m[slots, 1]
-            widen_v = np.where((sv == 0.0) & (sig[j, 1] == 0.0), 0.0,
-                               self.sigma_k * np.sqrt(sig[j, 1] ** 2 + sv ** 2))
+            widen_v = np.array([pair_widening_m(float(sig[j, 1]), s, self.sigma_k)
+                                for s in st.sigma_m[slots, 1].tolist()])
             result.append(Encounters(
                 tuple(ids[c] for c in cols_j.tolist()), st.priority[slots].copy(),
                 st.avoiding[slots].copy(), e_silent[a:b].copy(), e_near[a:b].copy(),
