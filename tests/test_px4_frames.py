@@ -149,10 +149,18 @@ def _pair(origin: tuple[float, float, float]):
     from uavmpc.drivers.px4.sitl import StandInPx4
     from uavmpc.drivers.px4.vehicle import Px4Vehicle
 
-    (port,) = free_ports(1)
     af = Airframe.packaged("f550")
-    vehicle = Px4Vehicle(f"udp://127.0.0.1:{port}", af, origin_m=origin, hover_thrust=0.5,
-                         system_id=1)
+    # A port free a moment ago can be taken by another test worker before we bind it: retry
+    # with a fresh one (this test is about the frames, not about port allocation).
+    for attempt in range(5):
+        (port,) = free_ports(1)
+        try:
+            vehicle = Px4Vehicle(f"udp://127.0.0.1:{port}", af, origin_m=origin,
+                                 hover_thrust=0.5, system_id=1)
+            break
+        except OSError as exc:
+            if "in use" not in str(exc) or attempt == 4:
+                raise
     sitl = StandInPx4(af, f"udpout://127.0.0.1:{port}", position_m=origin)
     return vehicle, sitl
 
