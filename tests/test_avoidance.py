@@ -166,7 +166,7 @@ def test_equal_altitudes_lower_priority_climbs_one_dz_higher_priority_only_slows
     assert d_hi.first_conflict_s == pytest.approx(3.61)
     assert replace(d_hi, first_conflict_s=None) == AvoidanceDecision(
         z_offset_m=0.0, avoiding=True, conflicts=("b",),
-        horizontal_scale=0.5, climb_speed_mps=5.0, climb_accel_mps2=3.0, heard=("b",))
+        horizontal_scale=0.5, climb_speed_mps=5.0, climb_accel_mps2=3.0)
     assert d_lo.z_offset_m == 3.0 and d_lo.yielding_to == ("a",) and d_lo.unresolved == ()
     assert d_lo.avoiding and d_lo.horizontal_scale == 0.5 and not d_lo.ceiling_hit
     # Next round the others see b's raised prediction: no conflict left for either.
@@ -620,8 +620,8 @@ def test_a_geofence_ceiling_caps_the_offset_and_says_so() -> None:
 
 # ---------------------------------------------------------------- the acknowledgement
 
-#: The acknowledgement switched on (opt-in, docs/safety.md).
-ACK = AvoidanceParams(ack_grace_s=2.0)
+#: The acknowledgement (on by default, docs/safety.md).
+ACK = AvoidanceParams()
 
 
 def heard_msg(uav_id: str, priority: int, positions: np.ndarray, stamp: float,
@@ -646,7 +646,6 @@ def test_a_uav_near_that_does_not_list_us_is_yielded_to_after_the_grace() -> Non
     at_grace = decisions[4]
     assert at_grace.deaf == ("b",) and at_grace.yielding_to == ("b",)
     assert at_grace.z_offset_m == P.dz_m and decisions[-1].z_offset_m == P.dz_m
-    assert at_grace.heard == ("b",)  # and a's own next message lists b
 
 
 def test_a_waiting_uav_that_lists_us_is_not_taken_for_a_deaf_one() -> None:

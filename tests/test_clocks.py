@@ -43,16 +43,17 @@ def test_the_setting_reaches_the_inbox(tmp_path, reference: str) -> None:
 
 
 def test_receive_time_avoids_where_stamps_from_a_clock_ahead_are_refused(tmp_path) -> None:
-    stamp_world, stamp = _fly(tmp_path, "stamp")
+    stamp_world, stamp = _fly(tmp_path, "stamp", "ack_grace_s = 0.0")
     uav2 = stamp_world.uavs[1].stack.inbox
     # With stamps, every message of the UAV whose clock is ahead looks future-stamped to the
-    # one that must yield: it never sees it coming, and they collide.
+    # one that must yield: it never sees it coming, and without the acknowledgement they
+    # collide.
     assert uav2.accepted == 0 and uav2.rejected_total > 40
     assert stamp.collisions
     assert stamp.per_uav["uav2"].max_z_offset_m == 0.0
-    # The acknowledgement (opt-in, docs/safety.md, A2) saves them: uav2 never lists uav1 as
-    # heard, so uav1, the higher priority, climbs over it instead.
-    _, acked = _fly(tmp_path, "stamp", "ack_grace_s = 2.0")
+    # The acknowledgement (on by default, docs/safety.md, A2) saves them: uav2 never lists
+    # uav1 as heard, so uav1, the higher priority, climbs over it instead.
+    _, acked = _fly(tmp_path, "stamp")
     assert acked.collisions == []
     assert acked.per_uav["uav1"].max_z_offset_m == 3.0
     assert acked.per_uav["uav2"].max_z_offset_m == 0.0

@@ -202,6 +202,39 @@ def test_limit_offset_caps_the_climb(make) -> None:
 
 
 @pytest.mark.parametrize("make", STRATEGIES)
+def test_with_no_layer_left_it_holds_short_and_goes_on_once_the_way_is_clear(make) -> None:
+    """docs/safety.md, A6: time as well as height. ``hold_probes`` is None until a hold,
+    then (D, m, 3): the plan from before the hold, taken up again now or up to
+    ``hold_delay_s`` later, from where the UAV holds."""
+    prm = AvoidanceParams()
+    now = 10.0
+    times, own, msg = _head_on(now)
+    s = make(prm)
+    s.limit_offset(prm.dz_m / 2)  # no layer fits under the ceiling
+    assert s.hold_probes(now, times, own[0]) is None
+    d = s.update(now, "own", 2, times, own, {"other": msg})
+    _check_decision(d)
+    assert d.ceiling_hit and d.unresolved == ("other",) and d.holding and d.avoiding
+    later = now + 0.1
+    probes = s.hold_probes(later, times + 0.1, own[0])
+    assert isinstance(probes, np.ndarray) and probes.shape == (4, times.size, 3)  # 0..3 s late
+    assert np.allclose(probes[0], own)  # going on at once: the plan as it was
+    assert np.allclose(probes[:, 0], own[0])  # each waits where it holds
+    assert np.allclose(probes[3, :15], own[0])  # 3 s late: still there for 3 s
+    # the other still coming head-on: it holds; once nobody is in the way, it goes on
+    assert s.update(later, "own", 2, times + 0.1, own, {"other": msg}).holding
+    gone = s.update(later + 0.1, "own", 2, times + 0.2, own, {})
+    assert not gone.holding and s.hold_probes(later + 0.1, times, own[0]) is None
+    # a stack that does not hand over its plan never holds (decide without positions)
+    s = make(prm)
+    s.limit_offset(prm.dz_m / 2)
+    inbox = _inbox_with(msg, now, prm)
+    enc = s.finder(inbox.table).find(np.zeros(1, dtype=np.int64), times[None], own[None],
+                                     np.array([now]), np.array([prm.radius_m]), [{}])[0]
+    assert not s.decide(now, "own", 2, times, enc).holding
+
+
+@pytest.mark.parametrize("make", STRATEGIES)
 def test_decide_starts_a_second_climb_from_where_the_uav_is(make) -> None:
     """``climbed_m``: how much of the offset in force is climbed; the type is declared."""
     prm = AvoidanceParams()
@@ -498,7 +531,7 @@ def test_a_contract_change_is_noticed_here() -> None:
 
     assert members(ResolutionStrategy) == {"params", "update"}
     assert members(EncounterStrategy) == {"pair_radius_m", "limit_offset", "finder",
-                                          "overrides", "decide"}
+                                          "overrides", "decide", "hold_probes"}
     assert members(AxisQpSolver) == {"name", "solve"}
     assert members(Mission) == {"period_s", "step", "summary"}
     assert members(CommandedMission) == {"command"}

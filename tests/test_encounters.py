@@ -259,3 +259,26 @@ def test_a_pair_widens_by_both_uavs_position_uncertainty(use_index: bool) -> Non
     assert wide.ids == ("b",) and wide.near_xy.all()
     assert wide.widen_v_m == pytest.approx([2.0 * np.hypot(2.5, 2.5)])
     assert found(0.4, sigma).ids == ()  # 0.4 × 2.12 m = 0.85 m: 5.85 m < 7 m
+
+
+def test_a_message_lists_every_uav_whose_plan_it_counts_near_or_not() -> None:
+    """docs/safety.md, A2: the heard list is what the inbox holds and counts (fresh, or silent
+    within silent_hold_s), near or far — not only the encounters, which two UAVs can see at
+    different moments (the burst-loss trial where a UAV that had heard us left us off its
+    list). Beyond the limit, the nearest first."""
+    now = 100.0
+    table = InboxTable(["a"])
+    table.col_of("a")
+    for uav, stamp, x in (("far", now, 900.0), ("near", now - 0.2, 5.0),
+                          ("silent", now - 4.0, 20.0), ("gone", now - 30.0, 1.0)):
+        msg = PredictionMessage(SCHEMA_VERSION, uav, 2, stamp, stamp + HORIZON,
+                                np.tile([x, 0.0, 10.0], (40, 1)), True)
+        slot = table.slot_for(encode(msg))
+        accept_copies(table.rows, table.store, np.array([0]), np.array([slot]),
+                      np.array([stamp + 0.05]))
+        table.unpin()
+    finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0, use_received=False)
+    own_xy = np.array([0.0, 0.0])
+    assert finder.heard(0, now, own_xy) == ("far", "near", "silent")  # column order
+    assert finder.heard(0, now, own_xy, limit=2) == ("near", "silent")  # nearest first
+    assert finder.heard(0, now + 20.0, own_xy) == ()  # all beyond silent_hold_s now

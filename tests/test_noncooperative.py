@@ -163,6 +163,8 @@ def test_the_built_in_antipodal_circles_are_the_generator_s() -> None:
 
 
 def test_antipodal_rejects_crowded_or_bad_circles() -> None:
+    with pytest.raises(ConfigError, match="ceiling_m: 11 m leaves no room"):
+        antipodal(4, ceiling_m=11.0)
     with pytest.raises(ConfigError, match="radius_m: 100 UAVs"):
         antipodal(100, radius_m=20.0)
     with pytest.raises(ConfigError, match="uavs: must be an integer"):
@@ -221,13 +223,37 @@ def test_dense_scenario_under_loss_no_collision_every_goal_in_time(name: str) ->
             assert off.max() > DZ - 0.5  # pushed off by the intruder (then back, above)
 
 
-@pytest.mark.xfail(strict=True, reason="finding: 12 UAVs meeting above one point need 12 "
-                   "layers, dz_m 3 m under max_offset_m 30 m gives 11: two end up in one "
-                   "layer and collide (benchmarks/sweep_dense.py)")
-def test_antipodal_12_is_resolved() -> None:
+def _without_holding(sc):
+    return dataclasses.replace(sc, avoidance=dataclasses.replace(sc.avoidance, hold_delay_s=0.0))
+
+
+def test_antipodal_12_more_uavs_than_layers_hold_short_and_every_goal_is_reached() -> None:
+    """docs/safety.md, A6: 12 UAVs above one point need 12 layers, 30 m of offset in 3 m steps
+    gives 11. The lowest priorities hold short (stop within their plans) until the way is
+    clear; without holding, two end up in one layer and collide (the earlier finding)."""
     assert "antipodal_12" in scenarios.DENSE
-    s = World(scenarios.load("antipodal_12")).run(15.0).summary()
+    sc = scenarios.load("antipodal_12")
+    result = World(sc).run(45.0)
+    s = result.summary()
     assert s.collisions == (), s.collisions
+    assert s.min_distance_m is not None and s.min_distance_m > 2.0
+    goals = time_to_goals(result, sc)
+    assert all(t is not None for t in goals.values()), goals
+    assert World(_without_holding(sc)).run(15.0).summary().collisions
+
+
+@pytest.mark.slow
+def test_16_uavs_swap_under_a_30_m_ceiling_one_at_a_time_where_layers_run_out() -> None:
+    """A geofence's 30 m ceiling over a circle at 10 m leaves 7 layers (0 … 18 m of offset,
+    1 m of margin) for 16 UAVs meeting above one point; every goal is reached."""
+    sc = antipodal(16, duration_s=60.0, ceiling_m=30.0)
+    result = World(sc).run()
+    s = result.summary()
+    assert s.collisions == (), s.collisions
+    assert s.min_distance_m is not None and s.min_distance_m > 2.0
+    assert all(t is not None for t in time_to_goals(result, sc).values())
+    assert max(u.max_z_offset_m for u in s.uavs.values()) <= 19.0  # under the ceiling
+    assert max(result.positions_m[:, :, 2].max(axis=0)) <= 30.0
 
 
 def test_time_to_goals_needs_the_scenario_of_the_result(tmp_path) -> None:

@@ -20,6 +20,7 @@ then the numerical part of every UAV at once (:func:`onboard_row` on the rows of
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -33,6 +34,7 @@ from uavmpc.avoidance import (
     ResolutionStrategy,
 )
 from uavmpc.avoidance.encounters import EncounterFinder, Encounters
+from uavmpc.avoidance.strategy import HOLD_SPEED_MPS
 from uavmpc.comms.auth import Identity, Roster, seal, sign
 from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
@@ -486,12 +488,23 @@ class OnboardStack:
                                          self.inbox.latest))
 
     def decide(self, plan_s: float, times_s: np.ndarray, found: Encounters,
-               climbed_m: float) -> None:
+               climbed_m: float, positions_m: np.ndarray | None = None,
+               probes: list[Encounters] | None = None) -> None:
         """Steer by its encounter strategy's decision on ``found``, the encounters of its plan
-        of times ``times_s`` (m,) at ``plan_s`` (an avoidance round, :func:`avoidance_round`)."""
+        of times ``times_s`` (m,) and positions ``positions_m`` (m, 3) at ``plan_s`` (an
+        avoidance round, :func:`avoidance_round`); ``probes``: while it holds short, the
+        encounters of its :meth:`hold_probes`."""
         assert self._decider is not None, "decide: the stack's strategy takes encounters"
         self.apply(self._decider.decide(plan_s, self.uav_id, self.priority, times_s, found,
-                                        climbed_m=climbed_m))
+                                        climbed_m=climbed_m, positions=positions_m,
+                                        probes=probes))
+
+    def hold_probes(self, plan_s: float, times_s: np.ndarray, here_m: np.ndarray
+                    ) -> np.ndarray | None:
+        """While its strategy holds short: (D, m, 3) the plans it would fly going on now or
+        later (:meth:`~uavmpc.avoidance.HeightOffsetStrategy.hold_probes`); else None."""
+        return (None if self._decider is None
+                else self._decider.hold_probes(plan_s, times_s, here_m))
 
     def encounter_overrides(self) -> dict[int, float]:
         """Its strategy's per-pair radii by its inbox table's columns (none without one)."""
@@ -530,8 +543,9 @@ class OnboardStack:
             return None
         sched.next_broadcast_s[self.row] += self.broadcast_period_s
         pred = self.tracker.prediction()
-        # The acknowledgement (docs/safety.md, A2): whom near we hold a current plan of.
-        heard = self.decision.heard if self.decision is not None else ()
+        # The acknowledgement (docs/safety.md, A2): every UAV whose plan we count.
+        heard = (self._finder.heard(self.row, now_s, pred.position_m[0, :2])
+                 if self._finder is not None else ())
         sigma = self.batch.position_sigma_m[self.row]
         msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
                               avoiding=self.avoidance is not None and self.cooperative,
@@ -595,7 +609,8 @@ class OnboardStack:
         self.decision = decision
         if decision.z_offset_m != self.tracker.z_offset_m:
             self.tracker.set_z_offset(decision.z_offset_m)
-        key = (decision.horizontal_scale, decision.climb_speed_mps, decision.climb_accel_mps2)
+        key = (decision.horizontal_scale, decision.climb_speed_mps, decision.climb_accel_mps2,
+               decision.holding)
         if key != self._limits_key:
             self._limits_key = key
             self.tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
@@ -617,10 +632,15 @@ def _estimate_part(estimate: VehicleState, name: str, n: int) -> np.ndarray:
 
 
 def avoidance_limits(nominal: DynamicLimits, horizontal_scale: float,
-                     climb_speed_mps: float | None, climb_accel_mps2: float | None
-                     ) -> DynamicLimits:
-    """Nominal limits, horizontally tightened and with the climb lifted while avoiding."""
+                     climb_speed_mps: float | None, climb_accel_mps2: float | None,
+                     holding: bool = False) -> DynamicLimits:
+    """Nominal limits, horizontally tightened and with the climb lifted while avoiding; while
+    holding short, the horizontal speed limit :data:`~uavmpc.avoidance.strategy.
+    HOLD_SPEED_MPS` at the nominal acceleration (the tracker brakes as hard as it may)."""
     limits = nominal.scaled(horizontal=horizontal_scale)
+    if holding:
+        limits = dataclasses.replace(limits, horizontal_speed_mps=HOLD_SPEED_MPS,
+                                     horizontal_accel_mps2=nominal.horizontal_accel_mps2)
     if climb_speed_mps is None and climb_accel_mps2 is None:
         return limits
     return DynamicLimits(
@@ -660,11 +680,26 @@ def avoidance_round(batch: OnboardBatch,
     climbed = np.empty(due.size)
     avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
     which = due.tolist()
-    radius = np.array([stacks[i].params.radius_m for i in which])
-    found = finder.find(due, times, own, plan_s, radius,
-                        [overrides[i] if overrides is not None
-                         else stacks[i].encounter_overrides() for i in which],
-                        batch.position_sigma_m[due])
+    # A UAV holding short also has its probes found (docs/safety.md, A6): the same receiver
+    # row again, once per probe, after the plans of this round.
+    held = []
     for j, i in enumerate(which):
-        stacks[i].decide(float(plan_s[j]), times[j], found[j], float(climbed[j]))
+        p = stacks[i].hold_probes(float(plan_s[j]), times[j], own[j, 0])
+        if p is not None:
+            held.append((j, p))
+    at = [*range(due.size)] + [j for j, p in held for _ in range(p.shape[0])]
+    plans = np.concatenate([own, *(p for _, p in held)]) if held else own
+    ov = [overrides[i] if overrides is not None else stacks[i].encounter_overrides()
+          for i in which]
+    found = finder.find(due[at], times[at], plans, plan_s[at],
+                        np.array([stacks[i].params.radius_m for i in which])[at],
+                        [ov[j] for j in at], batch.position_sigma_m[due][at])
+    probes: dict[int, list[Encounters]] = {}
+    k = due.size
+    for j, p in held:
+        probes[j] = found[k:k + p.shape[0]]
+        k += p.shape[0]
+    for j, i in enumerate(which):
+        stacks[i].decide(float(plan_s[j]), times[j], found[j], float(climbed[j]), own[j],
+                         probes.get(j))
     return due

@@ -32,6 +32,7 @@ import numpy as np
 
 from uavmpc.avoidance.proximity import near_and_dz
 from uavmpc.comms.inbox import InboxRows, InboxTable, Store
+from uavmpc.comms.message import MAX_HEARD
 from uavmpc.jit import kernel
 
 #: Boxes are widened by this much more than the radius: the aligned points are computed with
@@ -156,6 +157,40 @@ def heard_from_all(rows: InboxRows, r: int, cols: np.ndarray, now_s: float,
         if _standing(rows, r, c, now_s, use_received, timeout_s, silent_hold_s) == _IGNORED:
             return False
     return True
+
+
+@kernel
+def heard_columns(rows: InboxRows, store: Store, r: int, now_s: float, use_received: bool,
+                  timeout_s: float, silent_hold_s: float, own_x: float, own_y: float,
+                  out: np.ndarray) -> int:
+    """The columns whose plans row ``r`` counts (fresh, or silent at most ``silent_hold_s``
+    old: :func:`heard_from_all`), its own excepted, into ``out`` (L,); returns how many.
+    When more are held than ``out`` takes, the L whose held prediction starts nearest to
+    (``own_x``, ``own_y``) horizontally, nearest first; otherwise in column order."""
+    s_count = rows.held_slot.shape[1]
+    cols = np.empty(s_count, dtype=np.int64)
+    n = 0
+    for c in range(s_count):
+        if c == rows.own_col[r] or rows.held_slot[r, c] < 0:
+            continue
+        if _standing(rows, r, c, now_s, use_received, timeout_s, silent_hold_s) == _IGNORED:
+            continue
+        cols[n] = c
+        n += 1
+    limit = out.shape[0]
+    if n <= limit:
+        out[:n] = cols[:n]
+        return n
+    d2 = np.empty(n)
+    for j in range(n):
+        slot = rows.held_slot[r, cols[j]]
+        dx = store.positions_m[slot, 0, 0] - own_x
+        dy = store.positions_m[slot, 0, 1] - own_y
+        d2[j] = dx * dx + dy * dy
+    order = np.argsort(d2, kind="mergesort")  # stable: ties stay in column order
+    for j in range(limit):
+        out[j] = cols[order[j]]
+    return limit
 
 
 @kernel
@@ -541,6 +576,19 @@ class EncounterFinder:
                 e_dz[a:b].copy(), silent, e_announced[a:b].copy(),
                 np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v))
         return result
+
+    def heard(self, row: int, now_s: float, own_xy_m: np.ndarray,
+              limit: int = MAX_HEARD) -> tuple[str, ...]:
+        """(docs/safety.md, A2.) The ids whose plans receiver ``row`` counts at ``now_s`` (its
+        clock): every sender it holds a fresh or recently silent prediction of, near or not —
+        what its next message lists (:attr:`~uavmpc.comms.PredictionMessage.heard`). Beyond
+        ``limit``, the nearest to ``own_xy_m`` (2,) [m, ENU] first."""
+        t = self.table
+        out = np.empty(limit, dtype=np.int64)
+        n = heard_columns(t.rows, t.store, int(row), float(now_s), self.use_received,
+                          self.timeout_s, self.silent_hold_s, float(own_xy_m[0]),
+                          float(own_xy_m[1]), out)
+        return tuple(t.ids[c] for c in out[:n].tolist())
 
     def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:
         out = self._out

@@ -38,8 +38,9 @@ import numpy as np
 
 from uavmpc.avoidance.encounters import EncounterFinder, Encounters
 from uavmpc.comms.inbox import InboxTable
-from uavmpc.comms.message import MAX_HEARD, PredictionMessage
+from uavmpc.comms.message import PredictionMessage
 from uavmpc.config import ConfigError, from_table, positive
+from uavmpc.jit import kernel
 
 #: Sanity bounds: beyond any multirotor scenario, small enough to catch unit mistakes.
 MAX_DISTANCE_M = 1000.0
@@ -49,6 +50,12 @@ MAX_ACCEL_MPS2 = 100.0
 #: Two plans closer in height than this count as level for a climb's way check (rule 6): the
 #: collision distance of the campaigns, so "above us" means above by more than a collision.
 LEVEL_M = 1.0
+#: The horizontal speed limit of a UAV holding short [m/s] (a limit must be positive).
+HOLD_SPEED_MPS = 0.01
+#: Spacing of the delays a holding UAV probes its plan at [s] (``hold_delay_s``).
+HOLD_PROBE_STEP_S = 1.0
+#: Largest ``hold_delay_s`` [s]: each second is a probe, found with every avoidance round.
+MAX_HOLD_DELAY_S = 10.0
 #: Relative slack for "offset is a multiple of Δz that fits under the ceiling" (round-off).
 _EPS = 1e-9
 
@@ -93,16 +100,21 @@ class AvoidanceParams:
             current message does not list us (:attr:`~uavmpc.comms.PredictionMessage.heard`)
             for this long has not heard us and will not make way for us: we yield to it
             whatever its priority. While no one near lists us, nobody hears us (our radio is
-            silent): we yield to everyone near. 0 (the default) turns it off; else at least
-            ``timeout_s``, so that the fresh message judged was sent after the nearness began
-            (2 s, as measured in docs/safety.md, leaves a broadcast period and the latency on
-            top). Off by default while it brings a collision under burst loss that rules 1–7
-            do not have (docs/safety.md).
+            silent): we yield to everyone near. 0 turns it off; else at least ``timeout_s``,
+            so that the fresh message judged was sent after the nearness began (2 s, the
+            default, leaves a broadcast period and the latency on top; docs/safety.md).
         uncertainty_k: the pair's cylinder widens by this many σ of both UAVs' position
             uncertainty, each as its message states it (docs/safety.md, A3): the radius by
             k √(σ_h,own² + σ_h,other²), the half height by k √(σ_v,own² + σ_v,other²). 0 for a
             true state or a centimetre-class fix changes nothing; a single-band receiver's
             metres widen the cylinder so that its conflicts take several layers.
+        hold_delay_s: time as well as height (docs/safety.md, A6): when no layer under the
+            ceiling is clear of the UAVs we yield to, we hold short — stop within our plan,
+            at full braking — and go on once our plan, started now or up to this much later
+            (probed every :data:`HOLD_PROBE_STEP_S`), meets none of them in some layer. The
+            delay covers the restart from rest (the plan at speed reaches each point sooner).
+            0 turns holding off (the UAV then climbs as high as the way allows and reports
+            ``ceiling_hit``, as before).
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -125,8 +137,9 @@ class AvoidanceParams:
     silent_radius_m: float = 3.0
     silent_speed_mps: float = 8.3
     silent_accel_mps2: float = 2.5
-    ack_grace_s: float = 0.0
+    ack_grace_s: float = 2.0
     uncertainty_k: float = 2.0
+    hold_delay_s: float = 3.0
 
     def __post_init__(self) -> None:
         p = "avoidance"
@@ -149,6 +162,8 @@ class AvoidanceParams:
                  allow_zero=True)
         positive(self.ack_grace_s, f"{p}.ack_grace_s", upper=MAX_TIME_S, allow_zero=True)
         positive(self.uncertainty_k, f"{p}.uncertainty_k", upper=10.0, allow_zero=True)
+        positive(self.hold_delay_s, f"{p}.hold_delay_s", upper=MAX_HOLD_DELAY_S,
+                 allow_zero=True)
         for f in fields(self):
             if f.name != "time_reference":
                 object.__setattr__(self, f.name, float(getattr(self, f.name)))
@@ -195,11 +210,12 @@ class AvoidanceDecision:
             until they have passed).
         silent: UAVs heard from recently whose latest prediction is stale (see
             ``AvoidanceParams.silent_hold_s``); those near are among the conflicts.
-        heard: the UAVs near whose plans we count (fresh, or silent at their last plan):
-            what our next message lists (:attr:`~uavmpc.comms.PredictionMessage.heard`).
         deaf: UAVs near that have not listed us for ``ack_grace_s``: we yield to them.
         unheard: nobody near has listed us for ``ack_grace_s`` while some were near (our
             radio is silent or unheard): we yield to everyone near.
+        holding: we hold short (``hold_delay_s``): the horizontal speed limit drops to
+            :data:`HOLD_SPEED_MPS` at the nominal acceleration, so the UAV brakes to a stop
+            within its plan and stays there until the way is clear.
     """
 
     z_offset_m: float = 0.0
@@ -214,9 +230,9 @@ class AvoidanceDecision:
     ceiling_hit: bool = False
     waiting_for: tuple[str, ...] = ()
     silent: tuple[str, ...] = ()
-    heard: tuple[str, ...] = ()
     deaf: tuple[str, ...] = ()
     unheard: bool = False
+    holding: bool = False
 
 
 @runtime_checkable
@@ -284,9 +300,17 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
         :meth:`~uavmpc.avoidance.encounters.EncounterFinder.find` takes per receiver."""
         ...
 
+    def hold_probes(self, now_s: float, grid_t_s: np.ndarray, here_m: np.ndarray
+                    ) -> np.ndarray | None:
+        """While holding short: (D, m, 3) the plans whose encounters the next :meth:`decide`
+        needs as ``probes`` (at the times ``grid_t_s`` (m,), from ``here_m`` (3,) [m]);
+        else None."""
+        ...
+
     def decide(self, now_s: float, own_id: str, own_priority: int,
                own_prediction_times: np.ndarray, known: Encounters,
-               climbed_m: float | None = None) -> AvoidanceDecision:
+               climbed_m: float | None = None, *, positions: np.ndarray | None = None,
+               probes: list[Encounters] | None = None) -> AvoidanceDecision:
         """Decide for the next period from the encounters.
 
         Args:
@@ -296,6 +320,10 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
                 silent at their last known plans), found by :meth:`finder`.
             climbed_m: how much of the offset in force the UAV has climbed now [m] (None:
                 all of it).
+            positions: (m, 3) our prediction's positions without the offset [m] (what a
+                hold keeps to go on with later).
+            probes: while holding, the encounters of each plan of :meth:`hold_probes`, in
+                its order.
 
         Returns:
             The z offset (m, ≥ 0) and the limits for the next period.
@@ -388,6 +416,30 @@ class HeightOffsetStrategy:
         self._listed_s: float | None = None
         self._last_conflict_s: float | None = None
         self._last_update_s: float | None = None
+        #: While holding short: the plan from before the hold (times (m,), positions (m, 3)).
+        self._hold_plan: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def holding(self) -> bool:
+        """It holds short (``hold_delay_s``): its next round needs :meth:`hold_probes`."""
+        return self._hold_plan is not None
+
+    def hold_probes(self, now_s: float, grid_t_s: np.ndarray, here_m: np.ndarray
+                    ) -> np.ndarray | None:
+        """While holding (docs/safety.md, A6): (D, m, 3) its plan from before the hold, taken
+        up again from ``here_m`` (3,) now and up to ``hold_delay_s`` later, at the times
+        ``grid_t_s`` (m,) (:func:`hold_probes`); the driver finds their encounters and hands
+        them to :meth:`decide`. None when not holding."""
+        if self._hold_plan is None:
+            return None
+        hd = self.params.hold_delay_s
+        delays = np.linspace(0.0, hd, math.ceil(hd / HOLD_PROBE_STEP_S - _EPS) + 1)
+        grid = np.ascontiguousarray(grid_t_s, dtype=float)
+        out = np.empty((delays.size, grid.size, 3))
+        plan_t, plan_m = self._hold_plan
+        hold_probes(plan_t, plan_m, float(now_s), np.asarray(here_m, dtype=float), delays,
+                    grid, out)
+        return out
 
     def update(self, now_s: float, own_id: str, own_priority: int,
                own_prediction_times: np.ndarray, own_prediction_positions: np.ndarray,
@@ -412,11 +464,16 @@ class HeightOffsetStrategy:
                                             else msg.received_s)
             table.store.holders[slot] += 1
         table.unpin()
-        enc = self.finder(table).find(np.zeros(1, dtype=np.int64), times[None], own[None],
-                                      np.array([float(now_s)]),
-                                      np.array([self.params.radius_m]),
-                                      [self.overrides(table)])[0]
-        return self.decide(now_s, own_id, own_priority, times, enc)
+        probes = self.hold_probes(now_s, times, own[0])
+        plans = own[None] if probes is None else np.concatenate([own[None], probes])
+        n = plans.shape[0]
+        found = self.finder(table).find(np.zeros(n, dtype=np.int64),
+                                        np.repeat(times[None], n, axis=0), plans,
+                                        np.full(n, float(now_s)),
+                                        np.full(n, self.params.radius_m),
+                                        [self.overrides(table)] * n)
+        return self.decide(now_s, own_id, own_priority, times, found[0], positions=own,
+                           probes=found[1:] if probes is not None else None)
 
     def finder(self, table: InboxTable, *, use_index: bool | None = True) -> EncounterFinder:
         """How this strategy finds its encounters in ``table`` (with its parameters;
@@ -435,11 +492,14 @@ class HeightOffsetStrategy:
 
     def decide(self, now_s: float, own_id: str, own_priority: int,
                own_prediction_times: np.ndarray, known: Encounters,
-               climbed_m: float | None = None) -> AvoidanceDecision:
+               climbed_m: float | None = None, *, positions: np.ndarray | None = None,
+               probes: list[Encounters] | None = None) -> AvoidanceDecision:
         """The decision from the encounters (:mod:`uavmpc.avoidance.encounters`): everyone
         near, fresh or silent at its last known plan (``update`` finds them itself).
         ``climbed_m``: how much of the offset in force the UAV has climbed now (default: all
-        of it); a climb raised again starts from there."""
+        of it); a climb raised again starts from there. ``positions`` (m, 3): the plan
+        itself (without it the UAV never holds short); ``probes``: while holding, the
+        encounters of each of :meth:`hold_probes` (without them a hold goes on)."""
         prm = self.params
         half_h = 0.5 * prm.height_m
         times = own_prediction_times
@@ -448,14 +508,16 @@ class HeightOffsetStrategy:
             self._unlisted_since = {}
             self._release(now_s)
             self._last_update_s = now_s
-            recent = (self._last_conflict_s is not None
-                      and now_s - self._last_conflict_s < prm.release_hysteresis_s)
+            holding = self._hold_short(False, times, positions, probes, own_id, own_priority,
+                                       (), False)
+            recent = holding or (self._last_conflict_s is not None
+                                 and now_s - self._last_conflict_s < prm.release_hysteresis_s)
             return AvoidanceDecision(
                 z_offset_m=self.z_offset_m, avoiding=recent or self.z_offset_m > 0.0,
                 horizontal_scale=prm.horizontal_scale if recent else 1.0,
                 climb_speed_mps=prm.climb_speed_mps if recent else None,
                 climb_accel_mps2=prm.climb_accel_mps2 if recent else None,
-                silent=known.silent)
+                silent=known.silent, holding=holding)
         # Silent UAVs count at their last plans (widened by how far they can have left them):
         # a pair that cannot hear each other still resolves its conflict.
         enc = known
@@ -490,9 +552,12 @@ class HeightOffsetStrategy:
             self._release(now_s)
         self._last_update_s = now_s
 
+        deaf_ids = tuple(i for i, d in zip(enc.ids, deaf, strict=True) if d)
+        holding = self._hold_short(ceiling_hit and bool(unresolved.any()), times, positions,
+                                   probes, own_id, own_priority, deaf_ids, unheard)
         recent = (self._last_conflict_s is not None
                   and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-        limits_tight = bool(hit_start.any() or c_end.any() or recent)
+        limits_tight = bool(hit_start.any() or c_end.any() or recent or holding)
         first = np.flatnonzero(c_start.any(axis=0))
         return AvoidanceDecision(
             z_offset_m=self.z_offset_m,
@@ -507,10 +572,48 @@ class HeightOffsetStrategy:
             ceiling_hit=ceiling_hit,
             waiting_for=waiting_for,
             silent=enc.silent,
-            heard=_heard(enc),
-            deaf=tuple(i for i, d in zip(enc.ids, deaf, strict=True) if d),
+            deaf=deaf_ids,
             unheard=bool(unheard),
+            holding=holding,
         )
+
+    def _hold_short(self, start: bool, times: np.ndarray, positions: np.ndarray | None,
+                    probes: list[Encounters] | None, own_id: str, own_priority: int,
+                    deaf_ids: tuple[str, ...], unheard: bool) -> bool:
+        """(docs/safety.md, A6: time as well as height.) Whether we hold short after this
+        round. A hold starts (``start``: no layer under the ceiling is clear of those we
+        yield to) with the plan it interrupts; it ends once some layer, at or above the
+        offset in force, is clear of them along every probe (:meth:`hold_probes`): going on
+        now or up to ``hold_delay_s`` later meets none of them. The order is the priorities'
+        (a total order): the highest never holds, and each holds only for higher ones."""
+        if self._hold_plan is None:
+            if start and self.params.hold_delay_s > 0.0 and positions is not None:
+                self._hold_plan = (np.array(times, dtype=float),
+                                   np.array(positions, dtype=float))
+            return self._hold_plan is not None
+        if probes is not None and self._way_clear(probes, own_id, own_priority, deaf_ids,
+                                                  unheard):
+            self._hold_plan = None
+        return self._hold_plan is not None
+
+    def _way_clear(self, probes: list[Encounters], own_id: str, own_priority: int,
+                   deaf_ids: tuple[str, ...], unheard: bool) -> bool:
+        """Some offset from the one in force up to the ceiling is clear, along every probe,
+        of everyone we yield to (as :meth:`decide` counts them)."""
+        prm = self.params
+        z = self.z_offset_m
+        top = min(prm.max_offset_m, self.offset_ceiling_m)
+        candidates = z + prm.dz_m * np.arange(math.floor(max(top - z, 0.0) / prm.dz_m + _EPS)
+                                              + 1)
+        blocked = np.zeros(candidates.size, dtype=bool)
+        for probe in probes:
+            if not probe.ids:
+                continue
+            must = probe.must_yield(own_id, own_priority)
+            must |= np.array([unheard or i in deaf_ids for i in probe.ids], dtype=bool)
+            sub = _subset(probe, must)
+            blocked |= _conflicts(sub, candidates, 0.5 * prm.height_m).any(axis=(1, 2))
+        return not bool(blocked.all())
 
     def _deaf(self, now_s: float, enc: Encounters) -> tuple[np.ndarray, bool]:
         """The acknowledgement (docs/safety.md, A2): (k,) the UAVs near that have not listed
@@ -582,10 +685,11 @@ class HeightOffsetStrategy:
         prm = self.params
         z = self.z_offset_m
         steps = math.floor((min(prm.max_offset_m, self.offset_ceiling_m) - z) / prm.dz_m + _EPS)
-        if steps < 1:
-            return z, True, ()
-        candidates = z + prm.dz_m * np.arange(1, steps + 1)
         sub = _subset(enc, must_yield)
+        if steps < 1:
+            lower = self._layer_below(enc, sub, half_h)
+            return (z if lower is None else lower), True, ()
+        candidates = z + prm.dz_m * np.arange(1, steps + 1)
         blocked_end = _conflicts(sub, candidates, half_h).any(axis=(1, 2))  # (c,)
         blocked_way = _blocked_way(enc, candidates, z, climbed, ahead_s, half_h, prm)  # (c, k)
         clear_way = ~blocked_way.any(axis=1)
@@ -605,11 +709,39 @@ class HeightOffsetStrategy:
         clear_end = np.flatnonzero(~blocked_end)
         if clear_end.size:  # reachable later: hold until the way is clear
             return z, False, in_the_way(clear_end[0])
-        # Nothing is clear below the ceiling: as high as the way allows.
+        # Nothing is clear up to the ceiling. A lower layer may be (a UAV above us at the
+        # ceiling, one below gone): down to the nearest one clear of those we yield to, over
+        # a way down clear of everyone known (docs/safety.md, A6). Found with 16 UAVs under a
+        # 30 m ceiling: a UAV holding short at its start, in the top layer, and the UAV whose
+        # goal that start is, arriving in the same layer: neither could move.
+        lower = self._layer_below(enc, sub, half_h)
+        if lower is not None:
+            return lower, True, ()
+        # Else as high as the way allows.
         reachable = np.flatnonzero(clear_way)
         if reachable.size:
             return float(candidates[reachable[-1]]), True, ()
         return z, True, in_the_way(candidates.size - 1)
+
+    def _layer_below(self, enc: Encounters, sub: Encounters, half_h: float) -> float | None:
+        """The highest offset z − jΔz ≥ 0 (j ≥ 1) clear of ``sub`` (those we yield to) along
+        the whole plan, whose way down from the offset in force meets nobody in ``enc`` at
+        any point of the plan (as the release checks its way) but those it escapes from;
+        None if there is none."""
+        prm = self.params
+        z = self.z_offset_m
+        for j in range(1, math.floor(z / prm.dz_m + _EPS) + 1):
+            o = z - j * prm.dz_m
+            if _conflicts(sub, o, half_h).any():
+                continue
+            way = np.arange(o, z, 0.5 * LEVEL_M)
+            # A point already in conflict at z with the other level or above is what the
+            # descent escapes from (as a climb escapes from one level or below).
+            escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z <= LEVEL_M)
+            if (_conflicts(enc, way, half_h) & ~escaping).any():
+                return None  # the way down is blocked: no lower layer is reachable either
+            return max(o, 0.0)
+        return None
 
     def _release(self, now_s: float) -> None:
         """(docs/safety.md, A1: the way down.) Lower the offset at the release rate once the
@@ -626,13 +758,33 @@ class HeightOffsetStrategy:
         self.z_offset_m = max(0.0, self.z_offset_m - prm.release_rate_mps * (now_s - since))
 
 
-def _heard(enc: Encounters) -> tuple[str, ...]:
-    """The UAVs near whose plans we count, fresh or silent (their last plan, widened), in
-    column order, at most :data:`~uavmpc.comms.message.MAX_HEARD` (what our next message
-    lists). A silent one is listed too: we still make way for it, so it must not take us for
-    a UAV that does not know it is there (under burst loss that made both of a pair yield at
-    once, into one layer)."""
-    return enc.ids[:MAX_HEARD]
+@kernel
+def hold_probes(plan_t_s: np.ndarray, plan_m: np.ndarray, now_s: float, here_m: np.ndarray,
+                delays_s: np.ndarray, grid_t_s: np.ndarray, out_m: np.ndarray) -> None:
+    """(docs/safety.md, A6: time as well as height.) Where a UAV holding short would be if it
+    went on now, ``delays_s`` (D,) late: its plan from before the hold (times ``plan_t_s``
+    (m,), positions ``plan_m`` (m, 3)) taken up again from its point nearest ``here_m`` (3,)
+    horizontally, at the times ``grid_t_s`` (m,); before the delay has passed, at that point;
+    past the plan's end, at its end. Into ``out_m`` (D, m, 3)."""
+    m = plan_t_s.shape[0]
+    best, k0 = np.inf, 0
+    for k in range(m):
+        d2 = (plan_m[k, 0] - here_m[0]) ** 2 + (plan_m[k, 1] - here_m[1]) ** 2
+        if d2 < best:
+            best, k0 = d2, k
+    for d in range(delays_s.shape[0]):
+        j = k0
+        for g in range(grid_t_s.shape[0]):
+            t = plan_t_s[k0] + max(grid_t_s[g] - now_s - delays_s[d], 0.0)
+            while j < m - 1 and plan_t_s[j + 1] <= t:
+                j += 1
+            if j == m - 1:
+                for ax in range(3):
+                    out_m[d, g, ax] = plan_m[m - 1, ax]
+                continue
+            w = (t - plan_t_s[j]) / (plan_t_s[j + 1] - plan_t_s[j])
+            for ax in range(3):
+                out_m[d, g, ax] = plan_m[j, ax] + w * (plan_m[j + 1, ax] - plan_m[j, ax])
 
 
 def _climbed(t_s: np.ndarray, prm: AvoidanceParams) -> np.ndarray:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from uavmpc.config import ConfigError, positive
+from uavmpc.geofence import Geofence
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 
@@ -47,11 +48,14 @@ DURATION_S = 90.0
 
 def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
               speed_mps: float = SPEED_MPS, start_s: float = START_S,
-              duration_s: float = DURATION_S, *, link: LinkSettings | None = None) -> Scenario:
+              duration_s: float = DURATION_S, *, link: LinkSettings | None = None,
+              ceiling_m: float | None = None) -> Scenario:
     """N UAVs on a circle of ``radius_m`` [m] around the origin at ``height_m`` [m], UAV i
     (``uav{i+1}``, priority i + 1) at the angle 2πi/N, heading the way it will fly; each flies
     a straight path to the opposite point at ``speed_mps`` [m/s] from ``start_s`` [s].
-    ``duration_s`` [s] is the run's length."""
+    ``duration_s`` [s] is the run's length. ``ceiling_m`` [m]: an operational volume (a
+    geofence) over the circle, from the ground up to that altitude: the layers above the
+    circle's height run out sooner."""
     if isinstance(n_uavs, bool) or not isinstance(n_uavs, int) or not 2 <= n_uavs <= 1000:
         raise ConfigError(f"uavs: must be an integer in [2, 1000], got {n_uavs!r}")
     radius = positive(radius_m, "radius_m", upper=1e4)
@@ -76,8 +80,17 @@ def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
         goal = tuple(float(v) for v in mission.points[-1, :3])
         uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550", here, heading, mission,
                             (goal[0], goal[1], goal[2])))
+    fence = None
+    if ceiling_m is not None:
+        top = positive(ceiling_m, "ceiling_m", upper=1e4)
+        if top < height + 2.0:
+            raise ConfigError(f"ceiling_m: {top:g} m leaves no room above the circle's "
+                              f"{height:g} m (need ≥ {height + 2.0:g} m)")
+        side = radius + 10.0
+        fence = Geofence.from_dict({"box": [-side, -side, side, side], "min_altitude_m": 0.0,
+                                    "max_altitude_m": top}, "geofence")
     return Scenario(f"antipodal_{n_uavs}", duration, tuple(uavs),
-                    link if link is not None else LinkSettings())
+                    link if link is not None else LinkSettings(), geofence=fence)
 
 
 def antipodal_toml(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
