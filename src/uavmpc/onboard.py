@@ -397,6 +397,8 @@ class OnboardStack:
                         else None)
         self.nominal_limits = self.tracker.limits
         self.decision: AvoidanceDecision | None = None
+        #: The ids its last message listed as heard (docs/safety.md, A2).
+        self.heard: tuple[str, ...] = ()
         self.broadcast_period_s = float(broadcast_period_s)
         sched = batch.schedule
         sched.next_broadcast_s[self.row] = float(t0_s) + float(broadcast_phase_s)
@@ -544,12 +546,11 @@ class OnboardStack:
         sched.next_broadcast_s[self.row] += self.broadcast_period_s
         pred = self.tracker.prediction()
         # The acknowledgement (docs/safety.md, A2): every UAV whose plan we count.
-        heard = (self._finder.heard(self.row, now_s, pred.position_m[0, :2])
-                 if self._finder is not None else ())
-        sigma = self.batch.position_sigma_m[self.row]
+        self.heard = (self._finder.heard(self.row, now_s, pred.position_m[0, :2])
+                      if self._finder is not None else ())
         msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
                               avoiding=self.avoidance is not None and self.cooperative,
-                              heard=heard, position_sigma_m=(float(sigma[0]), float(sigma[1])))
+                              heard=self.heard, position_sigma_m=self.position_sigma_m)
         data = encode(msg)
         if self.key is not None:
             data = sign(data, self.key)
@@ -573,6 +574,12 @@ class OnboardStack:
         return float(self.batch.schedule.next_broadcast_s[self.row])
 
     # ------------------------------------------------------------------ views
+    @property
+    def position_sigma_m(self) -> tuple[float, float]:
+        """The position uncertainty its messages state: (horizontal, vertical) 1σ [m]."""
+        sigma = self.batch.position_sigma_m[self.row]
+        return float(sigma[0]), float(sigma[1])
+
     @property
     def last_output(self) -> TrackerOutput | None:
         """The tracker's last tick (None before the first)."""
