@@ -75,6 +75,75 @@ def test_ros_and_our_quaternions_round_trip() -> None:
     assert np.array_equal(ros2.our_quat(*ros2.ros_quat(q)), q)
 
 
+def test_the_avoidance_status_carries_what_the_prediction_messages_do() -> None:
+    from types import SimpleNamespace
+
+    from uavmpc.avoidance.strategy import AvoidanceDecision
+    from uavmpc.drivers.ros2 import publish_status
+
+    codec = ros2.Ros2Codec()
+    kind = ros2.AVOIDANCE_STATUS
+    # the new fields follow the old ones, in the definition rclpy / mcap readers are given
+    fields = [line.split()[1] for line in codec.definition(kind).split("\n=")[0].splitlines()
+              if line.strip() and not line.startswith("#")]
+    assert fields == ["header", "active", "z_offset_m", "yielding_to", "heard",
+                      "position_sigma_horizontal_m", "position_sigma_vertical_m", "holding",
+                      "deaf"]
+    independent = generate_dynamic(kind, codec.definition(kind))[kind]  # mcap-ros2-support
+    cdr = codec.avoidance_status(12.5, True, 1.5, ["uav2"], heard=("uav2", "uav3"),
+                                 position_sigma_horizontal_m=0.8, position_sigma_vertical_m=1.2,
+                                 holding=True, deaf=("uav3",))
+    for msg in (codec.decode(cdr, kind), independent(cdr)):
+        assert (msg.active, msg.z_offset_m, list(msg.yielding_to)) == (True, 1.5, ["uav2"])
+        assert list(msg.heard) == ["uav2", "uav3"] and list(msg.deaf) == ["uav3"]
+        assert (msg.position_sigma_horizontal_m, msg.position_sigma_vertical_m) == (0.8, 1.2)
+        assert msg.holding is True
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (12, 500_000_000)
+    assert codec.encode(codec.decode(cdr, kind), kind) == cdr
+    # the callers of before: nothing heard, no uncertainty stated, not holding, none deaf
+    old = codec.decode(codec.avoidance_status(0.0, False, 0.0, []), kind)
+    assert (list(old.heard), old.position_sigma_horizontal_m, old.position_sigma_vertical_m,
+            old.holding, list(old.deaf)) == ([], 0.0, 0.0, False, [])
+    # an id list given as one string would go out letter by letter: refused by name
+    with pytest.raises(TypeError, match="heard: a sequence of ids"):
+        codec.avoidance_status(0.0, False, 0.0, [], heard="uav2")
+    with pytest.raises(TypeError, match="deaf: a sequence of ids"):
+        codec.avoidance_status(0.0, False, 0.0, [], deaf=b"uav2")
+    with pytest.raises(ValueError, match="could not convert"):
+        codec.avoidance_status(0.0, False, 0.0, [], position_sigma_vertical_m="high")
+
+    # a stack's status, as the drivers publish it: its decision's and its messages' values
+    class Topics:
+        def __init__(self) -> None:
+            self.codec = codec
+            self.sent: list[bytes] = []
+
+        publish_avoidance = ros2.UavTopics.publish_avoidance
+
+    class Sink:
+        def __init__(self, sent: list[bytes]) -> None:
+            self.put = lambda cdr, _t_ns: sent.append(cdr)
+
+    topics = Topics()
+    topics.avoidance = Sink(topics.sent)
+    decision = AvoidanceDecision(z_offset_m=2.0, avoiding=True, yielding_to=("uav1",),
+                                 deaf=("uav4",), holding=True)
+    stack = SimpleNamespace(decision=decision, heard=("uav1", "uav4"),
+                            position_sigma_m=(0.5, 0.9),
+                            tracker=SimpleNamespace(z_offset_m=2.0))
+    publish_status(topics, 3.0, stack)
+    stack.decision, stack.heard = None, ()  # before its first decision and broadcast
+    publish_status(topics, 3.1, stack)
+    first, before = (codec.decode(c, kind) for c in topics.sent)
+    assert (first.active, first.z_offset_m, list(first.yielding_to)) == (True, 2.0, ["uav1"])
+    assert list(first.heard) == ["uav1", "uav4"] and list(first.deaf) == ["uav4"]
+    assert first.holding is True
+    assert (first.position_sigma_horizontal_m, first.position_sigma_vertical_m) == (0.5, 0.9)
+    assert (before.active, list(before.heard), before.holding, list(before.deaf)) == (
+        False, [], False, [])
+    assert (before.position_sigma_horizontal_m, before.position_sigma_vertical_m) == (0.5, 0.9)
+
+
 def _router() -> tuple[object, str]:
     (port,) = free_ports(1)
     return loopback_router(port), f"tcp/127.0.0.1:{port}"
@@ -212,6 +281,10 @@ def test_a_node_on_the_graph_is_found_followed_decoded_and_commanded() -> None:
     assert odom.child_frame_id == "uav1/base_link"
     status = obs.decoder("uavmpc_msgs/msg/AvoidanceStatus")(samples["/uav1/avoidance"][-1][1])
     assert status.active is False and list(status.yielding_to) == []
+    # alone, it heard nobody and holds short of nobody; the uncertainty its messages state
+    assert list(status.heard) == [] and status.holding is False and list(status.deaf) == []
+    assert (status.position_sigma_horizontal_m,
+            status.position_sigma_vertical_m) == node.stack.position_sigma_m
 
 
 def test_without_commands_no_subscription_is_offered() -> None:

@@ -95,6 +95,16 @@ def _convert(codec: Ros2Codec, kind: str, data: dict[str, Any], t_s: float,
         headings = np.array([2.0 * np.arctan2(q[3], q[0]) for _, q in poses])
         times = t_s + horizon[:len(poses)]
         return codec.path(t_s, times, positions, headings)
+    # A flight log's status holds the decision's avoiding, offset, conflicts and yielding
+    # (from the world's stacks, or a swarm's NodeState): the other fields take their defaults
+    # unless a log carries them.
     return codec.avoidance_status(t_s, bool(data.get("avoiding", False)),
                                   float(data.get("z_offset_m", 0.0)),
-                                  list(data.get("yielding_to", [])))
+                                  list(data.get("yielding_to", [])),
+                                  heard=list(data.get("heard", [])),
+                                  position_sigma_horizontal_m=float(
+                                      data.get("position_sigma_horizontal_m", 0.0)),
+                                  position_sigma_vertical_m=float(
+                                      data.get("position_sigma_vertical_m", 0.0)),
+                                  holding=bool(data.get("holding", False)),
+                                  deaf=list(data.get("deaf", [])))

@@ -173,10 +173,23 @@ class Ros2Codec:
         return self.encode(self.types[PATH](header=self.header(stamp_s), poses=poses), PATH)
 
     def avoidance_status(self, t_s: float, active: bool, z_offset_m: float,
-                         yielding_to: Sequence[str]) -> bytes:
-        msg = self.types[AVOIDANCE_STATUS](header=self.header(t_s), active=bool(active),
-                                           z_offset_m=float(z_offset_m),
-                                           yielding_to=[str(u) for u in yielding_to])
+                         yielding_to: Sequence[str], *, heard: Sequence[str] = (),
+                         position_sigma_horizontal_m: float = 0.0,
+                         position_sigma_vertical_m: float = 0.0, holding: bool = False,
+                         deaf: Sequence[str] = ()) -> bytes:
+        """uavmpc_msgs/AvoidanceStatus: what the avoidance does (``active``, ``z_offset_m``,
+        ``yielding_to``, ``holding``, ``deaf``) and what its prediction messages carry
+        (``heard``, the stated position 1 sigma).
+
+        Raises:
+            TypeError: an id list given as one string (it would be sent letter by letter).
+        """
+        msg = self.types[AVOIDANCE_STATUS](
+            header=self.header(t_s), active=bool(active), z_offset_m=float(z_offset_m),
+            yielding_to=_ids("yielding_to", yielding_to), heard=_ids("heard", heard),
+            position_sigma_horizontal_m=float(position_sigma_horizontal_m),
+            position_sigma_vertical_m=float(position_sigma_vertical_m), holding=bool(holding),
+            deaf=_ids("deaf", deaf))
         return self.encode(msg, AVOIDANCE_STATUS)
 
     # ------------------------------------------------------------------ missions
@@ -217,6 +230,13 @@ class Ros2Codec:
             stamps[k] = ps.header.stamp.sec + ps.header.stamp.nanosec * 1e-9
         pts[:, 3] = np.unwrap(pts[:, 3])
         return (None if not np.any(stamps) else stamps), pts
+
+
+def _ids(field: str, ids: Sequence[str]) -> list[str]:
+    """A message's list of UAV ids, each as a string; one string alone is refused."""
+    if isinstance(ids, str | bytes):
+        raise TypeError(f"{field}: a sequence of ids, got one {type(ids).__name__} {ids!r}")
+    return [str(u) for u in ids]
 
 
 def _check_frame(frame_id: str) -> None:
@@ -454,9 +474,16 @@ class UavTopics:
                             round(stamp_s * 1e9))
 
     def publish_avoidance(self, t_s: float, active: bool, z_offset_m: float,
-                          yielding_to: Sequence[str]) -> None:
-        self.avoidance.put(self.codec.avoidance_status(t_s, active, z_offset_m, yielding_to),
-                           round(t_s * 1e9))
+                          yielding_to: Sequence[str], *, heard: Sequence[str] = (),
+                          position_sigma_horizontal_m: float = 0.0,
+                          position_sigma_vertical_m: float = 0.0, holding: bool = False,
+                          deaf: Sequence[str] = ()) -> None:
+        """``/<id>/avoidance``: :meth:`Ros2Codec.avoidance_status` of these values."""
+        self.avoidance.put(self.codec.avoidance_status(
+            t_s, active, z_offset_m, yielding_to, heard=heard,
+            position_sigma_horizontal_m=position_sigma_horizontal_m,
+            position_sigma_vertical_m=position_sigma_vertical_m, holding=holding, deaf=deaf),
+            round(t_s * 1e9))
 
     def missions(self, now_s: float, build: Callable[[np.ndarray | None, np.ndarray], Any],
                  most: int = 4) -> tuple[list[Any], list[str]]:

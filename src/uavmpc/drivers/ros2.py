@@ -87,11 +87,17 @@ def ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> 
 
 
 def publish_status(topics: UavTopics, stamp_s: float, stack: OnboardStack) -> None:
-    """The avoidance's state of ``stack`` on ``/<id>/avoidance``."""
+    """The avoidance's state of ``stack`` on ``/<id>/avoidance``: its decision's, and what its
+    prediction messages carry (the ids heard, the stated position uncertainty)."""
     d = stack.decision
+    sigma_h, sigma_v = stack.position_sigma_m
     topics.publish_avoidance(stamp_s, bool(d is not None and d.avoiding),
                              stack.tracker.z_offset_m,
-                             list(d.yielding_to) if d is not None else [])
+                             list(d.yielding_to) if d is not None else [],
+                             heard=list(stack.heard), position_sigma_horizontal_m=sigma_h,
+                             position_sigma_vertical_m=sigma_v,
+                             holding=bool(d is not None and d.holding),
+                             deaf=list(d.deaf) if d is not None else [])
 
 
 def publish_plan(topics: UavTopics, stamp_s: float, stack: OnboardStack,
