@@ -163,7 +163,8 @@ def test_update_from_messages_and_decide_from_a_table_agree() -> None:
                   if table.rows.held_slot[r, c] >= 0}
         a = HeightOffsetStrategy(params).update(now[r], ids[r], r + 1, own_t[r], own_p[r],
                                                 latest)
-        b = HeightOffsetStrategy(params).decide(now[r], ids[r], r + 1, own_t[r], found[r])
+        b = HeightOffsetStrategy(params).decide(now[r], ids[r], r + 1, own_t[r], found[r],
+                                                positions=own_p[r])
         assert a == b
 
 
