@@ -108,13 +108,14 @@ class AvoidanceParams:
             k √(σ_h,own² + σ_h,other²), the half height by k √(σ_v,own² + σ_v,other²). 0 for a
             true state or a centimetre-class fix changes nothing; a single-band receiver's
             metres widen the cylinder so that its conflicts take several layers.
-        hold_delay_s: time as well as height (docs/safety.md, A6): when no layer under the
-            ceiling is clear of the UAVs we yield to, we hold short — stop within our plan,
-            at full braking — and go on once our plan, started now or up to this much later
-            (probed every :data:`HOLD_PROBE_STEP_S`), meets none of them in some layer. The
-            delay covers the restart from rest (the plan at speed reaches each point sooner).
-            0 turns holding off (the UAV then climbs as high as the way allows and reports
-            ``ceiling_hit``, as before).
+        hold_delay_s: time as well as height (docs/safety.md, A6): when a conflict with a
+            UAV we yield to is left unresolved (no layer under the ceiling is clear of it, or
+            the way to the one that is is blocked), we hold short — stop within our plan, at
+            full braking — and go on once our plan, started now or up to this much later
+            (probed every :data:`HOLD_PROBE_STEP_S`), meets none of those we yield to in some
+            layer at or above ours. The delay covers the restart from rest (the plan at speed
+            reaches each point sooner). 0 turns holding off (the UAV then flies on, climbing
+            as high as the way allows, as before).
         climb_lag_s: how far the real climb may lag the fastest one (start at rest, then
             ``climb_accel_mps2`` up to ``climb_speed_mps``). A climb must not cross anyone on
             the way up: every altitude between the lagging and the fastest climb is checked
@@ -581,8 +582,8 @@ class HeightOffsetStrategy:
                     probes: list[Encounters] | None, own_id: str, own_priority: int,
                     deaf_ids: tuple[str, ...], unheard: bool) -> bool:
         """(docs/safety.md, A6: time as well as height.) Whether we hold short after this
-        round. A hold starts (``start``: no layer under the ceiling is clear of those we
-        yield to) with the plan it interrupts; it ends once some layer, at or above the
+        round. A hold starts (``start``: a conflict with one we yield to is left unresolved)
+        with the plan it interrupts; it ends once some layer, at or above the
         offset in force, is clear of them along every probe (:meth:`hold_probes`): going on
         now or up to ``hold_delay_s`` later meets none of them. The order is the priorities'
         (a total order): the highest never holds, and each holds only for higher ones."""

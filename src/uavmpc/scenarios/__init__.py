@@ -56,8 +56,8 @@ from uavmpc.tracker.params import DynamicLimits
 CONFLICTS = ("swap_through_static", "converge_center", "noncooperative_crossing")
 #: Dense conflicts: N UAVs meeting above one point at once (uavmpc.scenarios.dense,
 #: benchmarks/sweep_dense.py). Not everyone need climb (two neighbours may pass just outside
-#: the cylinder); and 12 are beyond the reference parameters: they need 12 layers, dz_m = 3 m
-#: under the ceiling max_offset_m = 30 m gives 11, two of them end up in one layer and collide
+#: the cylinder); and 12 are beyond the layers: they need 12, dz_m = 3 m under the ceiling
+#: max_offset_m = 30 m gives 11, so the lowest priority holds short until the way is clear
 #: (antipodal_8 is not among CONFLICTS for the first reason, antipodal_12 for the second).
 DENSE = ("antipodal_8", "antipodal_12")
 #: The built-in field applications (uavmpc.missions).

@@ -8,8 +8,9 @@ asked for. The built-ins ``antipodal_8`` and ``antipodal_12`` (``scenarios.load`
 any other N: ``antipodal(n)``, e.g. ``World(antipodal(10)).run()``.
 
 Above one point, N UAVs need N layers: the reference parameters (``dz_m`` = 3 m under the
-ceiling ``max_offset_m`` = 30 m) give 11. Measured (benchmarks/sweep_dense.py): up to 11 fly
-clear; with 12, two end up in one layer and collide.
+ceiling ``max_offset_m`` = 30 m) give 11, a geofence's ceiling (``ceiling_m``) fewer. Beyond
+them, the lower priorities hold short until the way is clear (docs/safety.md, A6); measured
+with benchmarks/sweep_dense.py.
 
 Reaching a goal. The world's :class:`~uavmpc.drivers.world.UavOutcome` says whether a UAV
 *ended* within :data:`~uavmpc.drivers.world.GOAL_TOLERANCE_M` (3-D) of its goal.
