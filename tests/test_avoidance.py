@@ -703,3 +703,23 @@ def test_the_acknowledgement_is_judged_on_fresh_messages_only_and_can_be_turned_
     assert d.deaf == () and d.z_offset_m == 0.0
     with pytest.raises(ConfigError, match=r"ack_grace_s: must be 0 \(off\) or ≥ timeout_s"):
         AvoidanceParams(ack_grace_s=0.5)
+
+
+# ---------------------------------------------------------------- time as well as height
+
+
+def test_with_no_layer_above_it_goes_down_to_a_clear_one_away_from_a_uav_level_with_it() -> None:
+    """docs/safety.md, A6: in the only layer under the ceiling, a higher priority arrives level
+    with us (the UAV whose goal our hold point is): nothing is clear above, so down to the
+    nearest layer clear of it — the way down escapes it, it is level with us."""
+    me = HeightOffsetStrategy()
+    me.limit_offset(P.dz_m)  # one layer under the ceiling
+    t = NOW + REL
+    own = hover((0.0, 0.0, 10.0))
+    head_on = line(t, (20.0, 0.0, 10.0), (-5.0, 0.0, 0.0))
+    d = me.update(NOW, "b", 2, t, own, {"c": msg("c", 1, head_on)})
+    assert d.z_offset_m == P.dz_m  # it climbed over c
+    later = NOW + 0.5
+    arriving = hover((1.0, 0.0, 10.0 + P.dz_m))  # a, level with us, above our start
+    d = me.update(later, "b", 2, later + REL, own, {"a": msg("a", 1, arriving, later)})
+    assert d.ceiling_hit and d.z_offset_m == 0.0 and d.unresolved == () and not d.holding
