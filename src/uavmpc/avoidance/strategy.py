@@ -505,20 +505,8 @@ class HeightOffsetStrategy:
         half_h = 0.5 * prm.height_m
         times = own_prediction_times
         if not known.ids:
-            # Nobody near: no conflict now, none on the way down; only the release runs.
-            self._unlisted_since = {}
-            self._release(now_s)
-            self._last_update_s = now_s
-            holding = self._hold_short(False, times, positions, probes, own_id, own_priority,
-                                       (), False)
-            recent = holding or (self._last_conflict_s is not None
-                                 and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-            return AvoidanceDecision(
-                z_offset_m=self.z_offset_m, avoiding=recent or self.z_offset_m > 0.0,
-                horizontal_scale=prm.horizontal_scale if recent else 1.0,
-                climb_speed_mps=prm.climb_speed_mps if recent else None,
-                climb_accel_mps2=prm.climb_accel_mps2 if recent else None,
-                silent=known.silent, holding=holding)
+            return self._nobody_near(now_s, known, times, positions, probes, own_id,
+                                     own_priority)
         # Silent UAVs count at their last plans (widened by how far they can have left them):
         # a pair that cannot hear each other still resolves its conflict.
         enc = known
@@ -577,6 +565,26 @@ class HeightOffsetStrategy:
             unheard=bool(unheard),
             holding=holding,
         )
+
+    def _nobody_near(self, now_s: float, known: Encounters, times: np.ndarray,
+                     positions: np.ndarray | None, probes: list[Encounters] | None,
+                     own_id: str, own_priority: int) -> AvoidanceDecision:
+        """Nobody near: no conflict now, none on the way down; only the release runs (and a
+        hold goes on until its probes clear)."""
+        prm = self.params
+        self._unlisted_since = {}
+        self._release(now_s)
+        self._last_update_s = now_s
+        holding = self._hold_short(False, times, positions, probes, own_id, own_priority, (),
+                                   False)
+        recent = holding or (self._last_conflict_s is not None
+                             and now_s - self._last_conflict_s < prm.release_hysteresis_s)
+        return AvoidanceDecision(
+            z_offset_m=self.z_offset_m, avoiding=recent or self.z_offset_m > 0.0,
+            horizontal_scale=prm.horizontal_scale if recent else 1.0,
+            climb_speed_mps=prm.climb_speed_mps if recent else None,
+            climb_accel_mps2=prm.climb_accel_mps2 if recent else None,
+            silent=known.silent, holding=holding)
 
     def _hold_short(self, start: bool, times: np.ndarray, positions: np.ndarray | None,
                     probes: list[Encounters] | None, own_id: str, own_priority: int,
