@@ -114,6 +114,10 @@ def test_same_seed_same_flight_and_log_is_readable(tmp_path) -> None:
             assert topics[f"/{uav}/{topic}"], (uav, topic)
         assert len(topics[f"/{uav}/prediction"][0]["poses"]) == 40
     assert any(m["z_offset_m"] > 0 for m in topics["/uav3/status"])
+    # what its messages carry (docs/safety.md): the others heard, the stated uncertainty
+    last = topics["/uav3/status"][-1]
+    assert set(last["heard"]) == {"uav1", "uav2"}
+    assert last["position_sigma_horizontal_m"] == 0.0 and last["holding"] is False
     events = {m["event"] for m in topics["/link"]}
     assert {"sent", "delivered"} <= events
     # same command again: the same flight

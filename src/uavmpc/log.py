@@ -6,8 +6,10 @@ Topics per UAV ``<id>``:
 - ``/<id>/state``, ``/<id>/command``, ``/<id>/reference``: ``foxglove.PoseInFrame`` (world frame
   ``"world"``, ENU; heading as a yaw quaternion), at ``pose_rate_hz``.
 - ``/<id>/prediction``: ``foxglove.PosesInFrame``, the 40 predicted poses, at each broadcast.
-- ``/<id>/status``: ``uavmpc.UavStatus`` (velocity, z offset, avoidance flag, conflicts, limit
-  excess of the virtual UAV), at ``pose_rate_hz``.
+- ``/<id>/status``: ``uavmpc.UavStatus`` (velocity, z offset, avoidance flag, conflicts, whom
+  it yields to, whether it holds short, whom it takes for deaf, the ids its messages list as
+  heard and the position uncertainty they state, limit excess of the virtual UAV), at
+  ``pose_rate_hz``.
 - ``/link``: ``uavmpc.LinkEvent`` for every message sent, delivered, dropped or rejected.
 
 And for the whole flight:
@@ -44,6 +46,12 @@ _STATUS_SCHEMA = {
         "z_offset_m": {"type": "number"},
         "avoiding": {"type": "boolean"},
         "conflicts": {"type": "array", "items": {"type": "string"}},
+        "yielding_to": {"type": "array", "items": {"type": "string"}},
+        "holding": {"type": "boolean"},
+        "deaf": {"type": "array", "items": {"type": "string"}},
+        "heard": {"type": "array", "items": {"type": "string"}},
+        "position_sigma_horizontal_m": {"type": "number"},
+        "position_sigma_vertical_m": {"type": "number"},
         "limit_excess": {"type": "number"},
         "braking": {"type": "boolean"},
     },

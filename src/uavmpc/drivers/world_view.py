@@ -147,6 +147,7 @@ class WorldScene:
                 r = ref.sample(np.array([w.t_s]))[0]
                 rec.pose(u.uav_id, "reference", w.t_s, r[:3], float(r[3]))
             decision = u.stack.decision
+            sigma_h, sigma_v = u.stack.position_sigma_m
             rec.status(u.uav_id, w.t_s,
                        velocity_mps=s.velocity_mps.tolist(),
                        command_velocity_mps=c.velocity_mps.tolist(),
@@ -154,5 +155,9 @@ class WorldScene:
                        avoiding=bool(decision is not None and decision.avoiding),
                        conflicts=list(decision.conflicts) if decision is not None else [],
                        yielding_to=list(decision.yielding_to) if decision is not None else [],
+                       holding=bool(decision is not None and decision.holding),
+                       deaf=list(decision.deaf) if decision is not None else [],
+                       heard=list(u.stack.heard), position_sigma_horizontal_m=sigma_h,
+                       position_sigma_vertical_m=sigma_v,
                        limit_excess=u.stack.tracker.limit_excess(),
                        braking=bool(last.braking))
