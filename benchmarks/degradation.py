@@ -1,7 +1,7 @@
 """Degradation curves: the protocol's closest approach and collisions against loss and latency.
 
     python benchmarks/degradation.py --out out/degradation [--hours 0.5] [--workers 2]
-        [--loss 0,0.15,0.3,0.45,0.6] [--latency 0,0.25,0.5,0.75,1.0]
+        [--loss 0,0.15,0.3,0.45,0.6] [--latency 0,0.25,0.5,0.75,0.9,1.0]
 
 Flies one random-walk campaign (the reference design's protocol, docs/campaign.md, launch
 check 10 s) per loss probability (at the default 50 ms latency) and per latency (without
@@ -52,21 +52,27 @@ def figure(rows: dict[str, list[dict[str, Any]]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    for ax, kind, label in ((axes[0], "loss", "loss probability (50 ms latency)"),
-                            (axes[1], "latency", "latency [s] (no loss)")):
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex="col")
+    for col, kind, label in ((0, "loss", "loss probability (50 ms latency)"),
+                             (1, "latency", "latency [s] (no loss)")):
         pts = rows[kind]
         x = [p[kind] for p in pts]
-        ax.plot(x, [p["closest_m"] for p in pts], "o-", label="closest approach [m]")
-        ax.plot(x, [p["collisions"] / max(p["simulated_hours"], 1e-9) for p in pts], "s--",
-                label="collisions per hour")
-        ax.axhline(2.0, color="grey", lw=0.8, ls=":")
-        ax.axhline(1.0, color="red", lw=0.8, ls=":")
-        ax.set_xlabel(label)
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("metres / collisions per hour")
-    axes[0].legend(loc="upper right")
-    fig.suptitle("5 UAVs, random walks, 600 s trials: 2 m goal (grey), collision (red)")
+        top, bottom = axes[0, col], axes[1, col]
+        top.plot(x, [p["closest_m"] for p in pts], "o-")
+        top.axhline(2.0, color="grey", lw=0.8, ls=":", label="2 m goal")
+        top.axhline(1.0, color="red", lw=0.8, ls=":", label="collision (1 m)")
+        top.set_ylim(0.0, 4.0)
+        bottom.plot(x, [p["collisions"] / max(p["simulated_hours"], 1e-9) for p in pts],
+                    "s-", color="tab:orange")
+        bottom.set_ylim(0.0, max(1.0, 1.1 * max(p["collisions"] / max(p["simulated_hours"],
+                                                                       1e-9) for p in pts)))
+        bottom.set_xlabel(label)
+        for ax in (top, bottom):
+            ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("closest approach [m]")
+    axes[1, 0].set_ylabel("collisions per hour")
+    axes[0, 0].legend(loc="lower left")
+    fig.suptitle("The protocol (5 UAVs, random walks, 600 s trials) against loss and latency")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -78,7 +84,7 @@ def main() -> int:
     ap.add_argument("--hours", type=float, default=0.5, help="flight per point [h]")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--loss", default="0,0.15,0.3,0.45,0.6")
-    ap.add_argument("--latency", default="0,0.25,0.5,0.75,1.0")
+    ap.add_argument("--latency", default="0,0.25,0.5,0.75,0.9,1.0")
     args = ap.parse_args()
     if not 0.0 < args.hours <= 24.0:
         ap.error(f"--hours: in (0, 24], got {args.hours}")
