@@ -30,9 +30,9 @@ Version 2 added two things (docs/safety.md):
 - the **position uncertainty** of the sender: how far its own estimate of where it is may be
   from where it is (1σ per horizontal axis and vertically, from its estimator; 0 for a true
   state or a centimetre-class fix). Receivers widen the pair's cylinder by both UAVs' (A3);
-- the **heard list**: the UAVs near the sender's plan whose plans it counts (fresh, or silent
-  at their last plan), i.e. who it knows it must keep clear of. A peer near us that does not
-  list us has not heard us, and will not make way for us (A2).
+- the **heard list**: the UAVs whose plans the sender counts (fresh, or silent at their last
+  plan), near or not — at most :data:`MAX_HEARD`, the nearest first beyond that. A peer near
+  us that does not list us has not heard us, and will not make way for us (A2).
 
 A version-1 message is refused by name (``unsupported schema version 1``), as a version-1 stack
 refuses ours: an old and a new stack never read each other silently wrong.
@@ -62,7 +62,7 @@ MAX_ID_LEN = 32
 #: The largest position uncertainty a message may state (1σ) [m]: beyond it, no cylinder means
 #: anything.
 MAX_SIGMA_M = 100.0
-#: At most this many UAVs in a message's heard list (the nearest encounters of its sender).
+#: At most this many UAVs in a message's heard list (beyond it, the nearest to its sender).
 MAX_HEARD = 64
 #: Priorities travel as int32.
 PRIORITY_RANGE = (-(2**31), 2**31 - 1)
@@ -99,7 +99,7 @@ class PredictionMessage:
             clocks). ``None`` when unknown.
         position_sigma_m: (horizontal, vertical) 1σ of the sender's own position estimate
             [m], each in [0, :data:`MAX_SIGMA_M`].
-        heard: the UAVs near the sender's plan whose plans it counts, fresh or silent (at
+        heard: the UAVs whose plans the sender counts, fresh or silent, near or not (at
             most :data:`MAX_HEARD`, distinct, not the sender): a UAV near it that is not
             listed has not been heard by it (docs/safety.md).
 
