@@ -50,10 +50,15 @@ def _full_cycle_checks(rep: dict[str, Any], mode: str) -> None:
     assert px4["setpoint_mode"] == mode
     assert px4["phase"] == "landed", px4
     assert px4["stop_reason"] is None, px4
-    # The goal held, by PX4's own estimate, when the mission ended.
+    # When the mission ended the node asked for the goal, and PX4 held it by its own estimate
+    # as closely as PX4 holds any setpoint in SITL: its estimate wanders about a fixed setpoint
+    # (measured at the end of 15 s flights to this goal: 0.09–0.52 m in position mode, where
+    # PX4's own controller holds it, 0.10–0.50 m in attitude mode, where ours does).
+    def dist(p: list[float]) -> float:
+        return sum((a - b) ** 2 for a, b in zip(p, _GOAL, strict=True)) ** 0.5
+    assert dist(rep["mission_end_command_m"]) < 0.01, rep["mission_end_command_m"]
     end = rep["mission_end_position_m"]
-    err = sum((a - b) ** 2 for a, b in zip(end, _GOAL, strict=True)) ** 0.5
-    assert err < 0.5, (mode, end, px4["status_texts"])
+    assert dist(end) < 1.0, (mode, end, px4["status_texts"])
     # PX4 itself accepted the disarm: its land detector said landed first.
     disarms = [c for c in px4["commands"] if c["command"] == "MAV_CMD_COMPONENT_ARM_DISARM"
                and c["params"][0] == 0.0]

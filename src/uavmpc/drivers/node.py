@@ -97,6 +97,9 @@ class NodeStats:
     final_position_m: list[float] = field(default_factory=list)
     #: Where the vehicle was (its estimate) when the mission ended and the landing began.
     mission_end_position_m: list[float] = field(default_factory=list)
+    #: Where the virtual UAV (the tracker's command) was at that moment: what the node asked
+    #: for, to set against the vehicle's estimate above.
+    mission_end_command_m: list[float] = field(default_factory=list)
     cpu_s: float = 0.0
     wall_s: float = 0.0
     #: The vehicle driver's report (the MAVLink link's phases, commands, rates), if any.
@@ -366,6 +369,7 @@ class Node:
                     landing_until = now + LANDING_TIMEOUT_S
                     self._interrupted = t_end is None or now < t_end
                     self.stats.mission_end_position_m = state.position_m.tolist()
+                    self.stats.mission_end_command_m = stack.command().position_m.tolist()
                     mission_rmse = stack.report().tracking_rmse_m
                     self._land(now, state)
                     vehicle.land(time.time())

@@ -85,7 +85,10 @@ GIVE_UP_S = 30.0
 MODE_CONFIRM_S = 3.0
 #: Landed, for an autopilot that never says (no EXTENDED_SYS_STATE): within this height of
 #: the take-off point and slower than LANDED_SPEED_MPS for LANDED_HOLD_S. PX4 always says, and
-#: its word is taken instead: EKF2's height drifts by ±0.6 m at rest.
+#: its word is taken instead: EKF2's height drifts by ±0.6 m at rest. Its word too must hold
+#: for LANDED_HOLD_S before we ask to disarm: PX4 v1.16's land detector flaps at touch-down
+#: (SITL, position setpoints: "Landing detected" at 23.57 s, "Takeoff detected" at 23.70 s,
+#: and the disarm sent between them was denied "not landed").
 LANDED_HEIGHT_M = 0.15
 LANDED_SPEED_MPS = 0.25
 LANDED_HOLD_S = 0.5
@@ -241,6 +244,7 @@ class Px4Vehicle:
         self.armed = False
         self.mode: Px4Mode | None = None
         self.landed_state = 0  # MAV_LANDED_STATE_UNDEFINED until the autopilot says
+        self._ground_seen = False  # the land detector said on ground since our landing began
         self.last_heartbeat_s = -math.inf
         self.clock = ClockMap()
         self._odom: tuple[float, VehicleState] | None = None  # (receipt wall time, state)
@@ -589,6 +593,9 @@ class Px4Vehicle:
                 f"{now_s - self._t0_s:.2f} s: "
                 f"{name.name.removeprefix('MAV_LANDED_STATE_') if name else msg.landed_state}")
         self.landed_state = int(msg.landed_state)
+        if self.phase in (Phase.LANDING, Phase.DISARMING) \
+                and self.landed_state == _M.MAV_LANDED_STATE_ON_GROUND:
+            self._ground_seen = True
 
     def _on_status_text(self, msg: Any, now_s: float) -> None:
         text = msg.text.rstrip("\x00") if isinstance(msg.text, str) else repr(msg.text)
@@ -676,7 +683,8 @@ class Px4Vehicle:
             self._stop(now_s, f"the autopilot left offboard (now {self.mode})")
             return
         if self.phase in (Phase.FLYING, Phase.LANDING, Phase.DISARMING) and not self.armed:
-            if self.phase != Phase.FLYING and self._autopilot_says_landed(est):
+            if self.phase != Phase.FLYING and (self._ground_seen
+                                               or self._autopilot_says_landed(est)):
                 self._pending = None  # its own auto-disarm after landing (COM_DISARM_LAND)
                 self._enter(Phase.LANDED, now_s)
             else:
@@ -741,8 +749,7 @@ class Px4Vehicle:
             return
         if self._landed_since_s is None:
             self._landed_since_s = now_s
-        if self.landed_state != _M.MAV_LANDED_STATE_UNDEFINED \
-                or now_s - self._landed_since_s >= LANDED_HOLD_S:
+        if now_s - self._landed_since_s >= LANDED_HOLD_S:
             self._send_command(now_s, _M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
             self._enter(Phase.DISARMING, now_s)
 
