@@ -1,6 +1,11 @@
 import os
 from pathlib import Path
 
+# One thread per parallel kernel, here and in the processes the tests start: the pytest-xdist
+# workers already fill the cores, and a tick split over threads that wait for each other on
+# busy cores only waits longer (tests/test_threads.py asks for more on purpose).
+os.environ.setdefault("UAVMPC_THREADS", "1")
+
 import numpy as np
 import pytest
 

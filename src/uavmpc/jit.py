@@ -16,17 +16,22 @@ setting is restored right after each decoration.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import platform
 import re
-from collections.abc import Callable
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numba
 from llvmlite import ir
 from numba.core import cgutils, types
+from numba.core import event as numba_event
 from numba.extending import intrinsic
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -43,10 +48,11 @@ _IMPORT = re.compile(r"^\s*(?:from|import)\s+(uavmpc(?:\.\w+)*)", re.MULTILINE)
 
 
 def _compiled_sources(root: Path) -> list[Path]:
-    """The modules compiled code can depend on: those that use this module (they hold
-    kernels) and, transitively, every package module they import (constants and helpers a
-    kernel reads are frozen into its machine code). A driver or an application outside that
-    closure can change without a recompilation."""
+    """The modules compiled code can depend on: those that hold kernels (``@kernel``), this
+    one, and, transitively, every package module they import (constants and helpers a kernel
+    reads are frozen into its machine code). A driver or an application outside that closure
+    (one that only calls kernels, binds them or sets their threads) can change without a
+    recompilation."""
     files = {p: p.read_text(encoding="utf-8") for p in root.rglob("*.py")}
 
     def resolve(name: str) -> list[Path]:
@@ -58,7 +64,9 @@ def _compiled_sources(root: Path) -> list[Path]:
                     return [cand]
         return []
 
-    todo = [p for p, text in files.items() if "uavmpc.jit" in text]
+    holds_kernels = re.compile(r"^@kernel\b", re.MULTILINE)
+    todo = [p for p, text in files.items()
+            if holds_kernels.search(text) or p == root / "jit.py"]
     seen = set(todo)
     while todo:
         path = todo.pop()
@@ -105,6 +113,61 @@ def kernel(fn: F | None = None, /, **options: Any) -> Any:
     return decorate(fn) if fn is not None else decorate
 
 
+def available_threads() -> int:
+    """The threads a parallel kernel can use in this process: every core, unless
+    ``NUMBA_NUM_THREADS`` set fewer before numba started."""
+    return int(numba.config.NUMBA_NUM_THREADS)
+
+
+#: The environment variable that sets the default thread count of the parallel kernels
+#: (:func:`default_threads`), like ``OMP_NUM_THREADS`` for OpenMP programs.
+THREADS_ENV = "UAVMPC_THREADS"
+
+
+def default_threads() -> int:
+    """The threads a parallel kernel uses unless told otherwise: ``$UAVMPC_THREADS`` if it is
+    an integer from 1 to :func:`available_threads` (any other value is named on stderr and
+    ignored), else every core."""
+    top = available_threads()
+    raw = os.environ.get(THREADS_ENV, "").strip()
+    if not raw:
+        return top
+    if raw.isdigit() and 1 <= int(raw) <= top:
+        return int(raw)
+    sys.stderr.write(f"uavmpc: {THREADS_ENV}={raw!r} is not an integer from 1 to {top}; "
+                     f"using {top} threads\n")
+    return top
+
+
+def set_threads(n: int | None) -> int:
+    """Run the parallel kernels (``@kernel(parallel=True)``) of this thread of Python on
+    ``n`` threads (None: :func:`default_threads`); returns the count set. Their results
+    do not depend on it: each parallel loop gives every row its own outputs and work arrays."""
+    top = available_threads()
+    if n is None:
+        n = default_threads()
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= top:
+        raise ValueError(f"threads must be an integer from 1 to {top} (this machine's cores, "
+                         f"or NUMBA_NUM_THREADS), got {n!r}")
+    numba.set_num_threads(n)
+    return n
+
+
+if os.environ.get(THREADS_ENV):
+    set_threads(None)
+
+
+@contextlib.contextmanager
+def using_threads(n: int | None) -> Iterator[int]:
+    """:func:`set_threads` for the ``with`` block only: the count before comes back after
+    (a campaign's trials must not change what the rest of the process runs on)."""
+    before = numba.get_num_threads()
+    try:
+        yield set_threads(n)
+    finally:
+        numba.set_num_threads(before)
+
+
 def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
     """``dispatcher`` compiled for the types of ``args``, callable without numba's per-call
     type inference.
@@ -144,3 +207,86 @@ def cycle_count() -> int:
     :data:`HAS_CYCLE_COUNTER`): a compiled loop times its own stages with it, and the caller
     converts counts to seconds against its wall clock over the same run."""
     return _read_cycle_counter()
+
+
+class CompileWatch:
+    """What numba compiles while this watch is on (``with CompileWatch(show=print): …``).
+
+    numba compiles a kernel on its first call when the cache holds none for its types (a
+    first run after an install or an upgrade: about a minute for a world); the watch counts
+    those compilations and their wall time (nested ones once), and, with ``show``, announces
+    the first one (naming the cache folder) and then reports the progress every
+    ``every_s`` seconds from a background thread, so a first run does not look like a hang.
+
+    Attributes:
+        kernels: compilations finished.
+        seconds: wall time spent compiling [s].
+    """
+
+    def __init__(self, show: Callable[[str], None] | None = None, every_s: float = 5.0) -> None:
+        self.show = show
+        self.every_s = every_s
+        self.kernels = 0
+        self.seconds = 0.0
+        self._depth = 0
+        self._t0 = 0.0
+        self._current = ""
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+        watch = self
+
+        class _Listener(numba_event.Listener):
+            def on_start(self, event: Any) -> None:
+                watch._started(event.data["dispatcher"].py_func.__name__)
+
+            def on_end(self, event: Any) -> None:
+                watch._ended()
+
+        self._listener = _Listener()
+
+    def __enter__(self) -> CompileWatch:
+        numba_event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        numba_event.unregister("numba:compile", self._listener)
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _started(self, name: str) -> None:
+        with self._lock:
+            self._current = name
+            self._depth += 1
+            if self._depth > 1:
+                return
+            self._t0 = time.perf_counter()
+            first = self._thread is None and self.show is not None
+        if first:
+            assert self.show is not None
+            self.show(f"compiling uavmpc's kernels for this machine (once; cached in "
+                      f"{CACHE_DIR})")
+            self._thread = threading.Thread(target=self._report, daemon=True)
+            self._thread.start()
+
+    def _ended(self) -> None:
+        with self._lock:
+            self.kernels += 1
+            self._depth -= 1
+            if self._depth == 0:
+                self.seconds += time.perf_counter() - self._t0
+
+    def elapsed_s(self) -> float:
+        """Wall time spent compiling so far, including a compilation in progress [s]."""
+        with self._lock:
+            running = time.perf_counter() - self._t0 if self._depth > 0 else 0.0
+            return self.seconds + running
+
+    def _report(self) -> None:
+        while not self._wake.wait(self.every_s):
+            with self._lock:
+                busy, name, done = self._depth > 0, self._current, self.kernels
+            if busy and self.show is not None:
+                self.show(f"  compiling: {done} kernels done, now {name}, "
+                          f"{self.elapsed_s():.0f} s so far")

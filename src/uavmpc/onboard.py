@@ -40,7 +40,7 @@ from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
 from uavmpc.comms.message import PredictionMessage, encode, from_prediction
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
-from uavmpc.jit import bind, kernel
+from uavmpc.jit import bind, cycle_count, kernel
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
 from uavmpc.reference import Reference, sample_reference
@@ -140,12 +140,22 @@ def onboard_post(i: int, trk: TrackerRows, consts: TrackerConsts, ctl: ControlRo
 def onboard_row(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
                 ctl: ControlRows, stats: StackStats, p: np.ndarray, v: np.ndarray,
                 q: np.ndarray, dt: float, sc: object, q_out: np.ndarray,
-                ff_out: np.ndarray) -> float:
+                ff_out: np.ndarray, cycles: np.ndarray) -> float:
     """The numerical part of row i's tick: bookkeeping, tracker (with the compiled solver),
-    SE(3) controller. ``sc``: :func:`~uavmpc.tracker.kernels.make_scratch`'s work arrays."""
+    SE(3) controller. ``sc``: :func:`~uavmpc.tracker.kernels.make_scratch`'s work arrays.
+    ``cycles``: (0,) int64, or (4,) or longer to add the CPU cycles of the tracker's stages
+    (:func:`~uavmpc.tracker.kernels.tick_row`) to its first three and those of the control
+    and bookkeeping to the fourth."""
+    timed = cycles.shape[0] > 0
+    c0 = cycle_count() if timed else 0
     onboard_pre(i, trk, stats, p)
-    tick_row(i, trk, refs, consts, sc)
-    return onboard_post(i, trk, consts, ctl, stats, p, v, q, dt, q_out, ff_out)
+    c1 = cycle_count() if timed else 0
+    tick_row(i, trk, refs, consts, sc, cycles)
+    c2 = cycle_count() if timed else 0
+    thrust = onboard_post(i, trk, consts, ctl, stats, p, v, q, dt, q_out, ff_out)
+    if timed:
+        cycles[3] += (c1 - c0) + (cycle_count() - c2)
+    return thrust
 
 
 @kernel
@@ -156,7 +166,8 @@ def onboard_one(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerC
     """:func:`onboard_row` for one stack ticking alone (work arrays from the batch's buffers,
     :func:`~uavmpc.tracker.kernels.scratch_views`)."""
     sc = scratch_views(buf, skip, consts.horizon_s.shape[0])
-    return onboard_row(i, trk, refs, consts, ctl, stats, p, v, q, dt, sc, q_out, ff_out)
+    return onboard_row(i, trk, refs, consts, ctl, stats, p, v, q, dt, sc, q_out, ff_out,
+                       np.empty(0, dtype=np.int64))
 
 
 @kernel

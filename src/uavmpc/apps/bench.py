@@ -292,8 +292,10 @@ def _maxrss_mib() -> float:
     return peak / 2**20 if sys.platform == "darwin" else peak / 2**10  # bytes there, KiB here
 
 
-def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool) -> dict[str, Any]:
-    """Fly one random_walk world of ``n`` UAVs in this (fresh) process; see :func:`bench_world`.
+def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool,
+                 threads: int = 1) -> dict[str, Any]:
+    """Fly one random_walk world of ``n`` UAVs in this (fresh) process on ``threads`` threads;
+    see :func:`bench_world`.
 
     Only the public ``World(scenario, ...)`` and ``run()`` are used, so the numbers stay
     comparable while the world's internals change."""
@@ -301,8 +303,10 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool) -> d
     import resource
 
     from uavmpc.drivers.world import World
+    from uavmpc.jit import set_threads
     from uavmpc.scenarios.random_walk import random_walk
 
+    set_threads(threads)
     # Load the on-disk kernels (seconds) on a throw-away flight, so the baseline holds them.
     World(random_walk(2, duration_s=1.0), avoidance=avoidance, batched=batched).run(0.5)
     baseline = _maxrss_mib()
@@ -318,6 +322,7 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool) -> d
     digest.update(np.ascontiguousarray(result.z_offset_m).tobytes())
     return {
         "uavs": n, "path": "batched" if batched else "per-object", "area_m": area,
+        "threads": threads,
         "duration_s": float(result.duration_s), "wall_s": float(result.wall_s),
         "cpu_s": (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
         "run_wall_s": t1 - t0,
@@ -331,7 +336,8 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool) -> d
     }
 
 
-def _spawn_world(n: int, duration_s: float, avoidance: bool, batched: bool) -> dict[str, Any]:
+def _spawn_world(n: int, duration_s: float, avoidance: bool, batched: bool,
+                 threads: int = 1) -> dict[str, Any]:
     """:func:`_world_child` in a fresh interpreter: ru_maxrss is a high-water mark of the whole
     process, so each size needs its own process to measure its own peak."""
     import subprocess
@@ -339,11 +345,13 @@ def _spawn_world(n: int, duration_s: float, avoidance: bool, batched: bool) -> d
 
     code = ("import json, sys; from uavmpc.apps.bench import _world_child; "
             "print(json.dumps(_world_child(*json.loads(sys.argv[1]))))")
-    # One thread for every pool the child might start: the factor is per core.
+    # Exactly ``threads`` threads for the world's tick, one for every other pool the child
+    # might start (BLAS): the factor is that of the threads asked for.
     env = {**os.environ, **{k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                                              "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}}
+                                              "MKL_NUM_THREADS")},
+           "NUMBA_NUM_THREADS": str(threads)}
     proc = subprocess.run([sys.executable, "-c", code,
-                           json.dumps([n, duration_s, avoidance, batched])],
+                           json.dumps([n, duration_s, avoidance, batched, threads])],
                           capture_output=True, text=True, env=env, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"bench world: the {n}-UAV child failed ({proc.returncode}):\n"
@@ -360,8 +368,8 @@ def _world_row(child: dict[str, Any]) -> dict[str, Any]:
     n, sim, wall = child["uavs"], child["duration_s"], child["wall_s"]
     factor = sim / wall
     return {
-        "uavs": n, "path": child["path"], "area_m": round(child["area_m"], 1),
-        "duration_s": sim, "wall_s": _sig(wall),
+        "uavs": n, "path": child["path"], "threads": child["threads"],
+        "area_m": round(child["area_m"], 1), "duration_s": sim, "wall_s": _sig(wall),
         "realtime_factor": _sig(factor),
         "uav_seconds_per_wall_second": round(factor * n, 1),
         "us_per_uav_second": _sig(wall * 1e6 / (sim * n)),
@@ -377,9 +385,14 @@ def _world_row(child: dict[str, Any]) -> dict[str, Any]:
         # it, receiving, planning and broadcasting at 10 and 2 Hz).
         "compiled_share": (None if not child.get("wall_s_by_phase")
                            else round(child["wall_s_by_phase"]["compiled_tick"] / wall, 3)),
-        # Inside the compiled tick, per UAV and tick: its stack (tracker with its QPs, SE(3)
-        # control, bookkeeping), its plant, the traces; and the real-time factor the world
-        # would have if nothing but the compiled tick ran (the floor of the cost).
+        # The wall time of each phase of a tick (the compiled call, and the Python around it:
+        # receiving and planning, broadcasting), per tick [µs].
+        "us_per_tick_by_phase": (None if not child.get("wall_s_by_phase") else {
+            k: _sig(v * 1e6 / (child["ticks_per_s"] * sim))
+            for k, v in child["wall_s_by_phase"].items()}),
+        # Inside the compiled tick, per UAV and tick (CPU time, summed over the threads): the
+        # tracker's stages, the control, the plant, the traces; and the real-time factor the
+        # world would have if nothing but the compiled tick ran on one thread.
         **_floor(child),
     }
 
@@ -412,75 +425,118 @@ def _growth(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "ratio_largest_uavs": top, "us_per_uav_second_ratio": _sig(ratio)}
 
 
-def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
-                duration_large_s: float = 10.0, avoidance: bool = True,
-                progress: Callable[[str], None] = print) -> dict[str, Any]:
-    """How the world scales with N: one random_walk world of N UAVs (full pipeline at 100 Hz,
-    plants at 500 Hz, avoidance on) for each N in ``sizes``, every tick one compiled call for
-    all UAVs, each in a fresh process on one core (warmed up, only ``World.run`` timed).
-
-    Per size: the real-time factor, the cost per UAV-second (wall µs per simulated
-    UAV-second), the peak RSS of the child after the flight and its baseline after imports and
-    warm-up, collisions and the closest approach. Over the sizes ≥ 20: the exponent α of the
-    cost per simulated second ∝ N^α and the cost per UAV-second at the largest size over that
-    at 20 UAVs. The smallest size is flown again UAV by UAV (``World(batched=False)``: the same
-    kernels) as the in-run reference, and the two flights are compared bit for bit.
-
-    Worlds of ≥ :data:`WORLD_LARGE_UAVS` UAVs fly ``min(duration_s, duration_large_s)``; the
-    area grows with N so the density stays that of the protocol (5 UAVs in 100 m × 100 m)."""
+def _check_world_args(sizes: tuple[int, ...], threads: tuple[int, ...], duration_s: float,
+                      duration_large_s: float) -> None:
     from uavmpc.config import ConfigError  # a ValueError the CLI reports as a message
+    from uavmpc.jit import available_threads
 
-    sizes = tuple(sizes)
     if not sizes or any(isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1000
                         for n in sizes):
         raise ConfigError(f"bench world: sizes must be integers in [1, 1000], got {sizes!r}")
     if len(set(sizes)) != len(sizes):
         raise ConfigError(f"bench world: each size once, got {sizes!r}")
+    top = available_threads()
+    if not threads or len(set(threads)) != len(threads) or any(
+            isinstance(t, bool) or not isinstance(t, int) or not 1 <= t <= top for t in threads):
+        raise ConfigError(f"bench world: threads must be distinct integers from 1 to {top} "
+                          f"(this machine's cores), got {threads!r}")
     for name, v in (("duration_s", duration_s), ("duration_large_s", duration_large_s)):
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"bench world: {name} must be > 0, got {v}")
 
+
+def _print_world_row(row: dict[str, Any], progress: Callable[[str], None],
+                     profile: bool) -> None:
+    closest = "-" if row["min_distance_m"] is None else f"{row['min_distance_m']:.2f} m"
+    progress(f"{row['uavs']:5d} UAVs, {row['threads']} thread(s): "
+             f"{row['realtime_factor']:8.2f}× real time, "
+             f"{row['us_per_uav_second']:8.1f} µs per UAV-second, "
+             f"RSS {row['peak_rss_mib']:.0f} MiB (+{row['flight_rss_mib']:.0f} over "
+             f"{row['baseline_rss_mib']:.0f}), {100 * row['compiled_share']:.0f} % in the "
+             f"compiled tick, {row['collisions']} collision(s), closest {closest}")
+    st = row["compiled_us_per_uav_tick"]
+    if profile and st:
+        stages = " + ".join(f"{k} {v:.2f}" for k, v in st.items())
+        progress(f"{'':5s}       compiled tick, CPU µs per UAV-tick: {stages} = "
+                 f"{sum(st.values()):.2f} ({row['compiled_only_realtime_factor']:.1f}× real "
+                 "time at most on one thread)")
+    if profile and row["us_per_tick_by_phase"]:
+        ph = row["us_per_tick_by_phase"]
+        progress(f"{'':5s}       wall µs per tick: " + ", ".join(
+            f"{k} {v:.0f}" for k, v in ph.items()))
+
+
+def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
+                duration_large_s: float = 10.0, avoidance: bool = True,
+                threads: tuple[int, ...] | None = None, profile: bool = False,
+                progress: Callable[[str], None] = print) -> dict[str, Any]:
+    """How the world scales with N and with threads: one random_walk world of N UAVs (full
+    pipeline at 100 Hz, plants at 500 Hz, avoidance on) for each N in ``sizes`` and each
+    thread count in ``threads`` (default: 1 and every core), every tick one compiled call
+    for all UAVs, each in a fresh process (warmed up, only ``World.run`` timed).
+
+    Per size and thread count: the real-time factor, the cost per UAV-second (wall µs per
+    simulated UAV-second), the peak RSS of the child after the flight and its baseline after
+    imports and warm-up, collisions and the closest approach, the compiled tick's stages per
+    UAV-tick and the wall time of each phase per tick (printed with ``profile``). Per size:
+    each thread count's speedup over the first and whether its flight is bit-identical to the
+    first's. Over the sizes ≥ 20 at the first thread count: the exponent α of the cost per
+    simulated second ∝ N^α and the cost per UAV-second at the largest size over that at 20
+    UAVs. The smallest size is flown again UAV by UAV (``World(batched=False)``: the same
+    kernels, one thread) as the in-run reference, and the flights are compared bit for bit.
+
+    Worlds of ≥ :data:`WORLD_LARGE_UAVS` UAVs fly ``min(duration_s, duration_large_s)``; the
+    area grows with N so the density stays that of the protocol (5 UAVs in 100 m × 100 m)."""
+    from uavmpc.jit import available_threads
+
+    sizes = tuple(sizes)
+    threads = tuple(sorted({1, available_threads()})) if threads is None else tuple(threads)
+    _check_world_args(sizes, threads, duration_s, duration_large_s)
+
     def duration(n: int) -> float:
         return duration_s if n < WORLD_LARGE_UAVS else min(duration_s, duration_large_s)
 
-    progress(f"world benchmark: {', '.join(map(str, sizes))} UAVs, {duration_s:g} s "
+    progress(f"world benchmark: {', '.join(map(str, sizes))} UAVs on "
+             f"{', '.join(map(str, threads))} thread(s), {duration_s:g} s "
              f"({min(duration_s, duration_large_s):g} s from {WORLD_LARGE_UAVS} UAVs), "
-             f"avoidance {'on' if avoidance else 'off'}, one fresh process per size")
-    rows, digests = [], {}
+             f"avoidance {'on' if avoidance else 'off'}, one fresh process per flight")
+    rows, digests, scaling = [], {}, []
     for n in sizes:
-        child = _spawn_world(n, duration(n), avoidance, True)
-        digests[n] = child["flight_digest"]
-        row = _world_row(child)
-        rows.append(row)
-        closest = "-" if row["min_distance_m"] is None else f"{row['min_distance_m']:.2f} m"
-        progress(f"{n:5d} UAVs, batched: {row['realtime_factor']:8.2f}× real time, "
-                 f"{row['us_per_uav_second']:8.1f} µs per UAV-second, "
-                 f"RSS {row['peak_rss_mib']:.0f} MiB (+{row['flight_rss_mib']:.0f} over "
-                 f"{row['baseline_rss_mib']:.0f}), {100 * row['compiled_share']:.0f} % in the "
-                 f"compiled tick, {row['collisions']} collision(s), closest {closest}")
-        if row["compiled_us_per_uav_tick"]:
-            st = row["compiled_us_per_uav_tick"]
-            progress(f"{'':5s}       compiled tick per UAV: stack {st['stack']:.1f} µs + plant "
-                     f"{st['plant']:.1f} µs + traces {st['trace']:.2f} µs: "
-                     f"{row['compiled_only_realtime_factor']:.1f}× real time at most")
-    growth = _growth(rows)
+        first: dict[str, Any] | None = None
+        for t in threads:
+            child = _spawn_world(n, duration(n), avoidance, True, t)
+            row = _world_row(child)
+            rows.append(row)
+            _print_world_row(row, progress, profile)
+            if first is None:
+                first, digests[n] = row, child["flight_digest"]
+                continue
+            speedup = row["realtime_factor"] / first["realtime_factor"]
+            same = child["flight_digest"] == digests[n]
+            scaling.append({"uavs": n, "threads": t, "reference_threads": first["threads"],
+                            "speedup": _sig(speedup), "identical": same})
+            progress(f"{'':5s}       {t} threads over {first['threads']}: {speedup:.2f}× "
+                     f"faster, flights bit-identical: {same}")
+    growth = _growth([r for r in rows if r["threads"] == threads[0]])
     smallest = min(sizes)
-    ref_child = _spawn_world(smallest, duration(smallest), avoidance, False)
+    ref_child = _spawn_world(smallest, duration(smallest), avoidance, False, 1)
     ref = _world_row(ref_child)
     identical = ref_child["flight_digest"] == digests[smallest]
-    fast = next(r for r in rows if r["uavs"] == smallest)
+    fast = next(r for r in rows if r["uavs"] == smallest and r["threads"] == threads[0])
     speedup = fast["realtime_factor"] / ref["realtime_factor"]
     progress(f"{smallest:5d} UAVs, per object (reference): {ref['realtime_factor']:.2f}× real "
-             f"time; batched is {speedup:.1f}× faster, flights bit-identical: {identical}")
+             f"time; batched on {threads[0]} thread(s) is {speedup:.1f}× faster, flights "
+             f"bit-identical: {identical}")
     if growth["growth_exponent"] is not None:
         progress(f"cost per simulated second ∝ N^{growth['growth_exponent']:.2f} over "
                  f"{growth['fit_uavs']} UAVs; per UAV-second, {growth['ratio_largest_uavs']} "
                  f"UAVs cost {growth['us_per_uav_second_ratio']:.2f}× what "
                  f"{growth['ratio_reference_uavs']} do")
     return {"duration_s": duration_s, "duration_large_s": duration_large_s,
-            "large_from_uavs": WORLD_LARGE_UAVS, "avoidance": avoidance,
-            "worlds": rows, "reference": ref, **growth,
+            "large_from_uavs": WORLD_LARGE_UAVS, "avoidance": avoidance, "threads": threads,
+            "worlds": rows, "thread_scaling": scaling, "reference": ref, **growth,
             "batched_speedup": round(speedup, 2), "identical_to_per_object": identical,
+            "identical_across_threads": all(r["identical"] for r in scaling),
             "python": platform.python_version(), "machine": platform.machine(),
             "cores": os.cpu_count()}
 
@@ -599,16 +655,20 @@ def main_tracker(ticks: int, seed: int) -> int:
 
 
 def main_world(duration_s: float, sizes: str | None = None,
-               duration_large_s: float | None = None) -> int:
+               duration_large_s: float | None = None, threads: str | None = None,
+               profile: bool = False) -> int:
     from uavmpc.config import ConfigError
 
-    try:
-        chosen = WORLD_SIZES if sizes is None else tuple(int(v) for v in sizes.split(","))
-    except ValueError:
-        raise ConfigError(f"bench world: --sizes must be integers like 5,20,100, got "
-                          f"{sizes!r}") from None
-    print(json.dumps(bench_world(chosen, duration_s,
-                                 10.0 if duration_large_s is None else duration_large_s)))
+    def ints(text: str | None, name: str, default: Any) -> Any:
+        try:
+            return default if text is None else tuple(int(v) for v in text.split(","))
+        except ValueError:
+            raise ConfigError(f"bench world: --{name} must be integers like 1,2, got "
+                              f"{text!r}") from None
+
+    print(json.dumps(bench_world(ints(sizes, "sizes", WORLD_SIZES), duration_s,
+                                 10.0 if duration_large_s is None else duration_large_s,
+                                 threads=ints(threads, "threads", None), profile=profile)))
     return 0
 
 

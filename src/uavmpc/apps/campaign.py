@@ -52,10 +52,10 @@ from uavmpc.apps.campaign_engine import (
     TRIALS_FILE,
     CampaignError,
     Task,
-    check_workers,
     iter_trials,
     load_records,
     run_trials,
+    split_cores,
 )
 from uavmpc.avoidance import AvoidanceParams
 from uavmpc.scenarios import LinkSettings, avoidance_params, changed_fields
@@ -443,6 +443,7 @@ def run_campaign(
     trials: int | None = None,
     seed: int = 0,
     workers: int | None = None,
+    threads: int | None = None,
     loss: float = 0.0,
     latency: float = 0.05,
     jitter: float = 0.02,
@@ -468,7 +469,8 @@ def run_campaign(
     (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``). ``logs``: the ``logs``
     trials with the closest approach are re-flown from their seeds into flight logs
     (``logs/trial_<index>.mcap``; a full campaign's would be gigabytes), linked from
-    ``report.html``.
+    ``report.html``. ``workers`` processes each fly a trial's world on ``threads`` threads
+    (:func:`~uavmpc.apps.campaign_engine.split_cores`; the report does not depend on them).
 
     Stops after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest
     prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
@@ -485,13 +487,15 @@ def run_campaign(
         faults=faults or FaultSpec(),
         avoidance_params=_avoidance(avoidance_params, faults),
         launch_check_s=None if launch_check_s is None else float(launch_check_s))
-    workers = check_workers(workers)
+    workers, threads = split_cores(workers, threads)
+    if progress:
+        print(f"campaign: {workers} worker(s) × {threads} thread(s) each", file=sys.stderr)
     out = Path(out_dir)
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
     selected = run_trials(out, spec, RandomWalkSpec.from_json, trials=trials,
                           target_s=target_s, max_trial_s=spec.length_s, workers=workers,
-                          ray_address=ray_address, progress=progress)
+                          threads=threads, ray_address=ray_address, progress=progress)
     from uavmpc.apps.campaign_engine import campaign_wall_s
 
     return _write_report(out, selected, spec, campaign_wall_s(out, wall0), logs)
@@ -589,7 +593,11 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
     stop.add_argument("--trials", type=int, help="number of trials")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None,
-                   help="local worker processes (default: CPU count)")
+                   help="local worker processes (default: CPU count, or the cores left by "
+                        "--threads)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="threads each trial's world ticks on (default: the cores left by "
+                        "--workers, at least 1); the records do not depend on it")
     p.add_argument("--out", default=None,
                    help="campaign folder (default out/campaign-{with,without}-avoidance, "
                         "out/campaign-landing, out/campaign-traffic); re-run the same command "
@@ -650,7 +658,7 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
     return run_campaign(out, uavs=5 if args.uavs is None else args.uavs,
                         avoidance=args.avoidance, hours=args.hours,
                         trials=args.trials, seed=args.seed, workers=args.workers,
-                        loss=args.loss, latency=args.latency, wind=args.wind,
+                        threads=args.threads, loss=args.loss, latency=args.latency, wind=args.wind,
                         trial_s=args.trial_s, cap_s=args.cap_s, area_m=args.area,
                         ray_address=args.ray, progress=not args.no_progress,
                         faults=fault_spec(args),
@@ -679,7 +687,7 @@ def _landing_command(args: argparse.Namespace) -> int:
     r = _interruptible(out, lambda: run_landing_campaign(
         out, trials=args.trials, seed=args.seed, scenario=args.scenario,
         speed_kmh=args.speed_kmh, duration_s=args.duration, workers=args.workers,
-        ray_address=args.ray, progress=not args.no_progress))
+        threads=args.threads, ray_address=args.ray, progress=not args.no_progress))
     if r is None:
         return 130
     t = r["time_to_land_s"]
@@ -701,8 +709,8 @@ def _traffic_command(args: argparse.Namespace) -> int:
     out = args.out or "out/campaign-traffic"
     r = _interruptible(out, lambda: run_traffic_campaign(
         out, trials=args.trials, uavs=300 if args.uavs is None else args.uavs, seed=args.seed,
-        duration_s=args.duration, workers=args.workers, ray_address=args.ray,
-        progress=not args.no_progress))
+        duration_s=args.duration, workers=args.workers, threads=args.threads,
+        ray_address=args.ray, progress=not args.no_progress))
     if r is None:
         return 130
     print("\n".join(report_lines(r)))

@@ -23,6 +23,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import json
 import math
+import multiprocessing as mp
 import os
 import sys
 import time
@@ -58,9 +59,13 @@ class Task:
     args: tuple[Any, ...]
 
 
-def run_task(task: Task) -> tuple[int, int, dict[str, Any]]:
-    """(trial index, part, result) of a task (what a worker runs)."""
-    return task.index, task.part, task.function(*task.args)
+def run_task(task: Task, threads: int = 1) -> tuple[int, int, dict[str, Any]]:
+    """(trial index, part, result) of a task (what a worker runs), its world's tick on
+    ``threads`` threads (the result does not depend on them)."""
+    from uavmpc.jit import available_threads, using_threads
+
+    with using_threads(min(threads, available_threads())):
+        return task.index, task.part, task.function(*task.args)
 
 
 class CampaignSpec(Protocol):
@@ -92,8 +97,9 @@ class _Serial:
 
     capacity = 1
 
-    def __init__(self) -> None:
+    def __init__(self, threads: int = 1) -> None:
         self._queue: list[Task] = []
+        self._threads = threads
 
     def submit(self, task: Task) -> None:
         self._queue.append(task)
@@ -102,7 +108,7 @@ class _Serial:
         return len(self._queue)
 
     def wait(self) -> list[tuple[int, int, dict[str, Any]]]:
-        return [run_task(self._queue.pop(0))]
+        return [run_task(self._queue.pop(0), self._threads)]
 
     def close(self, cancel: bool = False) -> None:
         self._queue.clear()
@@ -111,13 +117,19 @@ class _Serial:
 class _Pool:
     """A local process pool."""
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int, threads: int = 1) -> None:
         self.capacity = 2 * workers
-        self._ex = cf.ProcessPoolExecutor(max_workers=workers)
+        # Workers start from a fresh server process, not forked from this one: numba's
+        # default threading layer (workqueue) aborts a forked child of a process that has run
+        # a parallel kernel (a world flown before the campaign, in the same process).
+        methods = mp.get_all_start_methods()
+        ctx = mp.get_context("forkserver" if "forkserver" in methods else "spawn")
+        self._ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        self._threads = threads
         self._futures: set[cf.Future] = set()
 
     def submit(self, task: Task) -> None:
-        self._futures.add(self._ex.submit(run_task, task))
+        self._futures.add(self._ex.submit(run_task, task, self._threads))
 
     def pending(self) -> int:
         return len(self._futures)
@@ -133,7 +145,7 @@ class _Pool:
 class _Ray:
     """A Ray cluster (``address``: 'auto', 'local' for a fresh local one, or ray://host:port)."""
 
-    def __init__(self, address: str) -> None:
+    def __init__(self, address: str, threads: int = 1) -> None:
         try:
             import ray
         except ImportError:
@@ -150,11 +162,12 @@ class _Ray:
                 raise CampaignError(f"--ray {address}: cannot connect to Ray ({exc})") from None
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.capacity = 2 * max(cpus, 1)
-        self._remote = ray.remote(num_cpus=1)(run_task)
+        self._remote = ray.remote(num_cpus=threads)(run_task)
+        self._threads = threads
         self._refs: list[Any] = []
 
     def submit(self, task: Task) -> None:
-        self._refs.append(self._remote.remote(task))
+        self._refs.append(self._remote.remote(task, self._threads))
 
     def pending(self) -> int:
         return len(self._refs)
@@ -179,13 +192,34 @@ def check_workers(workers: int | None) -> int:
     return workers
 
 
-def executor(*, ray_address: str | None, workers: int) -> Any:
-    """Where tasks run: Ray, this process (one worker) or a local pool."""
+def split_cores(workers: int | None, threads: int | None) -> tuple[int, int]:
+    """(workers, threads per worker) for a campaign on this machine's cores. Trials are the
+    cheaper parallelism (no synchronisation per tick), so by default every core is a worker
+    with one thread; given one of the two, the other takes the cores left (at least 1, at
+    most :func:`~uavmpc.jit.default_threads`, which ``$UAVMPC_THREADS`` may lower)."""
+    from uavmpc.jit import available_threads, default_threads
+
+    cores = available_threads()
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)
+                                or not 1 <= threads <= cores):
+        raise CampaignError(f"threads: must be an integer from 1 to {cores} (this machine's "
+                            f"cores), got {threads!r}")
+    if workers is None:
+        workers = cores if threads is None else max(1, cores // threads)
+    workers = check_workers(workers)
+    if threads is None:
+        threads = max(1, min(default_threads(), cores // workers))
+    return workers, threads
+
+
+def executor(*, ray_address: str | None, workers: int, threads: int = 1) -> Any:
+    """Where tasks run: Ray, this process (one worker) or a local pool; each task's world
+    ticks on ``threads`` threads."""
     if ray_address is not None:
-        return _Ray(ray_address)
+        return _Ray(ray_address, threads)
     if workers == 1:
-        return _Serial()
-    return _Pool(workers)
+        return _Serial(threads)
+    return _Pool(workers, threads)
 
 
 # ------------------------------------------------------------------------------ storage
@@ -429,8 +463,9 @@ def _execute(out: Path, run: _Run, ex: Any) -> None:
 
 def run_trials(out: Path, spec: Any, load: Callable[[dict[str, Any]], Any], *,
                trials: int | None, target_s: float | None = None,
-               max_trial_s: float = math.inf, workers: int, ray_address: str | None = None,
-               progress: bool = False) -> list[dict[str, Any]]:
+               max_trial_s: float = math.inf, workers: int, threads: int = 1,
+               ray_address: str | None = None, progress: bool = False
+               ) -> list[dict[str, Any]]:
     """Open (or continue) the campaign ``spec`` in ``out`` and fly its missing trials; the
     records of the selection (``trials`` of them, or the shortest prefix whose ``sim_s`` reach
     ``target_s``; ``max_trial_s``: a trial's longest ``sim_s``), sorted by index."""
@@ -438,7 +473,7 @@ def run_trials(out: Path, spec: Any, load: Callable[[dict[str, Any]], Any], *,
     done = load_records(out, spec.foreign)
     wall0 = time.perf_counter()
     if not selected(done, trials, target_s)[1]:
-        ex = executor(ray_address=ray_address, workers=workers)
+        ex = executor(ray_address=ray_address, workers=workers, threads=threads)
         before = len(done)
         try:
             _execute(out, _Run(spec, done, trials, target_s, max_trial_s, Progress(progress)),
@@ -447,6 +482,7 @@ def run_trials(out: Path, spec: Any, load: Callable[[dict[str, Any]], Any], *,
             with open(out / RUNS_FILE, "a") as f:
                 append(f, {"wall_s": time.perf_counter() - wall0,
                             "new_trials": len(done) - before, "workers": workers,
+                            "threads": threads,
                             "ray": ray_address})
     chosen, complete = selected(done, trials, target_s)
     assert complete

@@ -236,11 +236,26 @@ def _print_formation(f: Formation) -> None:
         print(f"    while no member avoids: rms {calm.rms_m:.2f} m, max {calm.max_m:.2f} m")
 
 
+def _compiling() -> Any:
+    """A watch that tells the user, on stderr, what a cold cache compiles (a first run)."""
+    from uavmpc.jit import CompileWatch
+
+    return CompileWatch(show=lambda line: print(line, file=sys.stderr, flush=True))
+
+
+def _print_compiled(watch: Any) -> None:
+    if watch.kernels:
+        print(f"compiled {watch.kernels} kernels in {watch.seconds:.0f} s (once: the next run "
+              "loads them; the real-time factor above leaves it out)", file=sys.stderr)
+
+
 def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    s = _run_scenario("swap_through_static", out, avoidance=True, seed=args.seed,
-                      duration=None, loss=None, latency=None)
+    with _compiling() as watch:
+        s = _run_scenario("swap_through_static", out, avoidance=True, seed=args.seed,
+                          duration=None, loss=None, latency=None)
     _print_world_summary(s, out)
+    _print_compiled(watch)
     return 0 if not s.collisions else 1
 
 
@@ -276,12 +291,13 @@ def _run(args: argparse.Namespace) -> int:
                   f"{args.cruise_heights!r}", file=sys.stderr)
             return 2
     try:
-        s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance, seed=args.seed,
-                          duration=args.duration, loss=args.loss, latency=args.latency,
-                          wind=args.wind, ros2=args.ros2, realtime=args.realtime,
-                          uavs=args.uavs, cruise_heights=heights,
-                          faults=fault_spec(args), launch_check=args.launch_check,
-                          live_port=args.live)
+        with _compiling() as watch:
+            s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance,
+                              seed=args.seed, duration=args.duration, loss=args.loss,
+                              latency=args.latency, wind=args.wind, ros2=args.ros2,
+                              realtime=args.realtime, uavs=args.uavs, cruise_heights=heights,
+                              faults=fault_spec(args), launch_check=args.launch_check,
+                              live_port=args.live)
     except (OSError, ValueError) as exc:
         if args.ros2 is None and args.live is None:
             raise
@@ -289,6 +305,7 @@ def _run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     _print_world_summary(s, out)
+    _print_compiled(watch)
     return 0
 
 
@@ -636,7 +653,7 @@ def _bench(args: argparse.Namespace) -> int:
         return main_loop(args.duration, args.repeats, args.airframe)
     if args.what == "world":
         return main_world(args.duration if args.duration != 60.0 else 20.0, args.sizes,
-                          args.duration_large)
+                          args.duration_large, args.threads, args.profile)
     if args.what == "px4":
         return main_px4(args.duration if args.duration != 60.0 else 20.0)
     if args.what == "ros2":
@@ -650,7 +667,14 @@ def _add_demo_parser(sub: Any) -> None:
         "demo", help="three UAVs swap through a hovering one, with collision avoidance")
     demo.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     demo.add_argument("--seed", type=int, default=0)
+    _add_threads_argument(demo)
     demo.set_defaults(func=_demo)
+
+
+def _add_threads_argument(parser: Any) -> None:
+    parser.add_argument("--threads", type=int, default=None, metavar="N",
+                        help="threads the world's tick runs its UAVs on (default: every core; "
+                             "the flight is the same for any N)")
 
 
 def _add_run_parser(sub: Any) -> None:
@@ -665,6 +689,7 @@ def _add_run_parser(sub: Any) -> None:
     run.add_argument("--no-avoidance", action="store_true", help="fly without avoidance")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--duration", type=float, default=None, help="simulated seconds")
+    _add_threads_argument(run)
     run.add_argument("--out", default="out/run", help="output folder (default out/run)")
     run.add_argument("--loss", type=float, default=None, help="message loss probability")
     run.add_argument("--latency", type=float, default=None, help="link latency [s]")
@@ -920,6 +945,12 @@ def _add_bench_parser(sub: Any) -> None:
     bench.add_argument("--duration-large", type=float, default=None,
                        help="world: seconds for worlds of ≥ 300 UAVs (default 10, at most "
                             "--duration)")
+    bench.add_argument("--threads", default=None, metavar="T1,T2,...",
+                       help="world: thread counts to fly each size with, side by side "
+                            "(default: 1 and every core)")
+    bench.add_argument("--profile", action="store_true",
+                       help="world: each flight's compiled tick stage by stage (prepare, QP, "
+                            "advance, control, plant, traces) and the Python phases per tick")
     bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)
@@ -962,6 +993,14 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "ticks", 1) < 1:
         print("uavmpc: --ticks must be ≥ 1", file=sys.stderr)
         return 2
+    if args.command in ("demo", "run") and args.threads is not None:
+        from uavmpc.jit import set_threads
+
+        try:
+            set_threads(args.threads)
+        except ValueError as exc:
+            print(f"uavmpc: --threads: {exc}", file=sys.stderr)
+            return 2
     if getattr(args, "ros2_dds", None) is not None:  # run, swarm, node: one graph, named once
         from uavmpc.drivers.ros2 import dds_where
 

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uavmpc.drivers.summary import Formation, Landing
+from uavmpc.drivers.world_tick import STAGES
 from uavmpc.missions.formation import formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 
@@ -236,8 +237,9 @@ def _timing_extras(result: WorldResult, phase_wall_s: Sequence[float], cycles: n
         (round(v, 6) for v in phase_wall_s), strict=True))}
     result.sections["timing"] = timing
     c = cycles
-    if c.size and c[3] > 0 and cycles_per_s > 0:
-        # Per UAV and tick, inside the compiled call: the floor of a UAV-second.
+    if c.size and c[-1] > 0 and cycles_per_s > 0:
+        # Per UAV and tick, inside the compiled call: the floor of a UAV-second (CPU time,
+        # summed over the threads).
         timing["compiled_us_per_uav_tick"] = {
-            name: round(float(c[j] / c[3] / cycles_per_s * 1e6), 3)
-            for j, name in enumerate(("stack", "plant", "trace"))}
+            name: round(float(c[j] / c[-1] / cycles_per_s * 1e6), 3)
+            for j, name in enumerate(STAGES)}

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numba
 import numpy as np
 
 from uavmpc.estimation.fleet import FleetEstimator
@@ -18,51 +19,57 @@ from uavmpc.plant.kernels import fly_target
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.tracker.kernels import make_scratch
 
+#: The stages of a UAV's tick that :func:`world_tick` times: the tracker's three
+#: (:func:`~uavmpc.tracker.kernels.tick_row`), the SE(3) control with the stack's bookkeeping,
+#: the plant's substeps, and the traces (once per tick, for every UAV).
+STAGES = ("prepare", "qp", "advance", "control", "plant", "trace")
+#: The length of a profile: a cycle count per stage, then the number of UAV-ticks.
+N_CYCLES = len(STAGES) + 1
 
-@kernel
+
+@kernel(parallel=True)
 def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d, cycles, est):
+               pair_d, cycles, est, blocks):
     """One 10 ms tick of every UAV, the compiled solver inline: each UAV's stack
     (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true state, then the
     plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row ``k`` of the traces
     (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the pair distances
-    ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the index of a UAV whose attitude
-    target could not be flown (the tick stops there).
+    ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the lowest index of a UAV whose
+    attitude target could not be flown (that row is not flown; the caller stops the run).
 
-    ``cycles``: (4,) int64 to profile the tick, or (0,) not to: adds the cycle counts of the
-    stacks, the plants and the traces, and the number of UAV-ticks (:func:`cycle_count`).
+    The rows run in parallel in ``blocks`` contiguous blocks, one per thread (the caller
+    passes ``numba.get_num_threads()``, see :func:`uavmpc.jit.set_threads`: a compiled
+    function that asks numba itself cannot be cached). A row reads and writes only its own
+    rows of the records, with work arrays of its block's own, so the flight is bit-identical
+    for any thread count.
+
+    ``cycles``: (:data:`N_CYCLES`,) int64 to profile the tick, or (0,) not to: adds the CPU
+    cycles (summed over the threads) of each of :data:`STAGES` and, last, the number of
+    UAV-ticks (:func:`cycle_count`).
     ``est``: (N, 6) the estimated [p, v] the stacks fly on (attitude and rates stay the
     plants' own), or (0, 6) for the true state."""
     n = plant.x.shape[0]
-    sc = make_scratch(consts.horizon_s.shape[0])
-    qd = np.empty(4)
-    ff = np.empty(3)
     timed = cycles.shape[0] > 0
-    estimated = est.shape[0] > 0
-    c0 = c1 = 0
-    for i in range(n):
-        x = plant.x[i]
-        if timed:
-            c0 = cycle_count()
-        if estimated:
-            thrust = onboard_row(i, trk, refs, consts, ctl, stats, est[i, 0:3], est[i, 3:6],
-                                 x[6:10], dt, sc, qd, ff)
-        else:
-            thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt,
-                                 sc, qd, ff)
-        if timed:
-            c1 = cycle_count()
-            cycles[0] += c1 - c0
-        if not fly_target(i, plant, n_sub, qd, thrust, ff):
-            return i
-        if timed:
-            cycles[1] += cycle_count() - c1
-            cycles[3] += 1
+    nb = max(1, min(n, blocks))
+    bad = np.full(nb, -1, dtype=np.int64)
+    spent = np.zeros((nb, N_CYCLES if timed else 0), dtype=np.int64)
+    if nb == 1:  # no parallel loop on one thread (see _trace)
+        bad[0] = _tick_rows(0, n, trk, refs, consts, ctl, stats, plant, n_sub, dt, est,
+                            spent[0])
+    else:
+        for b in numba.prange(nb):
+            bad[b] = _tick_rows(b * n // nb, (b + 1) * n // nb, trk, refs, consts, ctl,
+                                stats, plant, n_sub, dt, est, spent[b])
+    for b in range(nb):
+        if bad[b] >= 0:
+            return bad[b]
+    c0 = cycle_count() if timed else 0
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d, nb)
     if timed:
-        c0 = cycle_count()
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
-    if timed:
-        cycles[2] += cycle_count() - c0
+        for b in range(nb):
+            for j in range(N_CYCLES):
+                cycles[j] += spent[b, j]
+        cycles[5] += cycle_count() - c0
     return -1
 
 
@@ -84,28 +91,72 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
         thrust = onboard_post(i, trk, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, qd, ff)
         if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d, 1)
     return -1
 
 
 @kernel
-def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
+def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, est, spent):
+    """Rows ``first`` … ``end`` − 1 of :func:`world_tick`, with work arrays of their own
+    (one thread's block). Returns −1, or the first row whose target could not be flown (the
+    rows after it are not flown)."""
+    sc = make_scratch(consts.horizon_s.shape[0])
+    qd = np.empty(4)
+    ff = np.empty(3)
+    timed = spent.shape[0] > 0
+    estimated = est.shape[0] > 0
+    for i in range(first, end):
+        x = plant.x[i]
+        if estimated:
+            thrust = onboard_row(i, trk, refs, consts, ctl, stats, est[i, 0:3], est[i, 3:6],
+                                 x[6:10], dt, sc, qd, ff, spent)
+        else:
+            thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10],
+                                 dt, sc, qd, ff, spent)
+        c0 = cycle_count() if timed else 0
+        if not fly_target(i, plant, n_sub, qd, thrust, ff):
+            return i
+        if timed:
+            spent[4] += cycle_count() - c0
+            spent[6] += 1
+    return -1
+
+
+@kernel
+def _pair_row(a, n, k, pos_out, pair_d):
+    """Row ``a`` of the pair distances (pairs (a, b > a), from index a (2n − a − 1) / 2);
+    returns its minimum (inf for the last row)."""
+    p = a * (2 * n - a - 1) // 2
+    best = math.inf
+    for b in range(a + 1, n):
+        d0 = pos_out[k, a, 0] - pos_out[k, b, 0]
+        d1 = pos_out[k, a, 1] - pos_out[k, b, 1]
+        d2 = pos_out[k, a, 2] - pos_out[k, b, 2]
+        d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        pair_d[p] = d
+        best = min(best, d)
+        p += 1
+    return best
+
+
+@kernel(parallel=True)
+def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d, blocks):
+    # On one thread no parallel loop is entered at all: handing even one block to numba's
+    # thread pool costs a wake-up of a pool thread per call, which a busy core delays.
     n = plant.x.shape[0]
     for i in range(n):
         for j in range(3):
             pos_out[k, i, j] = plant.x[i, j]
         zoff_out[k, i] = trk.z_offset_m[i]
     best = math.inf
-    p = 0
-    for a in range(n):
-        for b in range(a + 1, n):
-            d0 = pos_out[k, a, 0] - pos_out[k, b, 0]
-            d1 = pos_out[k, a, 1] - pos_out[k, b, 1]
-            d2 = pos_out[k, a, 2] - pos_out[k, b, 2]
-            d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            pair_d[p] = d
-            best = min(best, d)
-            p += 1
+    if blocks <= 1:
+        for a in range(n):
+            best = min(best, _pair_row(a, n, k, pos_out, pair_d))
+    else:
+        row_min = np.full(max(n, 1), math.inf)
+        for a in numba.prange(n):
+            row_min[a] = _pair_row(a, n, k, pos_out, pair_d)
+        best = row_min.min()
     dmin_out[k] = best
 
 
@@ -115,8 +166,8 @@ class CompiledTick:
     state), the plants with wind (``windy``: their gusts held over the tick).
 
     Attributes:
-        cycles: (4,) int64 the cycle counts of the compiled calls of the current run (see
-            :func:`world_tick`), or (0,) without a cycle counter.
+        cycles: (:data:`N_CYCLES`,) int64 the cycle counts of the compiled calls of the
+            current run (see :func:`world_tick`), or (0,) without a cycle counter.
     """
 
     def __init__(self, onboard: OnboardBatch, plants: PlantRows, n_sub: int, period_s: float,
@@ -127,7 +178,7 @@ class CompiledTick:
         self.period_s = period_s
         self.estimator = estimator
         self.windy = windy
-        self.cycles = np.zeros(4 if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
+        self.cycles = np.zeros(N_CYCLES if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
         self._kernels: tuple[Any, Any] | None = None
         self._no_estimate = np.zeros((0, 6))
 
@@ -143,7 +194,7 @@ class CompiledTick:
             return self.bound(table, traces)(trk.rows, table, trk.consts, ob.control,
                                              ob.stats, self.plants, self.n_sub,
                                              self.period_s, *traces, self.cycles,
-                                             self.estimates())
+                                             self.estimates(), numba.get_num_threads())
         world_pre(trk.rows, ob.stats, self.plants)
         trk.step()
         return world_post(trk.rows, trk.consts, ob.control, ob.stats, self.plants,
@@ -156,7 +207,7 @@ class CompiledTick:
             trk = ob.tracker
             self._kernels = (table, bind(world_tick, trk.rows, table, trk.consts, ob.control,
                                          ob.stats, self.plants, self.n_sub, self.period_s,
-                                         *traces, self.cycles, self.estimates(peek=True)))
+                                         *traces, self.cycles, self.estimates(peek=True), 1))
         return self._kernels[1]
 
     def estimates(self, peek: bool = False) -> np.ndarray:
@@ -171,4 +222,4 @@ class CompiledTick:
 
     def trace(self, traces: tuple[Any, ...]) -> None:
         """Write ``traces`` of the plants' state (the per-object path's tick)."""
-        _trace(self.onboard.tracker.rows, self.plants, *traces)
+        _trace(self.onboard.tracker.rows, self.plants, *traces, 1)

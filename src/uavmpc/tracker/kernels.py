@@ -32,7 +32,7 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
-from uavmpc.jit import FASTMATH, FASTMATH_ORDERED, kernel
+from uavmpc.jit import FASTMATH, FASTMATH_ORDERED, cycle_count, kernel
 from uavmpc.reference import sample_reference
 from uavmpc.solvers.batchqp import OPTIMAL, LdpData, solve_warm
 from uavmpc.solvers.contract import FEASIBILITY_TOL
@@ -58,7 +58,9 @@ class TrackerConsts(NamedTuple):
         neg_hinv: (m, m) −H⁻¹ (the unconstrained optimum is ``f @ neg_hinv``).
         use_vref: the velocity weight is on (the reference's velocity enters f).
         free_t: (3, 3m), forced_t: (m, 3m): the plan ``X = s0 free_t + U forced_t``.
-        ldp: the QP solver's data for (H, C); iter_limit: its iteration limit.
+        ldp_*: the QP solver's data for (H, C) (the fields of
+            :class:`~uavmpc.solvers.batchqp.LdpData`, flat: numba's parallel loops take
+            records of arrays, not records of records); iter_limit: its iteration limit.
         spans: (5, m, 2) int64 the nonzero columns of each row of f_ref_t, vref_of_ref,
             f_vref_t, neg_hinv and c_t (:func:`nonzero_spans`).
     """
@@ -78,7 +80,12 @@ class TrackerConsts(NamedTuple):
     use_vref: bool
     free_t: np.ndarray
     forced_t: np.ndarray
-    ldp: LdpData
+    ldp_hess: np.ndarray
+    ldp_hinv: np.ndarray
+    ldp_cmat: np.ndarray
+    ldp_q: np.ndarray
+    ldp_gram: np.ndarray
+    ldp_inv_norm: np.ndarray
     iter_limit: int
     spans: np.ndarray
 
@@ -611,7 +618,7 @@ def advance_row(i: int, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> Non
 def solve_row(i: int, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> None:
     """The marked axes of row i, by the dual active-set solver, warm-started from its last
     working set and factor (:func:`~uavmpc.solvers.batchqp.solve_warm`)."""
-    ld = c.ldp
+    ld = LdpData(c.ldp_hess, c.ldp_hinv, c.ldp_cmat, c.ldp_q, c.ldp_gram, c.ldp_inv_norm)
     iterations = 0
     # Each axis of each row is one slot of the solver's factor cache (nw, age: (N·4,)).
     nw_flat = rows.nw.reshape(-1)
@@ -638,11 +645,23 @@ def solve_row(i: int, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> None:
 
 @kernel
 def tick_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
-             sc: Scratch) -> None:
-    """One whole tick of row i with the compiled solver."""
+             sc: Scratch, cycles: np.ndarray) -> None:
+    """One whole tick of row i with the compiled solver. ``cycles``: (0,) int64, or (3,) or
+    longer to add the CPU cycles of its prepare, QP and advance stages to its first three."""
+    if cycles.shape[0] == 0:
+        prepare_row(i, rows, refs, c, sc)
+        solve_row(i, rows, c, sc)
+        advance_row(i, rows, c, sc)
+        return
+    c0 = cycle_count()
     prepare_row(i, rows, refs, c, sc)
+    c1 = cycle_count()
     solve_row(i, rows, c, sc)
+    c2 = cycle_count()
     advance_row(i, rows, c, sc)
+    cycles[0] += c1 - c0
+    cycles[1] += c2 - c1
+    cycles[2] += cycle_count() - c2
 
 
 @kernel
@@ -650,8 +669,9 @@ def tick_rows(idx: np.ndarray, rows: TrackerRows, refs: ReferenceTable, c: Track
               buf: np.ndarray, skip: np.ndarray) -> None:
     """:func:`tick_row` for the rows ``idx`` (work arrays: :func:`scratch_views`' buffers)."""
     sc = scratch_views(buf, skip, c.horizon_s.shape[0])
+    untimed = np.empty(0, dtype=np.int64)
     for i in idx:
-        tick_row(i, rows, refs, c, sc)
+        tick_row(i, rows, refs, c, sc, untimed)
 
 
 @kernel
@@ -764,5 +784,6 @@ def tick_bundle(i: int, b: TrackerBundle, out: np.ndarray) -> tuple[bool, int, i
     """:func:`tick_row` on a bundle's records, then :func:`snapshot_row`: a tracker ticking
     alone, in one call."""
     c = b.consts
-    tick_row(i, b.rows, b.refs, c, scratch_views(b.buf, b.skip, c.horizon_s.shape[0]))
+    tick_row(i, b.rows, b.refs, c, scratch_views(b.buf, b.skip, c.horizon_s.shape[0]),
+             np.empty(0, dtype=np.int64))
     return snapshot_row(i, b.rows, out)

@@ -172,6 +172,7 @@ def build_consts(config: TrackerConfig, model: CondensedModel) -> TrackerConsts:
         vref_of_ref[k - 1, k], vref_of_ref[k, k] = -1.0 / lengths[k], 1.0 / lengths[k]
     vref_of_ref[:, 0] = vref_of_ref[:, 1]
     c = np.ascontiguousarray
+    ldp = LdpData.build(model.hessian, model.constraint_matrix)
     products = (c(model.f_ref.T), vref_of_ref, c(model.f_vref.T), c(-model.hessian_inv),
                 c(model.constraint_matrix.T))
     return TrackerConsts(
@@ -182,7 +183,7 @@ def build_consts(config: TrackerConfig, model: CondensedModel) -> TrackerConsts:
         cfree_t=c(model.constraint_free.T), c_t=c(model.constraint_matrix.T),
         neg_hinv=c(-model.hessian_inv), use_vref=bool(config.q_velocity > 0.0),
         free_t=c(model.free.T), forced_t=c(model.forced.T),
-        ldp=LdpData.build(model.hessian, model.constraint_matrix),
+        **{f"ldp_{name}": value for name, value in ldp._asdict().items()},
         iter_limit=int(config.iter_limit),
         spans=np.stack([nonzero_spans(x) for x in products]),
     )

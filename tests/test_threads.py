@@ -1,0 +1,109 @@
+"""The world's tick on several threads: the same flight for any thread count, and the thread
+counts a user can ask for (``--threads``), in the CLI and in a campaign's split of the cores."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from uavmpc.apps.campaign_engine import CampaignError, split_cores
+from uavmpc.apps.cli import main
+from uavmpc.drivers.world import World
+from uavmpc.jit import CACHE_DIR, CompileWatch, available_threads, set_threads
+from uavmpc.scenarios.random_walk import random_walk
+
+needs_two = pytest.mark.skipif(available_threads() < 2, reason="one core: nothing to split")
+
+
+@pytest.fixture
+def restore_threads():
+    yield
+    set_threads(None)
+
+
+def _fly(threads: int, **world: object) -> tuple[np.ndarray, ...]:
+    set_threads(threads)
+    # 12 UAVs in the protocol's density: encounters, climbs and releases within 8 s.
+    sc = random_walk(12, area_m=155.0, duration_s=8.0, seed=4)
+    r = World(sc, seed=4, **world).run(8.0)
+    return r.positions_m, r.z_offset_m, r.min_distance_m
+
+
+@needs_two
+@pytest.mark.parametrize("world", [{}, {"gnss": "single"}], ids=["truth", "estimated"])
+def test_flight_is_bit_identical_for_any_thread_count(world, restore_threads) -> None:
+    one = _fly(1, **world)
+    two = _fly(2, **world)
+    assert np.ptp(one[1]) > 0 or np.ptp(one[0][:, :, 2]) > 0  # something happened
+    for a, b in zip(one, two, strict=True):
+        assert a.shape == b.shape
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("n", [0, -1, 10_000, 1.5, True])
+def test_set_threads_names_the_bad_count(n, restore_threads) -> None:
+    with pytest.raises(ValueError, match="threads must be an integer from 1 to"):
+        set_threads(n)
+
+
+def test_run_threads_out_of_range_exits_with_a_message(capsys) -> None:
+    assert main(["run", "swap_through_static", "--threads", "0", "--duration", "1"]) == 2
+    assert "--threads" in capsys.readouterr().err
+
+
+def test_campaign_split_of_the_cores(monkeypatch) -> None:
+    monkeypatch.delenv("UAVMPC_THREADS", raising=False)  # (the test session sets it to 1)
+    cores = available_threads()
+    assert split_cores(None, None) == (cores, 1)
+    assert split_cores(1, None) == (1, cores)
+    assert split_cores(None, cores) == (1, cores)
+    assert split_cores(3 * cores, None) == (3 * cores, 1)
+    assert split_cores(2, 1) == (2, 1)
+    with pytest.raises(CampaignError, match="threads"):
+        split_cores(None, cores + 1)
+    with pytest.raises(CampaignError, match="workers"):
+        split_cores(0, None)
+
+
+def test_compile_watch_counts_announces_and_names_the_cache() -> None:
+    lines: list[str] = []
+
+    @numba.njit  # not cached: compiled in this test on every run
+    def plus_one(x):
+        return x + 1
+
+    with CompileWatch(show=lines.append, every_s=60.0) as watch:
+        assert plus_one(1) == 2
+        assert plus_one(2) == 3  # the same types: nothing new to compile
+        assert plus_one(1.5) == 2.5  # a second specialization
+    assert watch.kernels == 2
+    assert watch.seconds > 0.0
+    assert len(lines) == 1 and lines[0].startswith("compiling") and CACHE_DIR in lines[0]
+
+
+def test_compile_watch_is_silent_when_nothing_compiles() -> None:
+    lines: list[str] = []
+    with CompileWatch(show=lines.append) as watch:
+        set_threads(None)  # a call into numba that compiles nothing
+    assert (watch.kernels, watch.seconds, lines) == (0, 0.0, [])
+
+
+def test_the_environment_sets_the_default_and_a_campaign_keeps_to_it(monkeypatch, capsys) -> None:
+    from uavmpc.jit import default_threads
+
+    monkeypatch.setenv("UAVMPC_THREADS", "1")
+    assert default_threads() == 1
+    assert split_cores(1, None) == (1, 1)  # one worker, but not more threads than asked
+    monkeypatch.setenv("UAVMPC_THREADS", "lots")
+    assert default_threads() == available_threads()
+    assert "UAVMPC_THREADS='lots' is not an integer" in capsys.readouterr().err
+
+
+def test_threads_set_for_a_block_come_back_after_it(restore_threads) -> None:
+    from uavmpc.jit import using_threads
+
+    set_threads(1)
+    with using_threads(available_threads()) as n:
+        assert numba.get_num_threads() == n == available_threads()
+    assert numba.get_num_threads() == 1
