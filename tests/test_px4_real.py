@@ -48,8 +48,10 @@ def _report(proc: subprocess.Popen[str], timeout_s: float) -> dict[str, Any]:
 def _full_cycle_checks(rep: dict[str, Any], mode: str) -> None:
     px4 = rep["vehicle"]
     assert px4["setpoint_mode"] == mode
-    assert px4["phase"] == "landed", px4
-    assert px4["stop_reason"] is None, px4
+    # (what the failure message must show first: pytest cuts a long report short)
+    why = (px4["stop_reason"], px4["phases"], px4["status_texts"], px4["landed_states"])
+    assert px4["phase"] == "landed", why
+    assert px4["stop_reason"] is None, why
     # When the mission ended the node asked for the goal, and PX4 held it by its own estimate
     # as closely as PX4 holds any setpoint in SITL: its estimate wanders about a fixed setpoint
     # (measured at the end of 15 s flights to this goal: 0.09–0.52 m in position mode, where

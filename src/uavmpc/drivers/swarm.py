@@ -37,6 +37,7 @@ import dataclasses
 import json
 import math
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -118,16 +119,30 @@ PX4_READY_TIMEOUT_S = 60.0
 R = TypeVar("R", NodeStats, SitlReport)
 
 
+#: Where :func:`free_ports` looks: below Linux's ephemeral range (32768–60999), which the
+#: system hands out to every socket bound to port 0. A port picked from that range can be
+#: given to another process between our pick and its owner's bind (a CI run failed on it:
+#: "Address already in use").
+_PICK_PORTS = (20000, 32767)
+
+
 def free_ports(n: int) -> list[int]:
-    """``n`` TCP ports free on 127.0.0.1 right now."""
-    socks, ports = [], []
-    for _ in range(n):
-        s = socket.socket()
-        s.bind(("127.0.0.1", 0))
-        socks.append(s)
-        ports.append(s.getsockname()[1])
-    for s in socks:
-        s.close()
+    """``n`` distinct ports free on 127.0.0.1 right now for both TCP and UDP (the nodes listen
+    on TCP for Zenoh and on UDP for MAVLink), outside the system's ephemeral range."""
+    rng = random.Random()
+    ports: list[int] = []
+    while len(ports) < n:
+        port = rng.randint(*_PICK_PORTS)
+        if port in ports:
+            continue
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as t, \
+                    socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+                t.bind(("127.0.0.1", port))
+                u.bind(("127.0.0.1", port))
+        except OSError:
+            continue
+        ports.append(port)
     return ports
 
 
