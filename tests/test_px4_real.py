@@ -54,7 +54,7 @@ def _full_cycle_checks(rep: dict[str, Any], mode: str) -> None:
     assert px4["stop_reason"] is None, why
     # When the mission ended the node asked for the goal, and PX4 held it by its own estimate
     # as closely as PX4 holds any setpoint in SITL: its estimate wanders about a fixed setpoint
-    # (measured at the end of 15 s flights to this goal: 0.09–0.52 m in position mode, where
+    # (measured at the end of 15 s flights to this goal: 0.09–0.63 m in position mode, where
     # PX4's own controller holds it, 0.10–0.50 m in attitude mode, where ours does).
     def dist(p: list[float]) -> float:
         return sum((a - b) ** 2 for a, b in zip(p, _GOAL, strict=True)) ** 0.5
