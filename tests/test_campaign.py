@@ -12,15 +12,24 @@ import pytest
 from uavmpc.apps.campaign import (
     CampaignError,
     RandomWalkSpec,
+    aggregate,
     load_trials,
     merge_reports,
+    report_rows,
     run_campaign,
     run_trial,
     trial_seeds,
 )
 from uavmpc.config import ConfigError
 from uavmpc.scenarios import LinkSettings
-from uavmpc.scenarios.random_walk import MIN_START_SEPARATION_M, STEP_S, hold_time_s, random_walk
+from uavmpc.scenarios.random_walk import (
+    MIN_START_SEPARATION_M,
+    STEP_S,
+    hold_time_s,
+    random_walk,
+    walk_start_s,
+    waypoints_reached,
+)
 
 SMALL = {"uavs": 3, "area_m": 30.0, "progress": False}
 
@@ -247,6 +256,123 @@ def test_merge_reports_fills_both_columns(tmp_path: Path) -> None:
     row = next(x for x in md.splitlines() if x.startswith("| trials |"))
     assert row == "| trials | 1 | 1 |"
     assert (tmp_path / "both.md").read_text() == md
+
+
+# ------------------------------------------------------------- the start from the ground
+def test_from_the_ground_a_random_walk_takes_off_then_walks_the_same_waypoints() -> None:
+    from uavmpc.scenarios.traffic import take_off
+    from uavmpc.tracker.params import DynamicLimits
+
+    air = random_walk(5, 100.0, 10.0, 300.0, seed=7)
+    ground = random_walk(5, 100.0, 10.0, 300.0, seed=7, ground_start=True)
+    walk = walk_start_s(10.0)
+    # the traffic's climb (90 % of 2 m/s, 80 % of 1.5 m/s²), then one tracker horizon
+    assert walk == pytest.approx(2 * 1.5 + (10.0 - 1.8 * 1.5) / 1.8 + 7.81)
+    assert ground.walk_start_s == walk and air.walk_start_s == 0.0
+    for ua, ug in zip(air.uavs, ground.uavs, strict=True):
+        assert ug.start_m == (*ua.start_m[:2], 0.0)  # on the ground below the same start
+        m = ug.mission
+        up = m.times_s < walk
+        t, z = m.times_s[up], m.points[up, 2]
+        assert np.all(m.points[up, :2] == ua.start_m[:2])  # straight up
+        assert z[0] == 0.0 and z[-1] == 10.0 and np.all(np.diff(z) >= 0.0)
+        np.testing.assert_allclose(z, take_off(10.0, t)[0], atol=1e-12)
+        assert np.max(np.diff(z) / np.diff(t)) <= DynamicLimits().ascend_speed_mps
+        # then the same walk, every switch later by walk_start_s, the length unchanged
+        n = int(np.count_nonzero(~up))
+        assert m.times_s[~up][0] == walk and 3 <= n < len(ua.mission.times_s)
+        np.testing.assert_array_equal(m.points[~up], ua.mission.points[:n])
+        np.testing.assert_allclose(m.times_s[~up], ua.mission.times_s[:n] + walk, atol=1e-9)
+        assert m.times_s[-1] < 300.0 <= m.times_s[-1] + 60.0
+    with pytest.raises(ConfigError, match="ground_start: must be true or false"):
+        random_walk(3, ground_start="yes")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="ends before the walk"):
+        random_walk(3, duration_s=10.0, ground_start=True)
+
+
+def test_from_the_ground_the_uavs_climb_side_by_side_then_set_off() -> None:
+    """Five UAVs on the ground 3 m apart or more (a 12 m square): they climb to the walk's
+    height without a collision and without moving sideways, and only then fly their walk."""
+    from uavmpc.drivers.world import World
+
+    sc = random_walk(5, 12.0, 10.0, 30.0, seed=7, ground_start=True)
+    res = World(sc, avoidance=False, seed=3).run(30.0)
+    t, p = res.t_s, res.positions_m
+    assert np.all(p[0, :, 2] < 0.01)  # resting on the ground
+    assert np.all(np.abs(p[(t > 9.0) & (t < sc.walk_start_s), :, 2] - 10.0) < 0.1)  # up in time
+    sideways = np.hypot(p[..., 0] - p[0, :, 0], p[..., 1] - p[0, :, 1])  # (K, N)
+    assert sideways[p[..., 2] < 9.5].max() < 0.1  # no waypoint flown before the height
+    assert sideways[-1].min() > 1.0  # and then the walk
+    # (the tracker sets off a few seconds before a step it sees coming: the walk's start)
+    side_by_side = t < t[np.argmax(sideways.max(axis=1) > 0.1)]
+    assert t[side_by_side][-1] > 8.0
+    assert not [c for c in res.collisions if c.t <= t[side_by_side][-1]]
+    assert res.min_distance_m[side_by_side].min() > MIN_START_SEPARATION_M - 0.2
+    reached, due = waypoints_reached(sc, t, p)  # the take-off is no waypoint
+    assert due >= 5 and reached == due
+
+
+def test_a_campaign_from_the_ground_says_so_and_counts_from_the_ground(tmp_path: Path,
+                                                                      capsys) -> None:
+    from uavmpc.apps.cli import main
+    from uavmpc.scenarios.traffic import take_off
+
+    out = tmp_path / "ground"
+    args = ["campaign", "random-walk", "--no-avoidance", "--trials", "3", "--cap-s", "40",
+            "--workers", "1", "--no-progress", "--uavs", "3", "--area", "30", "--logs", "0"]
+    assert main([*args, "--ground-start", "--out", str(out)]) == 0
+    assert "random_walk, from the ground (walk from 14.9 s)" in capsys.readouterr().out
+    r = json.loads((out / "report.json").read_text())
+    walk = walk_start_s(10.0)
+    assert r["parameters"]["ground_start"] is True
+    assert r["ground_start"] is True and r["walk_start_s"] == walk
+    assert "| start | on the ground, walk from 14.9 s | – |" in (out / "report.md").read_text()
+    stored = json.loads((out / "campaign.json").read_text())["spec"]
+    assert stored["ground_start"] is True
+    # times count from t = 0 on the ground: none on the ground or in the climb (it ends at
+    # 7.06 s), and each trial is the one flown again from the folder's parameters
+    recs = load_trials(out, 0)
+    hit = [x for x in recs.values() if x["first_collision_s"] is not None]
+    climb_s = take_off(10.0, np.zeros(1))[1]
+    assert hit and all(climb_s + 1.0 < x["first_collision_s"] < 40.0 for x in hit)
+    again = run_trial(RandomWalkSpec.from_json(stored), hit[0]["index"])
+    assert again["first_collision_s"] == hit[0]["first_collision_s"]
+    # the folder is not continued from the air, nor a campaign with bad values started
+    assert main([*args, "--out", str(out)]) == 2
+    assert "ground_start: True there, None now" in capsys.readouterr().err
+    short = [{"40": "10"}.get(a, a) for a in args]  # --cap-s 10
+    assert main([*short, "--ground-start", "--out", str(tmp_path / "x")]) == 2
+    assert "cap_s: 10 s ends before the walk" in capsys.readouterr().err
+    assert main(["campaign", "traffic", "--trials", "1", "--ground-start"]) == 2
+    assert "--ground-start: only for campaign random-walk" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([*args, "--ground-start=yes", "--out", str(tmp_path / "y")])
+    with pytest.raises(CampaignError, match="ground_start: must be true or false"):
+        RandomWalkSpec(ground_start=1)  # type: ignore[arg-type]
+
+
+def test_without_the_ground_start_the_protocol_is_unchanged() -> None:
+    """Pinned from the code before the option existed: the same scenario and trial."""
+    sc = random_walk(5, 100.0, 10.0, 300.0, seed=7)
+    off = random_walk(5, 100.0, 10.0, 300.0, seed=7, ground_start=False)
+    for a, b in zip(sc.uavs, off.uavs, strict=True):
+        assert a.start_m == b.start_m and a.start_m[2] == 10.0
+        np.testing.assert_array_equal(a.mission.times_s, b.mission.times_s)
+        np.testing.assert_array_equal(a.mission.points, b.mission.points)
+    u = sc.uavs[0]
+    assert u.start_m == (29.785918684335627, -44.690611674359594, 10.0)
+    assert u.mission.times_s[:3].tolist() == [0.0, 12.453405950530426, 12.463405950530426]
+    assert u.mission.points[0].tolist() == [-1.9417994264188252, -44.04581933284578, 10.0, 0.0]
+    assert len(u.mission.times_s) == 39
+    spec = RandomWalkSpec(uavs=3, area_m=30.0, avoidance=False, length_s=30.0, seed=5)
+    assert "ground_start" not in spec.to_json()
+    rec = run_trial(spec, 2)
+    assert rec["first_collision_s"] == pytest.approx(9.40, abs=1e-9)
+    assert rec["first_collision_pair"] == ["uav1", "uav3"]
+    assert rec["min_distance_m"] == pytest.approx(0.9279390351175146, rel=1e-9)
+    report = aggregate([rec], spec.to_json(), 0.0)
+    assert "ground_start" not in report and "walk_start_s" not in report
+    assert not any(row[0] == "start" for row in report_rows(report))
 
 
 @pytest.fixture

@@ -4,8 +4,8 @@ A campaign is a :class:`RandomWalkSpec` and a folder ``DIR`` kept by the one cam
 (:mod:`uavmpc.apps.campaign_engine`, shared with the landing and traffic campaigns):
 
 - ``campaign.json``: the spec (UAVs, area, avoidance, link, wind, trial length, seed, faults,
-  avoidance parameters, launch check), versioned. Re-running with other parameters in the same
-  folder is refused.
+  avoidance parameters, launch check, start from the ground), versioned. Re-running with other
+  parameters in the same folder is refused.
 - ``trials.jsonl``: one JSON line per finished trial, appended (flushed and fsynced) as soon as
   the trial ends. Re-running the same command skips the trials already there, so a crash or
   Ctrl-C loses nothing but the trials in flight.
@@ -25,6 +25,10 @@ Without avoidance a trial runs until its first collision or ``cap_s`` simulated 
 world is run in chunks and stopped at the first collision; chunked runs are bit-identical to one
 run). With avoidance a trial flies ``trial_s`` seconds and records its collisions and the
 minimal distance between any two UAVs.
+
+With ``ground_start`` every UAV starts on the ground and takes off to the walk's height before
+its walk (:mod:`uavmpc.scenarios.random_walk`); a trial's length and its time to first collision
+still count from t = 0, the climb included (the report gives the walk's start, ``walk_start_s``).
 
 Percentiles of the time to first collision are those of the empirical CDF
 (:func:`uavmpc.scenarios.stats.percentile`: a percentile is a sample value) over all trials, a
@@ -98,6 +102,9 @@ class RandomWalkSpec:
     avoidance_params: AvoidanceParams = field(default_factory=AvoidanceParams)
     #: The world's launch check (longest wait at the start [s]; None: set off at once).
     launch_check_s: float | None = None
+    #: Start on the ground and take off to ``height_m`` before the walk (False: start in the
+    #: air at ``height_m``, the protocol as it was).
+    ground_start: bool = False
 
     def __post_init__(self) -> None:
         for name in ("uavs", "seed"):
@@ -119,6 +126,17 @@ class RandomWalkSpec:
         if lc is not None and not (math.isfinite(lc) and 0.0 <= lc <= self.length_s):
             raise CampaignError(f"launch check: must be a time in [0, the trial's length] [s], "
                                 f"got {lc!r}")
+        if not isinstance(self.ground_start, bool):
+            raise CampaignError(f"ground_start: must be true or false, got "
+                                f"{self.ground_start!r}")
+        if self.ground_start:
+            from uavmpc.scenarios.random_walk import walk_start_s
+
+            walk = walk_start_s(self.height_m)
+            if walk >= self.length_s:
+                shown = "trial_s" if self.avoidance else "cap_s"
+                raise CampaignError(f"{shown}: {self.length_s:g} s ends before the walk, which "
+                                    f"begins {walk:.2f} s after the start from the ground")
         self.faults.check(self.uavs, self.link.loss)
 
     def to_json(self) -> dict[str, Any]:
@@ -137,6 +155,8 @@ class RandomWalkSpec:
             params["avoidance_params"] = changed_fields(self.avoidance_params)
         if self.launch_check_s is not None:
             params["launch_check_s"] = float(self.launch_check_s)
+        if self.ground_start:  # absent: started in the air, as every campaign before it
+            params["ground_start"] = True
         return params
 
     @classmethod
@@ -155,7 +175,8 @@ class RandomWalkSpec:
             faults=FaultSpec(**params.get("faults", {})),
             avoidance_params=avoidance_params(params.get("avoidance_params", {}),
                                               "avoidance_params"),
-            launch_check_s=None if lc is None else float(lc))
+            launch_check_s=None if lc is None else float(lc),
+            ground_start=params.get("ground_start", False))
 
     def tasks(self, index: int) -> list[Task]:
         return [Task(index, 0, run_trial, (self, index))]
@@ -171,13 +192,14 @@ class RandomWalkSpec:
 
 
 def trial_run(spec: RandomWalkSpec, index: int) -> RunSpec:
-    """Trial ``index`` of ``spec`` as the world flies it: its random walk, link, faults, wind
-    and launch check, seeded from the campaign's seed (:func:`trial_seeds`)."""
+    """Trial ``index`` of ``spec`` as the world flies it: its random walk (from the ground
+    with ``ground_start``), link, faults, wind and launch check, seeded from the campaign's
+    seed (:func:`trial_seeds`)."""
     from uavmpc.scenarios.random_walk import random_walk
 
     scenario_seed, world_seed = trial_seeds(spec.seed, index)
     sc = random_walk(spec.uavs, spec.area_m, spec.height_m, spec.length_s, scenario_seed,
-                     link=spec.link)
+                     link=spec.link, ground_start=spec.ground_start)
     return RunSpec(dataclasses.replace(sc, avoidance=spec.avoidance_params),
                    avoidance=spec.avoidance, seed=world_seed, link=spec.link,
                    faults=spec.faults, wind_mps=spec.wind_mps,
@@ -295,7 +317,17 @@ def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
         "wall_s": wall_s,
         "trial_wall_s": float(sum(r["wall_s"] for r in selected)),
         **_goals(selected),
+        **_start(params),
     }
+
+
+def _start(params: dict[str, Any]) -> dict[str, Any]:
+    """With a start from the ground: when the walk began (times count from the ground)."""
+    if not params.get("ground_start"):
+        return {}
+    from uavmpc.scenarios.random_walk import walk_start_s
+
+    return {"ground_start": True, "walk_start_s": walk_start_s(params["height_m"])}
 
 
 def _goals(selected: list[dict[str, Any]]) -> dict[str, Any]:
@@ -358,6 +390,10 @@ def report_rows(*reports: dict[str, Any]) -> list[tuple[str, str, str]]:
     if any(r["parameters"].get("faults") for r in reports):
         rows.append(("faults", lambda r: ", ".join(
             f"{k} {v}" for k, v in r["parameters"].get("faults", {}).items()) or "none"))
+    if any(r["parameters"].get("ground_start") for r in reports):
+        rows.append(("start", lambda r: (
+            f"on the ground, walk from {r['walk_start_s']:.1f} s"
+            if r["parameters"].get("ground_start") else "in the air")))
     if any(r["parameters"].get("launch_check_s") is not None for r in reports):
         rows.append(("launch check", lambda r: (
             f"up to {r['parameters']['launch_check_s']:g} s"
@@ -458,6 +494,7 @@ def run_campaign(
     avoidance_params: dict[str, Any] | AvoidanceParams | None = None,
     launch_check_s: float | None = None,
     logs: int = 3,
+    ground_start: bool = False,
 ) -> dict[str, Any]:
     """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
 
@@ -466,7 +503,9 @@ def run_campaign(
     :class:`~uavmpc.avoidance.AvoidanceParams` to fly instead of the defaults (e.g. a larger
     cylinder for a coarser position estimate), or the parameters. ``launch_check_s``: every
     UAV holds at its start until it has heard every other one, at most this long
-    (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``). ``logs``: the ``logs``
+    (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``). ``ground_start``: every UAV
+    starts on the ground and takes off to ``height_m`` before its walk (times still count
+    from t = 0, the climb included). ``logs``: the ``logs``
     trials with the closest approach are re-flown from their seeds into flight logs
     (``logs/trial_<index>.mcap``; a full campaign's would be gigabytes), linked from
     ``report.html``. ``workers`` processes each fly a trial's world on ``threads`` threads
@@ -486,7 +525,8 @@ def run_campaign(
         wind_mps=wind, length_s=float(trial_s if avoidance else cap_s),
         faults=faults or FaultSpec(),
         avoidance_params=_avoidance(avoidance_params, faults),
-        launch_check_s=None if launch_check_s is None else float(launch_check_s))
+        launch_check_s=None if launch_check_s is None else float(launch_check_s),
+        ground_start=ground_start)
     workers, threads = split_cores(workers, threads)
     if progress:
         print(f"campaign: {workers} worker(s) × {threads} thread(s) each", file=sys.stderr)
@@ -617,6 +657,11 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
                    help="run the trials on Ray ('auto', 'local' or ray://host:port); "
                         "pip install 'uavmpc[cluster]'")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--ground-start", action="store_true",
+                   help="random-walk: every UAV starts on the ground and takes off vertically "
+                        "to the walk's height before its walk, as the reference design's "
+                        "Gazebo runs (default: start in the air at that height); times count "
+                        "from the ground")
     p.add_argument("--logs", type=int, default=3, metavar="N",
                    help="random-walk: re-fly the N trials with the closest approach into "
                         "flight logs linked from report.html (default 3)")
@@ -663,7 +708,8 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
                         ray_address=args.ray, progress=not args.no_progress,
                         faults=fault_spec(args),
                         avoidance_params=avoidance_file(args.avoidance_file),
-                        launch_check_s=args.launch_check, logs=args.logs)
+                        launch_check_s=args.launch_check, logs=args.logs,
+                        ground_start=args.ground_start)
 
 
 def avoidance_file(path: str | None) -> dict[str, Any]:
@@ -730,6 +776,9 @@ def _interruptible(out: str, run: Callable[[], dict[str, Any]]) -> dict[str, Any
 
 
 def campaign_command(args: argparse.Namespace) -> int:
+    if args.kind != "random-walk" and args.ground_start:
+        raise CampaignError(f"--ground-start: only for campaign random-walk (a {args.kind} "
+                            "campaign flies its scenario's own start)")
     if args.kind == "landing":
         return _landing_command(args)
     if args.kind == "traffic":
@@ -740,8 +789,11 @@ def campaign_command(args: argparse.Namespace) -> int:
         return 130
     ttc = r["time_to_first_collision_s"]
     pct = ", ".join(f"{k} {_fmt_ttc(r, k)}" for k in ttc) if ttc else "none"
-    print(f"random_walk, {'with' if r['avoidance'] else 'without'} avoidance: {r['trials']} "
-          f"trials, {r['simulated_hours']:.2f} h simulated, {r['collisions']} collision(s), "
+    start = (f", from the ground (walk from {r['walk_start_s']:.1f} s)"
+             if r.get("ground_start") else "")
+    print(f"random_walk{start}, {'with' if r['avoidance'] else 'without'} avoidance: "
+          f"{r['trials']} trials, {r['simulated_hours']:.2f} h simulated, "
+          f"{r['collisions']} collision(s), "
           f"closest approach {r['min_distance_m']:.2f} m; time to first collision: {pct}")
     logs = f", logs/ (the {args.logs} closest trials)" if args.logs else ""
     print(f"wrote {out}/report.html, report.json, report.md, ttc_cdf.png, "

@@ -324,6 +324,9 @@ CAMPAIGN_KEYS: dict[str, dict[str, str]] = {
         "faults": "the fault fields not at their defaults (`--clock-offset`, ...)",
         "avoidance_params": "the `[avoidance]` fields not at their defaults",
         "launch_check_s": "the launch check's longest wait [s]",
+        "ground_start": "`true`: every UAV starts on the ground and takes off to `height_m` "
+                        "before its walk (`--ground-start`; times count from the ground); "
+                        "absent: they start in the air at `height_m`",
     },
     "landing": {
         "scenario": "the landing scenario: a built-in name or a file",
@@ -349,7 +352,8 @@ def campaign_tables() -> dict[str, list[tuple[str, str]]]:
 
     full = {
         "random_walk": {**RandomWalkSpec(faults=FaultSpec(gnss="rtk"), launch_check_s=1.0,
-                                         avoidance_params=AvoidanceParams(radius_m=6.0))
+                                         avoidance_params=AvoidanceParams(radius_m=6.0),
+                                         ground_start=True)
                         .to_json(), **{"cap_s": 0.0}},
         "landing": LandingSpec().to_json(),
         "traffic": TrafficSpec().to_json(),

@@ -17,17 +17,35 @@ flyable. Waypoints are drawn until the sequence covers ``duration_s``; the last 
 
 Seeding: ``numpy.random.SeedSequence(seed).spawn(n_uavs + 1)``; child 0 draws the starts, child
 ``i + 1`` draws UAV ``i``'s waypoints (so a UAV's waypoints do not depend on how many UAVs fly).
+
+Start from the ground (``ground_start=True``; default off: the protocol starts everyone in the
+air at the walk's height). As in the reference design's Gazebo runs, every UAV starts resting
+on the ground (z = 0) below its start point and takes off vertically to the walk's height: the
+traffic scenario's take-off (:func:`uavmpc.scenarios.traffic.take_off`, a rest-to-rest climb
+at 90 % of the ascent speed and 80 % of the ascent acceleration limits, sampled every
+``traffic.SAMPLE_PERIOD_S``), all at once from t = 0. Each then holds above its start for one
+tracker horizon (7.81 s): the tracker previews its reference over its horizon and sets off
+towards a step as soon as it sees it, so a shorter hold would have it fly off sideways while
+still climbing (it still sets off a few seconds before the walk begins, but at the height). The
+walk begins at :func:`walk_start_s` (take-off time + horizon, the same for every UAV; 14.87 s
+to 10 m): the same waypoints as without, every switch time later by that much. The starts,
+their 3 m spacing (3 × the 1 m collision distance: resting or climbing side by side is no
+collision) and the scenario's length are the same: the length counts from t = 0, on the
+ground, so the climb is part of it (and of a time to first collision).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from uavmpc.config import ConfigError
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
+from uavmpc.scenarios.traffic import SAMPLE_PERIOD_S, take_off
+from uavmpc.tracker.params import TrackerConfig
 
 #: Table I limits used to time the waypoints.
 SPEED_MPS = 8.3
@@ -39,6 +57,34 @@ DWELL_S = 2.0
 STEP_S = 0.01
 #: Smallest horizontal distance between two starts.
 MIN_START_SEPARATION_M = 3.0
+
+
+@dataclass(frozen=True, eq=False)
+class RandomWalkScenario(Scenario):
+    """A :class:`~uavmpc.scenarios.Scenario` that knows when its walk begins."""
+
+    #: When the first waypoint is switched to [s]: 0, or after the take-off from the ground.
+    walk_start_s: float = 0.0
+
+
+def walk_start_s(height_m: float) -> float:
+    """When the walk begins after a start from the ground to ``height_m`` [m]: the take-off's
+    duration (:func:`uavmpc.scenarios.traffic.take_off`) plus the tracker's horizon (its
+    preview: the first waypoint's step comes into its view once the climb is done)."""
+    horizon_s = float(TrackerConfig().horizon_times_s[-1])
+    return take_off(float(height_m), np.zeros(1))[1] + max(DWELL_S, horizon_s)
+
+
+def take_off_reference(start_xy: np.ndarray, height_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The stamps (times (K,), points (K, 4)) of the take-off from the ground below
+    ``start_xy`` to ``height_m``, sampled every ``SAMPLE_PERIOD_S`` from 0 to the first sample
+    at the height (the walk then holds it until one step before :func:`walk_start_s`)."""
+    k = math.ceil(take_off(height_m, np.zeros(1))[1] / SAMPLE_PERIOD_S - 1e-9)
+    times = SAMPLE_PERIOD_S * np.arange(k + 1)
+    z, _ = take_off(height_m, times)
+    points = np.column_stack([np.full((k + 1, 2), start_xy, dtype=float), z, np.zeros(k + 1)])
+    points[-1, 2] = height_m  # exactly at the height, not rounding below it
+    return times, points
 
 
 def hold_time_s(distance_m: float) -> float:
@@ -60,12 +106,18 @@ def _starts(rng: np.random.Generator, n: int, half: float) -> np.ndarray:
 
 
 def waypoint_mission(start_xy: np.ndarray, rng: np.random.Generator, half: float,
-                     height_m: float, duration_s: float) -> tuple[Reference, np.ndarray]:
-    """The mission of one UAV and its waypoints (W, 2)."""
+                     height_m: float, duration_s: float,
+                     ground_start: bool = False) -> tuple[Reference, np.ndarray]:
+    """The mission of one UAV and its waypoints (W, 2); with ``ground_start``, after its
+    take-off from the ground (:func:`take_off_reference`)."""
     times: list[float] = []
     points: list[list[float]] = []
     waypoints = []
     t = 0.0
+    if ground_start:  # the take-off's stamps, then the walk as usual from walk_start_s
+        up_times, up_points = take_off_reference(np.asarray(start_xy, dtype=float), height_m)
+        times, points = up_times.tolist(), up_points.tolist()
+        t = walk_start_s(height_m)
     here = np.asarray(start_xy, dtype=float)
     while True:
         w = rng.uniform(-half, half, size=2)
@@ -84,8 +136,10 @@ def waypoint_mission(start_xy: np.ndarray, rng: np.random.Generator, half: float
 
 def random_walk(n_uavs: int = 5, area_m: float = 100.0, height_m: float = 10.0,
                 duration_s: float = 600.0, seed: int = 0, *,
-                link: LinkSettings | None = None) -> Scenario:
-    """The random_walk scenario (see the module docstring)."""
+                link: LinkSettings | None = None,
+                ground_start: bool = False) -> RandomWalkScenario:
+    """The random_walk scenario (see the module docstring). ``ground_start``: start on the
+    ground and take off to ``height_m`` before the walk."""
     if isinstance(n_uavs, bool) or not isinstance(n_uavs, int) or not 1 <= n_uavs <= 1000:
         raise ConfigError(f"uavs: must be an integer in [1, 1000], got {n_uavs!r}")
     for name, v in (("area_m", area_m), ("duration_s", duration_s)):
@@ -93,19 +147,29 @@ def random_walk(n_uavs: int = 5, area_m: float = 100.0, height_m: float = 10.0,
             raise ConfigError(f"{name}: must be > 0, got {v}")
     if not (math.isfinite(height_m) and 0 < height_m <= 1e4):
         raise ConfigError(f"height_m: must be > 0, got {height_m}")
+    if not isinstance(ground_start, bool):
+        raise ConfigError(f"ground_start: must be true or false, got {ground_start!r}")
+    walk_s = walk_start_s(height_m) if ground_start else 0.0
+    if walk_s >= duration_s:
+        raise ConfigError(f"duration_s: {duration_s:g} s ends before the walk, which begins "
+                          f"{walk_s:.2f} s after a start from the ground (take-off to "
+                          f"{height_m:g} m)")
     half = 0.5 * float(area_m)
     children = np.random.SeedSequence(int(seed)).spawn(n_uavs + 1)
     starts = _starts(np.random.default_rng(children[0]), n_uavs, half)
     uavs = []
     for i in range(n_uavs):
         rng = np.random.default_rng(children[i + 1])
-        mission, wps = waypoint_mission(starts[i], rng, half, float(height_m), float(duration_s))
+        mission, wps = waypoint_mission(starts[i], rng, half, float(height_m), float(duration_s),
+                                        ground_start)
         goal = (float(wps[-1, 0]), float(wps[-1, 1]), float(height_m))
         uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550",
-                            (float(starts[i, 0]), float(starts[i, 1]), float(height_m)), 0.0,
+                            (float(starts[i, 0]), float(starts[i, 1]),
+                             0.0 if ground_start else float(height_m)), 0.0,
                             mission, goal))
-    return Scenario("random_walk", float(duration_s), tuple(uavs),
-                    link if link is not None else LinkSettings())
+    return RandomWalkScenario("random_walk", float(duration_s), tuple(uavs),
+                              link if link is not None else LinkSettings(),
+                              walk_start_s=walk_s)
 
 
 def waypoints_reached(scenario: Scenario, t_s: np.ndarray, positions_m: np.ndarray,
@@ -113,11 +177,14 @@ def waypoints_reached(scenario: Scenario, t_s: np.ndarray, positions_m: np.ndarr
     """(reached, due): of the waypoints whose hold ended within the flight (times ``t_s``
     (K,), positions ``positions_m`` (K, N, 3) in scenario order), how many the UAV came within
     ``tolerance_m`` of horizontally while it was held. Horizontally: a height offset is the
-    avoidance at work, not a goal missed; a UAV kept away by a conflict, or stuck, misses."""
+    avoidance at work, not a goal missed; a UAV kept away by a conflict, or stuck, misses.
+    A take-off from the ground is no waypoint (the walk's stamps begin at ``walk_start_s``)."""
     reached = due = 0
     end = float(t_s[-1]) if len(t_s) else -math.inf
+    first = float(getattr(scenario, "walk_start_s", 0.0))
     for i, u in enumerate(scenario.uavs):
-        times, pts = u.mission.times_s, u.mission.points
+        walk = u.mission.times_s >= first
+        times, pts = u.mission.times_s[walk], u.mission.points[walk]
         # Two stamps per waypoint: the start of its hold, the end (see the module docstring).
         starts, goals = times[0::2], pts[0::2, :2]
         ends = np.r_[times[1::2], math.inf]

@@ -139,6 +139,18 @@ def _leg_time(distance_m: float, speed_mps: float, accel_mps2: float) -> float:
     return 2.0 * t_acc + (distance_m - speed_mps * t_acc) / speed_mps
 
 
+def take_off(up_m: float, tau_s: np.ndarray,
+             limits: DynamicLimits | None = None) -> tuple[np.ndarray, float]:
+    """The vertical take-off: the height gained ``tau_s`` [s] after lift-off (0 before, ``up_m``
+    once there) along a rest-to-rest climb of ``up_m`` [m] at SPEED_SHARE of the ascent speed
+    and ACCEL_SHARE of the ascent acceleration of ``limits`` (default: the tracker's), and the
+    climb's duration [s]. A trip's climb, and the random walk's take-off from the ground
+    (:mod:`uavmpc.scenarios.random_walk`)."""
+    lim = limits if limits is not None else DynamicLimits()
+    speed, accel = SPEED_SHARE * lim.ascend_speed_mps, ACCEL_SHARE * lim.ascend_accel_mps2
+    return _trapezoid(up_m, speed, accel, tau_s), _leg_time(up_m, speed, accel)
+
+
 def trip_reference(origin_xy: Sequence[float], dest_xy: Sequence[float], pad_z_m: float,
                    cruise_z_m: float, depart_s: float,
                    limits: DynamicLimits | None = None) -> tuple[Reference, float, float]:
@@ -165,7 +177,7 @@ def trip_reference(origin_xy: Sequence[float], dest_xy: Sequence[float], pad_z_m
     n = k0 + math.ceil(total / SAMPLE_PERIOD_S) + 1
     times = SAMPLE_PERIOD_S * np.arange(n)
     tau = times - t0  # time since departure
-    climb = _trapezoid(up, SPEED_SHARE * legs[0][1], ACCEL_SHARE * legs[0][2], tau)
+    climb, _ = take_off(up, tau, lim)
     tau1 = tau - durations[0]
     along = _trapezoid(length, SPEED_SHARE * legs[1][1], ACCEL_SHARE * legs[1][2], tau1)
     tau2 = tau1 - durations[1]
