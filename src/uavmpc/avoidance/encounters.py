@@ -379,8 +379,11 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     m = own_times.shape[1]
     n_cols = rows.held_slot.shape[1]
     cap_s = s_col.shape[0]
-    ne = 0
-    ns = 0
+    # Typed int64 and bool from the start: a literal would have _encounter compiled once more
+    # for it (a first run's compile time).
+    ne = np.int64(0)
+    ns = np.int64(0)
+    silent, fresh = np.bool_(True), np.bool_(False)
     box_own = np.empty(4)
     box = np.empty(4)
     shifted = np.empty(store.times_s.shape[1])
@@ -420,7 +423,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             ref = _reference_s(rows, r, col, use_received)
             radius = max(announced, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
-            ne = _encounter(rows, store, r, col, True, ref, radius, announced, timeout_s, box_own,
+            ne = _encounter(rows, store, r, col, silent, ref, radius, announced, timeout_s, box_own,
                             own_times[j], own_pos[j], box, shifted, near, near_announced, dz, ne,
                             e_col, e_silent, e_near, e_announced, e_dz)
         r_max = radius_m[j]
@@ -445,7 +448,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
             widen = pair_widening_m(own_sigma_h_m[j], store.sigma_m[rows.held_slot[r, col], 0],
                                     sigma_k)
             radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
-            ne = _encounter(rows, store, r, col, False, _reference_s(rows, r, col, use_received),
+            ne = _encounter(rows, store, r, col, fresh, _reference_s(rows, r, col, use_received),
                             radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
                             shifted, near, near_announced, dz, ne, e_col, e_silent, e_near,
                             e_announced, e_dz)

@@ -25,46 +25,73 @@ from uavmpc.tracker.kernels import make_scratch
 STAGES = ("prepare", "qp", "advance", "control", "plant", "trace")
 #: The length of a profile: a cycle count per stage, then the number of UAV-ticks.
 N_CYCLES = len(STAGES) + 1
+#: numba's threading layers that run a one-thread parallel loop on the calling thread. With
+#: them, one thread also takes :func:`world_tick_threads` (one block): the same rows compile
+#: to faster code in numba's loop body (measured: a 1 h random-walk campaign, 2 workers of one
+#: thread, 40 s instead of 46 s; the flights bit for bit the same). numba's own ``workqueue``
+#: hands even one block to a pool thread, which a busy core wakes late (the same campaign:
+#: 64 s), so there one thread takes :func:`world_tick`.
+LOOP_ON_CALLER = ("omp",)
+
+
+@kernel
+def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
+               pair_d, cycles, est):
+    """One 10 ms tick of every UAV on the calling thread, the compiled solver inline: each
+    UAV's stack (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true
+    state, then the plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row
+    ``k`` of the traces (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the
+    pair distances ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the lowest index of
+    a UAV whose attitude target could not be flown (that row is not flown; the caller stops
+    the run).
+
+    ``cycles``: (:data:`N_CYCLES`,) int64 to profile the tick, or (0,) not to: adds the CPU
+    cycles of each of :data:`STAGES` and, last, the number of UAV-ticks
+    (:func:`cycle_count`).
+    ``est``: (N, 6) the estimated [p, v] the stacks fly on (attitude and rates stay the
+    plants' own), or (0, 6) for the true state.
+
+    :func:`world_tick_threads` is the same tick over threads (and, with an OpenMP threading
+    layer, on one: :data:`LOOP_ON_CALLER`). Two kernels rather than one with a branch: a
+    command compiles only the one it runs (the threaded one costs about 16 s more to compile
+    on a cold cache, :attr:`CompiledTick.quick_start`)."""
+    n = plant.x.shape[0]
+    timed = cycles.shape[0] > 0
+    spent = np.zeros(N_CYCLES if timed else 0, dtype=np.int64)
+    bad = _tick_rows(n - n, n, trk, refs, consts, ctl, stats, plant, n_sub, dt, est, spent)
+    if bad >= 0:
+        return bad
+    c0 = cycle_count() if timed else 0
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    if timed:
+        for j in range(N_CYCLES):
+            cycles[j] += spent[j]
+        cycles[5] += cycle_count() - c0
+    return -1
 
 
 @kernel(parallel=True)
-def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d, cycles, est, blocks):
-    """One 10 ms tick of every UAV, the compiled solver inline: each UAV's stack
-    (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true state, then the
-    plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row ``k`` of the traces
-    (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the pair distances
-    ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the lowest index of a UAV whose
-    attitude target could not be flown (that row is not flown; the caller stops the run).
-
-    The rows run in parallel in ``blocks`` contiguous blocks, one per thread (the caller
-    passes ``numba.get_num_threads()``, see :func:`uavmpc.jit.set_threads`: a compiled
-    function that asks numba itself cannot be cached). A row reads and writes only its own
-    rows of the records, with work arrays of its block's own, so the flight is bit-identical
-    for any thread count.
-
-    ``cycles``: (:data:`N_CYCLES`,) int64 to profile the tick, or (0,) not to: adds the CPU
-    cycles (summed over the threads) of each of :data:`STAGES` and, last, the number of
-    UAV-ticks (:func:`cycle_count`).
-    ``est``: (N, 6) the estimated [p, v] the stacks fly on (attitude and rates stay the
-    plants' own), or (0, 6) for the true state."""
+def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out,
+                       dmin_out, pair_d, cycles, est, blocks):
+    """:func:`world_tick` with its rows in ``blocks`` ≥ 1 contiguous blocks, one per thread
+    (the caller passes ``numba.get_num_threads()``, see :func:`uavmpc.jit.set_threads`: a
+    compiled function that asks numba itself cannot be cached), the traces' pair distances
+    split by row likewise. A row reads and writes only its own rows of the records, with work
+    arrays of its block's own, so the flight is bit-identical to :func:`world_tick`'s for any
+    thread count. ``cycles`` sums the CPU cycles over the threads."""
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     nb = max(1, min(n, blocks))
     bad = np.full(nb, -1, dtype=np.int64)
     spent = np.zeros((nb, N_CYCLES if timed else 0), dtype=np.int64)
-    if nb == 1:  # no parallel loop on one thread (see _trace)
-        bad[0] = _tick_rows(0, n, trk, refs, consts, ctl, stats, plant, n_sub, dt, est,
-                            spent[0])
-    else:
-        for b in numba.prange(nb):
-            bad[b] = _tick_rows(b * n // nb, (b + 1) * n // nb, trk, refs, consts, ctl,
-                                stats, plant, n_sub, dt, est, spent[b])
+    for b in numba.prange(nb):
+        bad[b] = _tick_rows(b * n // nb, (b + 1) * n // nb, trk, refs, consts, ctl,
+                            stats, plant, n_sub, dt, est, spent[b])
     for b in range(nb):
         if bad[b] >= 0:
             return bad[b]
     c0 = cycle_count() if timed else 0
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d, nb)
+    _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
     if timed:
         for b in range(nb):
             for j in range(N_CYCLES):
@@ -91,7 +118,7 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
         thrust = onboard_post(i, trk, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, qd, ff)
         if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d, 1)
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
     return -1
 
 
@@ -139,25 +166,36 @@ def _pair_row(a, n, k, pos_out, pair_d):
     return best
 
 
-@kernel(parallel=True)
-def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d, blocks):
-    # On one thread no parallel loop is entered at all: handing even one block to numba's
-    # thread pool costs a wake-up of a pool thread per call, which a busy core delays.
-    n = plant.x.shape[0]
-    for i in range(n):
+@kernel
+def _positions(trk, plant, k, pos_out, zoff_out):
+    """Row ``k`` of the position and z-offset traces."""
+    for i in range(plant.x.shape[0]):
         for j in range(3):
             pos_out[k, i, j] = plant.x[i, j]
         zoff_out[k, i] = trk.z_offset_m[i]
+
+
+@kernel
+def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
+    """Row ``k`` of the traces and the pair distances (see :func:`world_tick`)."""
+    _positions(trk, plant, k, pos_out, zoff_out)
+    n = plant.x.shape[0]
     best = math.inf
-    if blocks <= 1:
-        for a in range(n):
-            best = min(best, _pair_row(a, n, k, pos_out, pair_d))
-    else:
-        row_min = np.full(max(n, 1), math.inf)
-        for a in numba.prange(n):
-            row_min[a] = _pair_row(a, n, k, pos_out, pair_d)
-        best = row_min.min()
+    for a in range(n):
+        best = min(best, _pair_row(a, n, k, pos_out, pair_d))
     dmin_out[k] = best
+
+
+@kernel(parallel=True)
+def _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
+    """:func:`_trace` with the pair distances' rows over the threads, each with its own
+    minimum."""
+    _positions(trk, plant, k, pos_out, zoff_out)
+    n = plant.x.shape[0]
+    row_min = np.full(max(n, 1), math.inf)
+    for a in numba.prange(n):
+        row_min[a] = _pair_row(a, n, k, pos_out, pair_d)
+    dmin_out[k] = row_min.min()
 
 
 class CompiledTick:
@@ -179,7 +217,11 @@ class CompiledTick:
         self.estimator = estimator
         self.windy = windy
         self.cycles = np.zeros(N_CYCLES if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
-        self._kernels: tuple[Any, Any] | None = None
+        #: On one thread, fly :func:`world_tick` rather than :func:`world_tick_threads` on one
+        #: block: a cold cache compiles it ~16 s faster, but it runs ~13 % slower (see
+        #: :data:`LOOP_ON_CALLER`). For a short first flight, like the demo's.
+        self.quick_start = False
+        self._kernels: tuple[Any, dict[bool, Any]] | None = None
         self._no_estimate = np.zeros((0, 6))
 
     def __call__(self, traces: tuple[Any, ...]) -> int:
@@ -191,24 +233,40 @@ class CompiledTick:
         trk = ob.tracker
         table = trk.table()
         if ob.inline:
-            return self.bound(table, traces)(trk.rows, table, trk.consts, ob.control,
-                                             ob.stats, self.plants, self.n_sub,
-                                             self.period_s, *traces, self.cycles,
-                                             self.estimates(), numba.get_num_threads())
+            blocks = self.blocks()
+            tick = self.bound(table, traces)
+            args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
+                    self.period_s, *traces, self.cycles, self.estimates())
+            return tick(*args, blocks) if blocks else tick(*args)
         world_pre(trk.rows, ob.stats, self.plants)
         trk.step()
         return world_post(trk.rows, trk.consts, ob.control, ob.stats, self.plants,
                           self.n_sub, self.period_s, *traces)
 
+    def blocks(self) -> int:
+        """The row blocks the tick runs in: 0 for :func:`world_tick`, else the blocks of
+        :func:`world_tick_threads` (the current thread count, ≥ 1; see :attr:`quick_start`)."""
+        threads = numba.get_num_threads()  # (also starts numba's threads: the layer is known)
+        if threads > 1:
+            return min(threads, self.plants.x.shape[0])
+        if self.quick_start or numba.threading_layer() not in LOOP_ON_CALLER:
+            return 0
+        return 1
+
     def bound(self, table: Any, traces: tuple[Any, ...]) -> Any:
-        """:func:`world_tick` bound to these records (compiled on first use)."""
+        """The tick :meth:`blocks` chooses, bound to these records, compiled on first use."""
+        threaded = self.blocks() > 0
         if self._kernels is None or self._kernels[0] is not table:
+            self._kernels = (table, {})
+        bound = self._kernels[1]
+        if threaded not in bound:
             ob = self.onboard
             trk = ob.tracker
-            self._kernels = (table, bind(world_tick, trk.rows, table, trk.consts, ob.control,
-                                         ob.stats, self.plants, self.n_sub, self.period_s,
-                                         *traces, self.cycles, self.estimates(peek=True), 1))
-        return self._kernels[1]
+            args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
+                    self.period_s, *traces, self.cycles, self.estimates(peek=True))
+            bound[threaded] = (bind(world_tick_threads, *args, 1) if threaded
+                               else bind(world_tick, *args))
+        return bound[threaded]
 
     def estimates(self, peek: bool = False) -> np.ndarray:
         """What the controllers fly on this tick: (N, 6) estimated [p, v], or (0, 6) (the
@@ -222,4 +280,4 @@ class CompiledTick:
 
     def trace(self, traces: tuple[Any, ...]) -> None:
         """Write ``traces`` of the plants' state (the per-object path's tick)."""
-        _trace(self.onboard.tracker.rows, self.plants, *traces, 1)
+        _trace(self.onboard.tracker.rows, self.plants, *traces)
