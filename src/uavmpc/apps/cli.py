@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -240,11 +242,17 @@ def _print_formation(f: Formation) -> None:
         print(f"    while no member avoids: rms {calm.rms_m:.2f} m, max {calm.max_m:.2f} m")
 
 
-def _compiling() -> Any:
-    """A watch that tells the user, on stderr, what a cold cache compiles (a first run)."""
+@contextlib.contextmanager
+def _compiling() -> Iterator[Any]:
+    """A watch that tells the user, on stderr, what a cold cache compiles (a first run), and
+    the kernels around the tick compiled beside it on a second core
+    (:func:`uavmpc.apps.prewarm.beside`)."""
+    from uavmpc.apps.prewarm import beside
     from uavmpc.jit import CompileWatch
 
-    return CompileWatch(show=lambda line: print(line, file=sys.stderr, flush=True))
+    with beside(), CompileWatch(show=lambda line: print(line, file=sys.stderr,
+                                                         flush=True)) as watch:
+        yield watch
 
 
 def _print_compiled(watch: Any) -> None:

@@ -613,6 +613,18 @@ class World:
             self._positions[u.uav_id] = tr.pos[-1, i].copy()
         return world_result(self, tr, contacts, wall, cycles_per_s)
 
+    def rehearse(self, seconds: float = 1.0) -> None:
+        """Run the parts of the batched tick around its compiled call (deliveries, missions,
+        avoidance rounds, broadcasts) for ``seconds`` of world time on the state as it is,
+        without the compiled tick: their kernels compile (or load) without the tick's. For a
+        second process on a cold cache (:mod:`uavmpc.apps.prewarm`); the world is not
+        to be flown afterwards."""
+        now = self.t_s
+        for _ in range(_ticks_of(seconds, None, self.period_s)):
+            self._receive_and_plan_batched(now)
+            self._emit(now)
+            now += self.period_s
+
     def _tick(self, k: int, tr: Traces, contacts: Contacts, next_log: float,
               on_log: Callable[[World], None] | None,
               on_scene: Callable[[float, dict[str, Any], dict[str, Any]], None] | None
