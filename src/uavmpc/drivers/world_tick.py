@@ -234,7 +234,7 @@ class CompiledTick:
         table = trk.table()
         if ob.inline:
             blocks = self.blocks()
-            tick = self.bound(table, traces)
+            tick = self.bound(table, traces, blocks)
             args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
                     self.period_s, *traces, self.cycles, self.estimates())
             return tick(*args, blocks) if blocks else tick(*args)
@@ -253,9 +253,10 @@ class CompiledTick:
             return 0
         return 1
 
-    def bound(self, table: Any, traces: tuple[Any, ...]) -> Any:
-        """The tick :meth:`blocks` chooses, bound to these records, compiled on first use."""
-        threaded = self.blocks() > 0
+    def bound(self, table: Any, traces: tuple[Any, ...], blocks: int | None = None) -> Any:
+        """The tick :meth:`blocks` chooses (``blocks``: its answer, if the caller has it),
+        bound to these records, compiled on first use."""
+        threaded = (self.blocks() if blocks is None else blocks) > 0
         if self._kernels is None or self._kernels[0] is not table:
             self._kernels = (table, {})
         bound = self._kernels[1]
