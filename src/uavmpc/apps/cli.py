@@ -250,9 +250,18 @@ def _compiling() -> Iterator[Any]:
     from uavmpc.apps.prewarm import beside
     from uavmpc.jit import CompileWatch
 
-    with beside(), CompileWatch(show=lambda line: print(line, file=sys.stderr,
-                                                         flush=True)) as watch:
-        yield watch
+    with beside() as helped:
+        announced = []
+
+        def show(line: str) -> None:
+            print(line, file=sys.stderr, flush=True)
+            if helped and not announced:
+                announced.append(line)
+                print("  (a second process compiles the kernels around the tick beside it, "
+                      "on another core)", file=sys.stderr, flush=True)
+
+        with CompileWatch(show=show) as watch:
+            yield watch
 
 
 def _print_compiled(watch: Any) -> None:
