@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import struct
 
 import numpy as np
@@ -141,6 +142,15 @@ def test_constructor_validates_too() -> None:
     with pytest.raises(InvalidMessageError, match="heard: 65 UAVs"):
         PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, np.zeros((40, 3)), True,
                           heard=tuple(f"u{i}" for i in range(65)))
+    # The heard list's ids are checked in one match of the list joined by NUL: an id that
+    # holds a NUL, or is empty, must not slip through the join.
+    for heard, bad in ((("b\x00c",), "b\x00c"), (("b", ""), ""), (("",), ""), (("b", 7), 7),
+                       (("b", "c" * 33), "c" * 33)):
+        with pytest.raises(InvalidMessageError, match=re.escape(f"got {bad!r}")):
+            PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, np.zeros((40, 3)), True,
+                              heard=heard)
+    assert PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, np.zeros((40, 3)), True,
+                             heard=("b", "c" * 32, "d-_9")).heard == ("b", "c" * 32, "d-_9")
     # The message keeps its own read-only copy: the sender may reuse its buffers.
     pos = np.zeros((40, 3))
     msg = PredictionMessage(SCHEMA_VERSION, "a", 1, NOW, t, pos, True)

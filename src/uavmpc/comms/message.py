@@ -71,6 +71,10 @@ _HEADER = struct.Struct("<4sBBBHid")
 _SIGMA = struct.Struct("<dd")
 _FLAG_AVOIDING = 0x01
 _ID_RE = re.compile(r"[A-Za-z0-9_-]{1,32}")
+# A non-empty heard list joined by NUL, checked in one match (a 300-UAV world checks 80 000
+# ids a second): with exactly len - 1 NULs in it (none inside an id), it matches exactly when
+# every id does.
+_IDS_RE = re.compile(r"[A-Za-z0-9_-]{1,32}(?:\x00[A-Za-z0-9_-]{1,32})*")
 _F64 = np.dtype("<f8")
 #: Largest valid message: anything longer is rejected before any parsing work.
 MAX_MESSAGE_BYTES = _HEADER.size + MAX_ID_LEN + 32 * MAX_POINTS + 16 + 1 + MAX_HEARD * (
@@ -291,8 +295,15 @@ def _check_heard(heard: Any, sender: str) -> tuple[str, ...]:
         raise InvalidMessageError(f"heard: must be a tuple of UAV ids, got {heard!r}")
     if len(heard) > MAX_HEARD:
         raise InvalidMessageError(f"heard: {len(heard)} UAVs, more than {MAX_HEARD}")
-    for h in heard:
-        _check_id(h)
+    try:
+        joined = "\x00".join(heard)
+        every_id_valid = not heard or (joined.count("\x00") == len(heard) - 1
+                                       and _IDS_RE.fullmatch(joined) is not None)
+    except TypeError:  # not all str
+        every_id_valid = False
+    if not every_id_valid:
+        for h in heard:
+            _check_id(h)  # raises naming the first bad one
     if len(set(heard)) != len(heard):
         raise InvalidMessageError(f"heard: an id listed twice in {list(heard)}")
     if sender in heard:
