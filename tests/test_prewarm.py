@@ -7,21 +7,29 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from uavmpc.apps import prewarm
+from uavmpc.jit import THREADS_ENV
 
 
-def test_the_rehearsal_runs_everything_around_the_tick_but_not_the_tick() -> None:
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_rehearsal_runs_everything_around_the_tick_but_not_the_tick(threads) -> None:
     # A fresh process, to see which kernels the rehearsal itself needs (loaded from the cache
-    # or compiled): the avoidance's and the link's, none of the tick's.
+    # or compiled): the avoidance's and the link's, none of the tick's; the encounter search
+    # in the form the command's thread count takes (beside() passes it on).
+    if threads > (os.cpu_count() or 1):
+        pytest.skip("needs a second core")
     code = ("from uavmpc.apps.prewarm import main\n"
-            "from uavmpc.avoidance.encounters import encounter_rows\n"
+            "from uavmpc.avoidance.encounters import encounter_rows, encounter_rows_threads\n"
             "from uavmpc.drivers.world_tick import world_tick, world_tick_threads, _tick_rows\n"
             "main()\n"
-            "print(len(encounter_rows.overloads), len(world_tick.overloads),\n"
-            "      len(world_tick_threads.overloads), len(_tick_rows.overloads))\n")
+            "print(len(encounter_rows.overloads), len(encounter_rows_threads.overloads),\n"
+            "      len(world_tick.overloads), len(world_tick_threads.overloads),\n"
+            "      len(_tick_rows.overloads))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, env={**os.environ}).stdout.split()
-    assert out == ["1", "0", "0", "0"]
+                         check=True, env={**os.environ, THREADS_ENV: str(threads)}).stdout
+    assert out.split() == (["1", "0"] if threads == 1 else ["0", "1"]) + ["0", "0", "0"]
 
 
 def test_a_second_process_starts_only_on_a_cold_cache(tmp_path, monkeypatch) -> None:

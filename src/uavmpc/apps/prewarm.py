@@ -45,9 +45,16 @@ def beside() -> Iterator[bool]:
     if (os.cpu_count() or 1) < 2 or not cache_is_cold():
         yield False
         return
+    import numba
+
+    from uavmpc.jit import THREADS_ENV
+
+    # On the command's thread count: some kernels come in a plain and a threaded form, and
+    # the process beside compiles the one the command will load.
     proc = subprocess.Popen([sys.executable, "-m", "uavmpc.apps.prewarm"],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+                            stderr=subprocess.DEVNULL,
+                            env={**os.environ, THREADS_ENV: str(numba.get_num_threads())})
     try:
         yield True
     finally:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from uavmpc.avoidance.proximity import near_and_dz
@@ -344,38 +345,22 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
 
 
 @kernel
-def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np.ndarray,
-                   own_pos: np.ndarray, now_s: np.ndarray, timeout_s: float,
-                   silent_hold_s: float, use_received: bool, silent_radius_m: float,
-                   silent_speed_mps: float, silent_accel_mps2: float, radius_m: np.ndarray,
-                   ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
-                   own_sigma_h_m: np.ndarray, sigma_k: float,
-                   use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
-                   e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
-                   e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
-                   ) -> tuple[int, int]:
-    """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
-    ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
-    offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
-    (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``), widened for the
-    pair's horizontal position uncertainty by ``sigma_k`` √(σ_own² + σ_sender²) (receiver j's
-    σ: ``own_sigma_h_m[j]``, the sender's: its message's, docs/safety.md A3).
-
-    Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
-    ``e_announced`` (·, m: near along the plan as announced, without a silent sender's
-    widening), ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
-    first, then the fresh ones, each in column order; and every silent column in
-    ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
-    its receive time with ``use_received``) is within ``timeout_s`` of now; a stale one is
-    "silent" when it is at most ``silent_hold_s`` old, else ignored. A silent sender comes
-    near when its last plan comes within its radius, as a fresh one, or when it could have
-    come within ``silent_radius_m``: that radius widened by :func:`silent_reach_m` of the time
-    since its message went stale (its age minus ``timeout_s``; at ``silent_speed_mps``,
-    ``silent_accel_mps2``), as it may have left that plan since and nobody has heard where
-    to. (Within ``timeout_s`` a plan is taken as it is: the next one is due.)
-
-    Returns (encounter rows, silent entries); when either exceeds its output's capacity,
-    nothing is written past it and the caller retries with larger outputs."""
+def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1: int,
+                     own_times: np.ndarray, own_pos: np.ndarray, now_s: np.ndarray,
+                     timeout_s: float, silent_hold_s: float, use_received: bool,
+                     silent_radius_m: float, silent_speed_mps: float, silent_accel_mps2: float,
+                     radius_m: np.ndarray, ov_start: np.ndarray, ov_col: np.ndarray,
+                     ov_radius: np.ndarray, own_sigma_h_m: np.ndarray, sigma_k: float,
+                     use_index: bool, cell_m: float, start: np.ndarray, entries: np.ndarray,
+                     sigma_max: float, e_start: np.ndarray, e_col: np.ndarray,
+                     e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
+                     e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
+                     ) -> tuple[int, int]:
+    """:func:`encounter_rows` for the receivers ``due[j0:j1]``, with the grid (``start``,
+    ``entries``: :func:`build_grid`, when ``use_index``) and the widest sender's horizontal σ
+    ``sigma_max`` given: their rows written from the start of the outputs ``e_*``, ``s_col``
+    (and counted past their ends), ``e_start[j]`` and ``s_start[j]`` counted from there.
+    Returns (encounter rows, silent entries) of the block."""
     m = own_times.shape[1]
     n_cols = rows.held_slot.shape[1]
     cap_s = s_col.shape[0]
@@ -392,14 +377,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     dz = np.empty(m)
     cand = np.empty(n_cols, dtype=np.int64)
     mark = np.full(n_cols, -1, dtype=np.int64)
-    start = np.zeros(2, dtype=np.int64)
-    entries = np.zeros(0, dtype=np.int64)
-    if use_index:
-        start, entries = build_grid(store, timeout_s, cell_m)
-    sigma_max = 0.0  # the widest sender's uncertainty: what the index's boxes must reach
-    for s in range(store.sigma_m.shape[0]):
-        sigma_max = max(sigma_max, store.sigma_m[s, 0])
-    for j in range(due.shape[0]):
+    for j in range(j0, j1):
         r = due[j]
         now = now_s[j]
         e_start[j] = ne
@@ -452,9 +430,130 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                             radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
                             shifted, near, near_announced, dz, ne, e_col, e_silent, e_near,
                             e_announced, e_dz)
+    return ne, ns
+
+
+@kernel
+def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np.ndarray,
+                   own_pos: np.ndarray, now_s: np.ndarray, timeout_s: float,
+                   silent_hold_s: float, use_received: bool, silent_radius_m: float,
+                   silent_speed_mps: float, silent_accel_mps2: float, radius_m: np.ndarray,
+                   ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
+                   own_sigma_h_m: np.ndarray, sigma_k: float,
+                   use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
+                   e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
+                   e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
+                   ) -> tuple[int, int]:
+    """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
+    ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
+    offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
+    (receiver j's: ``ov_col[ov_start[j]:ov_start[j + 1]]``, ``ov_radius``), widened for the
+    pair's horizontal position uncertainty by ``sigma_k`` √(σ_own² + σ_sender²) (receiver j's
+    σ: ``own_sigma_h_m[j]``, the sender's: its message's, docs/safety.md A3).
+
+    Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
+    ``e_announced`` (·, m: near along the plan as announced, without a silent sender's
+    widening), ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
+    first, then the fresh ones, each in column order; and every silent column in
+    ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
+    its receive time with ``use_received``) is within ``timeout_s`` of now; a stale one is
+    "silent" when it is at most ``silent_hold_s`` old, else ignored. A silent sender comes
+    near when its last plan comes within its radius, as a fresh one, or when it could have
+    come within ``silent_radius_m``: that radius widened by :func:`silent_reach_m` of the time
+    since its message went stale (its age minus ``timeout_s``; at ``silent_speed_mps``,
+    ``silent_accel_mps2``), as it may have left that plan since and nobody has heard where
+    to. (Within ``timeout_s`` a plan is taken as it is: the next one is due.)
+
+    Returns (encounter rows, silent entries); when either exceeds its output's capacity,
+    nothing is written past it and the caller retries with larger outputs."""
+    start = np.zeros(2, dtype=np.int64)
+    entries = np.zeros(0, dtype=np.int64)
+    if use_index:
+        start, entries = build_grid(store, timeout_s, cell_m)
+    ne, ns = _encounter_block(rows, store, due, 0, due.shape[0], own_times, own_pos, now_s,
+                              timeout_s, silent_hold_s, use_received, silent_radius_m,
+                              silent_speed_mps, silent_accel_mps2, radius_m, ov_start, ov_col,
+                              ov_radius, own_sigma_h_m, sigma_k, use_index, cell_m, start,
+                              entries, _sigma_max(store), e_start, e_col, e_silent, e_near,
+                              e_announced, e_dz, s_start, s_col)
     e_start[due.shape[0]] = ne
     s_start[due.shape[0]] = ns
     return ne, ns
+
+
+@kernel(parallel=True)
+def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
+                           own_times: np.ndarray, own_pos: np.ndarray, now_s: np.ndarray,
+                           timeout_s: float, silent_hold_s: float, use_received: bool,
+                           silent_radius_m: float, silent_speed_mps: float,
+                           silent_accel_mps2: float, radius_m: np.ndarray,
+                           ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
+                           own_sigma_h_m: np.ndarray, sigma_k: float, use_index: bool,
+                           cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
+                           e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
+                           e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray,
+                           blocks: int) -> tuple[int, int]:
+    """:func:`encounter_rows` with the receivers in ``blocks`` ≥ 1 contiguous blocks, one per
+    thread (the caller passes ``numba.get_num_threads()``): the same outputs, bit for bit.
+
+    Each block writes its rows into its own equal share of the outputs, which are then moved
+    together in receiver order. When a block's rows exceed its share, nothing is moved and
+    the counts returned are ``blocks`` × the largest block's, more than the outputs hold: the
+    caller retries with larger outputs, as for :func:`encounter_rows`."""
+    r_count = due.shape[0]
+    nb = max(1, min(r_count, blocks))
+    start = np.zeros(2, dtype=np.int64)
+    entries = np.zeros(0, dtype=np.int64)
+    if use_index:
+        start, entries = build_grid(store, timeout_s, cell_m)
+    sigma_max = _sigma_max(store)
+    share_e = e_col.shape[0] // nb
+    share_s = s_col.shape[0] // nb
+    ne_b = np.zeros(nb, dtype=np.int64)
+    ns_b = np.zeros(nb, dtype=np.int64)
+    for b in numba.prange(nb):
+        e0, s0 = b * share_e, b * share_s
+        ne_b[b], ns_b[b] = _encounter_block(
+            rows, store, due, b * r_count // nb, (b + 1) * r_count // nb, own_times, own_pos,
+            now_s, timeout_s, silent_hold_s, use_received, silent_radius_m, silent_speed_mps,
+            silent_accel_mps2, radius_m, ov_start, ov_col, ov_radius, own_sigma_h_m, sigma_k,
+            use_index, cell_m, start, entries, sigma_max, e_start, e_col[e0:e0 + share_e],
+            e_silent[e0:e0 + share_e], e_near[e0:e0 + share_e],
+            e_announced[e0:e0 + share_e], e_dz[e0:e0 + share_e], s_start,
+            s_col[s0:s0 + share_s])
+    if ne_b.max() > share_e or ns_b.max() > share_s:
+        return nb * ne_b.max(), nb * ns_b.max()
+    ne = np.int64(0)
+    ns = np.int64(0)
+    for b in range(nb):
+        e0, s0 = b * share_e, b * share_s
+        for j in range(b * r_count // nb, (b + 1) * r_count // nb):
+            e_start[j] += ne
+            s_start[j] += ns
+        # Moved down (ne ≤ e0): a forward copy never overwrites what it has yet to move.
+        for i in range(ne_b[b]):
+            e_col[ne + i] = e_col[e0 + i]
+            e_silent[ne + i] = e_silent[e0 + i]
+            e_near[ne + i] = e_near[e0 + i]
+            e_announced[ne + i] = e_announced[e0 + i]
+            e_dz[ne + i] = e_dz[e0 + i]
+        for i in range(ns_b[b]):
+            s_col[ns + i] = s_col[s0 + i]
+        ne += ne_b[b]
+        ns += ns_b[b]
+    e_start[r_count] = ne
+    s_start[r_count] = ns
+    return ne, ns
+
+
+@kernel
+def _sigma_max(store: Store) -> float:
+    """The widest sender's horizontal position uncertainty: what the index's boxes must
+    reach."""
+    sigma_max = 0.0
+    for s in range(store.sigma_m.shape[0]):
+        sigma_max = max(sigma_max, store.sigma_m[s, 0])
+    return sigma_max
 
 
 #: With this many senders or more, ``use_index=None`` finds candidates through the grid (below
@@ -510,6 +609,9 @@ class EncounterFinder:
         self.silent_accel_mps2 = float(silent_accel_mps2)
         self.use_index = None if use_index is None else bool(use_index)
         self.cell_m = cell_m
+        #: The receivers' blocks, one per thread (None: numba's thread count, see
+        #: :func:`uavmpc.jit.set_threads`); the same rows for any number.
+        self.blocks: int | None = None
         self._cap_e = 16
         self._cap_s = 16
         self._out: tuple[np.ndarray, ...] | None = None
@@ -544,12 +646,17 @@ class EncounterFinder:
             out = self._buffers(r_count, m)
             use_index = (self.use_index if self.use_index is not None
                          else len(t.ids) >= AUTO_INDEX_SENDERS)
-            ne, ns = encounter_rows(t.rows, t.store, due, own_times, own_pos, now_s,
-                                    self.timeout_s, self.silent_hold_s, self.use_received,
-                                    self.silent_radius_m, self.silent_speed_mps,
-                                    self.silent_accel_mps2, radius_m,
-                                    ov_start, ov_col, ov_radius, np.ascontiguousarray(sig[:, 0]),
-                                    self.sigma_k, use_index, cell, *out)
+            args = (t.rows, t.store, due, own_times, own_pos, now_s, self.timeout_s,
+                    self.silent_hold_s, self.use_received, self.silent_radius_m,
+                    self.silent_speed_mps, self.silent_accel_mps2, radius_m, ov_start, ov_col,
+                    ov_radius, np.ascontiguousarray(sig[:, 0]), self.sigma_k, use_index, cell,
+                    *out)
+            # The receivers on threads when there are several of each.
+            blocks = numba.get_num_threads() if self.blocks is None else self.blocks
+            if blocks > 1 and r_count > 1:
+                ne, ns = encounter_rows_threads(*args, blocks)
+            else:
+                ne, ns = encounter_rows(*args)
             if ne <= self._cap_e and ns <= self._cap_s:
                 break
             self._cap_e = max(self._cap_e, 2 * ne)
