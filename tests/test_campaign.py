@@ -120,14 +120,15 @@ def test_with_avoidance_no_collision(tmp_path: Path) -> None:
         assert key in on_disk
 
 
+@pytest.mark.parametrize("workers", [1, 2])  # 2: the logs re-flown side by side too
 def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
-        tmp_path: Path) -> None:
+        tmp_path: Path, workers: int) -> None:
     from html.parser import HTMLParser
 
     from uavmpc.log import read_topics
 
-    r = run_campaign(tmp_path, avoidance=True, trials=4, trial_s=12.0, workers=1, logs=2,
-                     **SMALL)
+    r = run_campaign(tmp_path, avoidance=True, trials=4, trial_s=12.0, workers=workers,
+                     logs=2, **SMALL)
     page = (tmp_path / "report.html").read_text()
     trials = {t["index"]: t for t in (json.loads(line) for line in
                                       (tmp_path / "trials.jsonl").read_text().splitlines())}

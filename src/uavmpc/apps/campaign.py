@@ -538,7 +538,8 @@ def run_campaign(
                           threads=threads, ray_address=ray_address, progress=progress)
     from uavmpc.apps.campaign_engine import campaign_wall_s
 
-    return _write_report(out, selected, spec, campaign_wall_s(out, wall0), logs)
+    return _write_report(out, selected, spec, campaign_wall_s(out, wall0), logs,
+                         workers=workers, threads=threads)
 
 
 def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
@@ -547,13 +548,16 @@ def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
 
 
 def _write_report(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
-                  wall_s: float, logs: int) -> dict[str, Any]:
-    """Write the selected trials' report, figures, flight logs and page to ``out``."""
+                  wall_s: float, logs: int, *, workers: int = 1,
+                  threads: int = 1) -> dict[str, Any]:
+    """Write the selected trials' report, figures, flight logs and page to ``out`` (the logs
+    re-flown by ``workers`` local processes on ``threads`` threads each)."""
     report = aggregate(selected, spec.to_json(), wall_s)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     (out / "report.md").write_text(report_markdown(report))
     _figures(out, selected, report)
-    _write_html(out, report, selected, _flight_logs(out, selected, spec, logs))
+    _write_html(out, report, selected,
+                _flight_logs(out, selected, spec, logs, workers=workers, threads=threads))
     return report
 
 
@@ -583,19 +587,28 @@ def _avoidance(given: dict[str, Any] | AvoidanceParams | None,
 
 
 def _flight_logs(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
-                 n: int) -> dict[int, str]:
-    """The flight logs of the ``n`` closest trials (re-flown from their seeds when missing):
-    trial index → path relative to ``out``."""
+                 n: int, *, workers: int = 1, threads: int = 1) -> dict[int, str]:
+    """The flight logs of the ``n`` closest trials (re-flown from their seeds when missing,
+    side by side on up to ``workers`` local processes): trial index → path relative to
+    ``out``."""
+    from uavmpc.apps.campaign_engine import Task, executor
+
     closest = sorted(selected, key=lambda r: (r["min_distance_m"], r["index"]))[:n]
-    logs = {}
-    for rec in closest:
-        i = int(rec["index"])
-        rel = f"logs/trial_{i}.mcap"
-        if not (out / rel).exists():
-            part = out / f"{rel}.part"  # a log is there whole or not at all
-            run_trial(spec, i, part)
-            part.rename(out / rel)
-        logs[i] = rel
+    logs = {int(rec["index"]): f"logs/trial_{int(rec['index'])}.mcap" for rec in closest}
+    missing = [i for i, rel in logs.items() if not (out / rel).exists()]
+    if not missing:
+        return logs
+    # A log is there whole or not at all: written as .part, renamed once its flight ended.
+    part = {i: out / f"{logs[i]}.part" for i in missing}
+    ex = executor(ray_address=None, workers=min(workers, len(missing)), threads=threads)
+    try:
+        for i in missing:
+            ex.submit(Task(i, 0, run_trial, (spec, i, part[i])))
+        while ex.pending():
+            for i, _, _ in ex.wait():
+                part[i].rename(out / logs[i])
+    finally:
+        ex.close(cancel=True)
     return logs
 
 
