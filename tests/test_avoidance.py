@@ -723,3 +723,46 @@ def test_with_no_layer_above_it_goes_down_to_a_clear_one_away_from_a_uav_level_w
     arriving = hover((1.0, 0.0, 10.0 + P.dz_m))  # a, level with us, above our start
     d = me.update(later, "b", 2, later + REL, own, {"a": msg("a", 1, arriving, later)})
     assert d.ceiling_hit and d.z_offset_m == 0.0 and d.unresolved == () and not d.holding
+
+
+def test_a_uav_standing_in_the_way_of_one_it_yields_to_says_it_cannot_make_way() -> None:
+    """Found in the 24 h campaign (trial 42): uav3 waited at its waypoint right under uav5 (one
+    layer up, so no way up), and uav1 flew to a waypoint beside it, straight through it. A UAV
+    whose plan stands still and still meets one it yields to is stuck: it says so (its
+    broadcast flag goes down, and the others yield to it) until the conflict is resolved."""
+    t = NOW + REL
+    here = hover((0.0, 0.0, 10.0))
+    h = msg("h", 1, line(t, (-30.0, 0.0, 10.0), (5.0, 0.0, 0.0)))  # reaches us in ~5 s
+    above = msg("a", 5, hover((0.5, 0.0, 13.0)))  # lower priority, right above us
+    s = HeightOffsetStrategy()
+    d = s.update(NOW, "o", 3, t, here, {"h": h, "a": above})
+    assert d.yielding_to == ("h",) and d.waiting_for == ("a",) and d.z_offset_m == 0.0
+    assert d.stuck and d.unresolved == ("h",)
+    # Moving, it can still stop short of h's path: not stuck (it holds short instead).
+    moving = line(t, (0.0, -10.0, 10.0), (0.0, 2.0, 0.0))
+    d = HeightOffsetStrategy().update(NOW, "o", 3, t, moving,
+                                      {"h": h, "a": msg("a", 5, moving + UP3)})
+    assert d.unresolved == ("h",) and not d.stuck
+    # With a way up (nobody above), it climbs: not stuck.
+    d = HeightOffsetStrategy().update(NOW, "o", 3, t, here, {"h": h})
+    assert d.z_offset_m == 3.0 and not d.stuck
+    # Once h no longer meets it, the flag goes up again.
+    gone = msg("h", 1, line(t, (30.0, 20.0, 10.0), (5.0, 0.0, 0.0)))
+    d = s.update(NOW + 0.1, "o", 3, t + 0.1, here, {"h": gone, "a": above})
+    assert not d.stuck
+
+
+def test_a_stuck_uav_broadcasts_its_flag_down_and_the_others_yield_to_it() -> None:
+    """Trial 42 of the 24 h campaign (seed 0), flown to past its collision (52.4 s, uav1 into
+    uav3 at 0.40 m): uav3 says it is stuck, uav1 yields and climbs over it."""
+    from uavmpc.apps.campaign import RandomWalkSpec, trial_run
+    from uavmpc.drivers.world import World
+
+    world = World.from_spec(trial_run(RandomWalkSpec(avoidance=True), 42))
+    flags = []
+    world.wire.publish = lambda stack, data, now, send=world.wire.publish: (
+        flags.append((stack.uav_id, stack.decision is not None and stack.decision.stuck)),
+        send(stack, data, now))
+    r = world.run(60.0)
+    assert not r.collisions and float(np.min(r.min_distance_m)) > 2.0
+    assert ("uav3", True) in flags  # it said so

@@ -559,8 +559,11 @@ class OnboardStack:
         # The acknowledgement (docs/safety.md, A2): every UAV whose plan we count.
         self.heard = (self._finder.heard(self.row, now_s, pred.position_m[0, :2])
                       if self._finder is not None else ())
+        # The flag says "I will make way": down while our hold cannot (AvoidanceDecision.stuck).
+        stuck = self.decision is not None and self.decision.stuck
         msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
-                              avoiding=self.avoidance is not None and self.cooperative,
+                              avoiding=self.avoidance is not None and self.cooperative
+                              and not stuck,
                               heard=self.heard, position_sigma_m=self.position_sigma_m)
         data = encode(msg)
         if self.key is not None:

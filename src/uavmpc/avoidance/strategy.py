@@ -52,6 +52,10 @@ MAX_ACCEL_MPS2 = 100.0
 LEVEL_M = 1.0
 #: The horizontal speed limit of a UAV holding short [m/s] (a limit must be positive).
 HOLD_SPEED_MPS = 0.01
+#: A plan whose points all lie within this of its first one, horizontally, stands still [m]
+#: (:attr:`AvoidanceDecision.stuck`): a hold's creep at :data:`HOLD_SPEED_MPS` over the
+#: horizon is a tenth of it.
+STANDING_M = 1.0
 #: Spacing of the delays a holding UAV probes its plan at [s] (``hold_delay_s``).
 HOLD_PROBE_STEP_S = 1.0
 #: Largest ``hold_delay_s`` [s]: each second is a probe, found with every avoidance round.
@@ -217,6 +221,10 @@ class AvoidanceDecision:
         holding: we hold short (``hold_delay_s``): the horizontal speed limit drops to
             :data:`HOLD_SPEED_MPS` at the nominal acceleration, so the UAV brakes to a stop
             within its plan and stays there until the way is clear.
+        stuck: one we yield to still meets us in our plan, and our plan stands still (we
+            hold short, or wait at a waypoint): it would fly through us. We cannot make way,
+            so our broadcast flag goes down and everyone near yields to us (docs/safety.md, A6
+            and A7).
     """
 
     z_offset_m: float = 0.0
@@ -234,6 +242,7 @@ class AvoidanceDecision:
     deaf: tuple[str, ...] = ()
     unheard: bool = False
     holding: bool = False
+    stuck: bool = False
 
 
 @runtime_checkable
@@ -332,6 +341,15 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
         ...
 
 
+def _standing_still(positions: np.ndarray | None) -> bool:
+    """The plan ``positions`` (m, 3) stays within :data:`STANDING_M` of its first point,
+    horizontally (False without a plan)."""
+    if positions is None:
+        return False
+    d = positions[:, :2] - positions[0, :2]
+    return bool(np.max(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) <= STANDING_M * STANDING_M)
+
+
 def _half(enc: Encounters, half_height_m: float) -> np.ndarray:
     """(k, 1) each pair's half height: the cylinder's, widened for both UAVs' vertical
     position uncertainty (docs/safety.md, A3)."""
@@ -419,6 +437,8 @@ class HeightOffsetStrategy:
         self._last_update_s: float | None = None
         #: While holding short: the plan from before the hold (times (m,), positions (m, 3)).
         self._hold_plan: tuple[np.ndarray, np.ndarray] | None = None
+        #: :attr:`AvoidanceDecision.stuck`, kept until the conflict is resolved.
+        self._stuck = False
 
     @property
     def holding(self) -> bool:
@@ -544,6 +564,14 @@ class HeightOffsetStrategy:
         deaf_ids = tuple(i for i, d in zip(enc.ids, deaf, strict=True) if d)
         holding = self._hold_short(bool(unresolved.any()), times, positions,
                                    probes, own_id, own_priority, deaf_ids, unheard)
+        # Stuck (docs/safety.md, A6): a hold is a stop within our plan, so that the one we
+        # yield to passes ahead of us. When our plan stands still and still meets it, it
+        # passes through us: found in the 24 h campaign (trial 42), uav3 waiting at its
+        # waypoint under uav5 (no way up), uav1 flying to a waypoint beside it, straight into
+        # uav3. Nothing we can do makes way; saying so (the flag down, A7) makes others yield.
+        # Once stuck, until the conflict is resolved (a hold's rounds alternate between the
+        # standing plan and the probes' one).
+        self._stuck = bool(unresolved.any()) and (self._stuck or _standing_still(positions))
         recent = (self._last_conflict_s is not None
                   and now_s - self._last_conflict_s < prm.release_hysteresis_s)
         limits_tight = bool(hit_start.any() or c_end.any() or recent or holding)
@@ -564,6 +592,7 @@ class HeightOffsetStrategy:
             deaf=deaf_ids,
             unheard=bool(unheard),
             holding=holding,
+            stuck=self._stuck,
         )
 
     def _nobody_near(self, now_s: float, known: Encounters, times: np.ndarray,
@@ -577,6 +606,7 @@ class HeightOffsetStrategy:
         self._last_update_s = now_s
         holding = self._hold_short(False, times, positions, probes, own_id, own_priority, (),
                                    False)
+        self._stuck = False  # nobody near: no conflict
         recent = holding or (self._last_conflict_s is not None
                              and now_s - self._last_conflict_s < prm.release_hysteresis_s)
         return AvoidanceDecision(

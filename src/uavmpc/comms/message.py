@@ -97,7 +97,8 @@ class PredictionMessage:
         times_s: (m,) absolute times of the prediction points, strictly increasing (s).
         positions_m: (m, 3) predicted positions, ENU world frame (m).
         avoiding: this UAV runs collision avoidance and will yield to higher priorities. A UAV
-            whose flag is down is non-cooperative: everyone yields to it.
+            whose flag is down is non-cooperative, or stuck (it stands where one it yields to
+            will pass and cannot move out of the way): everyone yields to it.
         received_s: local metadata, never sent: the receiver's clock when the message arrived
             (set by the receiving inbox; used by the receive-time fallback for unsynchronised
             clocks). ``None`` when unknown.
