@@ -750,6 +750,15 @@ def test_a_uav_standing_in_the_way_of_one_it_yields_to_says_it_cannot_make_way()
     gone = msg("h", 1, line(t, (30.0, 20.0, 10.0), (5.0, 0.0, 0.0)))
     d = s.update(NOW + 0.1, "o", 3, t + 0.1, here, {"h": gone, "a": above})
     assert not d.stuck
+    # Never stuck for a UAV yielded to for its flag (found with every fault at once: two
+    # stuck UAVs lowering their flags for each other), nor for one already in conflict now
+    # (both hovering: nobody comes to meet it).
+    down = msg("h", 1, line(t, (-30.0, 0.0, 10.0), (5.0, 0.0, 0.0)), avoiding=False)
+    d = HeightOffsetStrategy().update(NOW, "o", 3, t, here, {"h": down, "a": above})
+    assert d.unresolved == ("h",) and not d.stuck
+    beside = msg("h", 1, hover((3.0, 0.0, 10.0)))
+    d = HeightOffsetStrategy().update(NOW, "o", 3, t, here, {"h": beside, "a": above})
+    assert d.unresolved == ("h",) and not d.stuck
 
 
 def test_a_stuck_uav_broadcasts_its_flag_down_and_the_others_yield_to_it() -> None:

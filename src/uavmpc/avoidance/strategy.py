@@ -221,10 +221,11 @@ class AvoidanceDecision:
         holding: we hold short (``hold_delay_s``): the horizontal speed limit drops to
             :data:`HOLD_SPEED_MPS` at the nominal acceleration, so the UAV brakes to a stop
             within its plan and stays there until the way is clear.
-        stuck: one we yield to still meets us in our plan, and our plan stands still (we
-            hold short, or wait at a waypoint): it would fly through us. We cannot make way,
-            so our broadcast flag goes down and everyone near yields to us (docs/safety.md, A6
-            and A7).
+        stuck: our plan stands still (we hold short, or wait at a waypoint) and one we
+            yield to by priority alone (its flag up, hearing us) comes to meet it later in the
+            plan: it would fly through us. We cannot make way, so our broadcast flag goes down,
+            until that conflict is resolved, and everyone near yields to us (docs/safety.md,
+            A6 and A7).
     """
 
     z_offset_m: float = 0.0
@@ -565,13 +566,21 @@ class HeightOffsetStrategy:
         holding = self._hold_short(bool(unresolved.any()), times, positions,
                                    probes, own_id, own_priority, deaf_ids, unheard)
         # Stuck (docs/safety.md, A6): a hold is a stop within our plan, so that the one we
-        # yield to passes ahead of us. When our plan stands still and still meets it, it
-        # passes through us: found in the 24 h campaign (trial 42), uav3 waiting at its
-        # waypoint under uav5 (no way up), uav1 flying to a waypoint beside it, straight into
-        # uav3. Nothing we can do makes way; saying so (the flag down, A7) makes others yield.
-        # Once stuck, until the conflict is resolved (a hold's rounds alternate between the
+        # yield to passes ahead of us. When our plan stands still and one we yield to comes
+        # to meet it later in the plan, it passes through us: found in the 24 h campaign
+        # (trial 42), uav3 waiting at its waypoint under uav5 (no way up), uav1 flying to a
+        # waypoint beside it, straight into uav3. Nothing we can do makes way; saying so (the
+        # flag down, A7) makes the others yield. Only for a UAV we yield to by priority alone
+        # (its flag up, it hears us, we are heard): a stuck UAV is never stuck for another
+        # stuck one, so two never lower their flags for each other (found with every fault at
+        # once: UAVs hovering at their starts, in each other's wide cylinders, all stuck).
+        # Once stuck, until that conflict is resolved (a hold's rounds alternate between the
         # standing plan and the probes' one).
-        self._stuck = bool(unresolved.any()) and (self._stuck or _standing_still(positions))
+        by_rank = (unresolved & known.avoiding & ~deaf & (not unheard)
+                   & (known.priority < own_priority))
+        coming = by_rank & ~c_end[:, 0]  # not in conflict now: it comes to us
+        self._stuck = bool(by_rank.any()) and (
+            self._stuck or (bool(coming.any()) and _standing_still(positions)))
         recent = (self._last_conflict_s is not None
                   and now_s - self._last_conflict_s < prm.release_hysteresis_s)
         limits_tight = bool(hit_start.any() or c_end.any() or recent or holding)
