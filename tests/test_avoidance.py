@@ -728,8 +728,9 @@ def test_with_no_layer_above_it_goes_down_to_a_clear_one_away_from_a_uav_level_w
 def test_a_uav_standing_in_the_way_of_one_it_yields_to_says_it_cannot_make_way() -> None:
     """Found in the 24 h campaign (trial 42): uav3 waited at its waypoint right under uav5 (one
     layer up, so no way up), and uav1 flew to a waypoint beside it, straight through it. A UAV
-    whose plan stands still and still meets one it yields to is stuck: it says so (its
-    broadcast flag goes down, and the others yield to it) until the conflict is resolved."""
+    whose plan stands still, with no way up, while one it yields to by priority comes to meet
+    it is stuck: it says so (its broadcast flag goes down, and the others yield to it) until
+    the conflict is resolved."""
     t = NOW + REL
     here = hover((0.0, 0.0, 10.0))
     h = msg("h", 1, line(t, (-30.0, 0.0, 10.0), (5.0, 0.0, 0.0)))  # reaches us in ~5 s

@@ -85,12 +85,16 @@ class Encounters:
             object.__setattr__(self, "widen_v_m", np.zeros(len(self.ids)))
 
     def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
-        """(k,) we yield to them: their flag is down (docs/safety.md, A7), or a higher
-        priority (lower number; equal numbers, which a valid set-up never has, are broken by
-        id). The strategy adds those that have not heard us (A2)."""
-        return np.array([(not a) or p < own_priority or (p == own_priority and i < own_id)
-                         for i, p, a in zip(self.ids, self.priority.tolist(),
-                                            self.avoiding.tolist(), strict=True)], dtype=bool)
+        """(k,) we yield to them: their flag is down (docs/safety.md, A7), or
+        :meth:`outrank` us. The strategy adds those that have not heard us (A2)."""
+        return ~self.avoiding.astype(bool) | self.outrank(own_id, own_priority)
+
+    def outrank(self, own_id: str, own_priority: int) -> np.ndarray:
+        """(k,) a higher priority than ours (lower number; equal numbers, which a valid
+        set-up never has, are broken by id), whatever their flags."""
+        return np.array([p < own_priority or (p == own_priority and i < own_id)
+                         for i, p in zip(self.ids, self.priority.tolist(), strict=True)],
+                        dtype=bool)
 
 
 @kernel

@@ -577,7 +577,7 @@ class HeightOffsetStrategy:
         # Once stuck, until that conflict is resolved (a hold's rounds alternate between the
         # standing plan and the probes' one).
         by_rank = (unresolved & known.avoiding & ~deaf & (not unheard)
-                   & (known.priority < own_priority))
+                   & known.outrank(own_id, own_priority))
         coming = by_rank & ~c_end[:, 0]  # not in conflict now: it comes to us
         self._stuck = bool(by_rank.any()) and (
             self._stuck or (bool(coming.any()) and _standing_still(positions)))
