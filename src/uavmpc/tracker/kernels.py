@@ -61,8 +61,6 @@ class TrackerConsts(NamedTuple):
         ldp_*: the QP solver's data for (H, C) (the fields of
             :class:`~uavmpc.solvers.batchqp.LdpData`, flat: numba's parallel loops take
             records of arrays, not records of records); iter_limit: its iteration limit.
-        spans: (5, m, 2) int64 the nonzero columns of each row of f_ref_t, vref_of_ref,
-            f_vref_t, neg_hinv and c_t (:func:`nonzero_spans`).
     """
 
     horizon_s: np.ndarray
@@ -87,17 +85,6 @@ class TrackerConsts(NamedTuple):
     ldp_gram: np.ndarray
     ldp_inv_norm: np.ndarray
     iter_limit: int
-    spans: np.ndarray
-
-
-def nonzero_spans(x: np.ndarray) -> np.ndarray:
-    """(K, 2) per row of x (K, W): [first, last + 1) of its nonzero columns ([0, 0) if none).
-    The products of the tick skip the exact zeros outside (half of most of these matrices:
-    an input only acts on later steps), which changes no sum."""
-    nz = x != 0.0
-    first = np.where(nz.any(axis=1), nz.argmax(axis=1), 0)
-    last = np.where(nz.any(axis=1), x.shape[1] - nz[:, ::-1].argmax(axis=1), 0)
-    return np.stack([first, last], axis=1).astype(np.int64)
 
 
 class TrackerRows(NamedTuple):
@@ -239,88 +226,70 @@ def braking_plan(rel: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray, tau: float
                 w = min(w0 + a_hi[ax] * t, 0.0)
             u_out[ax, k] = (w - prev) / step_len[k]
             prev = w
+        # Row by row of forced_t (contiguous), each element's sum in the order of k.
+        s = s_out[ax].reshape(3 * m)
         for c in range(3 * m):
-            acc = rel[ax, 0] * free_t[0, c] + rel[ax, 1] * free_t[1, c] + rel[ax, 2] * free_t[2, c]
-            for k in range(m):
-                acc += u_out[ax, k] * forced_t[k, c]
-            s_out[ax, c // 3, c % 3] = acc
-
-
-#: Rows of a product's matrix with at least this many nonzero columns are summed over a slice.
-_SLICE_MIN = 8
+            s[c] = rel[ax, 0] * free_t[0, c] + rel[ax, 1] * free_t[1, c] \
+                + rel[ax, 2] * free_t[2, c]
+        for k in range(m):
+            uk = u_out[ax, k]
+            fk = forced_t[k]
+            for c in range(3 * m):
+                s[c] += uk * fk[c]
 
 
 @kernel(fastmath=FASTMATH)
-def _axpy2(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray, i0: int,
-           i1: int) -> None:
+def _axpy2(a: np.ndarray, x: np.ndarray, y: np.ndarray, i0: int, i1: int) -> None:
     """y[i] += Σ_k a[i, k] x[k] for the rows i = i0, i1 of a (4, K) and y (4, W), x (K, W):
-    rows of x scaled and summed, k in order, each read once for both; only the columns
-    ``span[k, 0] ≤ j < span[k, 1]`` of row k, outside of which it is exactly zero (the
-    model's matrices are triangular or banded: :func:`nonzero_spans`)."""
+    rows of x scaled and summed, k in order, each read once for both."""
     y0, y1 = y[i0], y[i1]
     for k in range(x.shape[0]):
-        lo, hi = span[k, 0], span[k, 1]
         a0, a1 = a[i0, k], a[i1, k]
-        if hi - lo >= _SLICE_MIN:
-            # Indexed from the start of a slice, j is known to be ≥ 0 (no wrap-around test in
-            # the loop), so LLVM vectorises it: element by element the same fused operation.
-            xs, s0, s1 = x[k, lo:hi], y0[lo:hi], y1[lo:hi]
-            for j in range(hi - lo):
-                xj = xs[j]
-                s0[j] += a0 * xj
-                s1[j] += a1 * xj
-        else:
-            xk = x[k]
-            for j in range(lo, hi):
-                xj = xk[j]
-                y0[j] += a0 * xj
-                y1[j] += a1 * xj
+        xk = x[k]
+        for j in range(x.shape[1]):
+            xj = xk[j]
+            y0[j] += a0 * xj
+            y1[j] += a1 * xj
 
 
 @kernel(fastmath=FASTMATH)
-def _axpy1(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray, i0: int) -> None:
+def _axpy1(a: np.ndarray, x: np.ndarray, y: np.ndarray, i0: int) -> None:
     """:func:`_axpy2` for the one row i0."""
     y0 = y[i0]
     for k in range(x.shape[0]):
-        lo, hi = span[k, 0], span[k, 1]
         a0 = a[i0, k]
-        if hi - lo >= _SLICE_MIN:
-            xs, s0 = x[k, lo:hi], y0[lo:hi]
-            for j in range(hi - lo):
-                s0[j] += a0 * xs[j]
-        else:
-            xk = x[k]
-            for j in range(lo, hi):
-                y0[j] += a0 * xk[j]
+        xk = x[k]
+        for j in range(x.shape[1]):
+            y0[j] += a0 * xk[j]
 
 
 @kernel(fastmath=FASTMATH)
-def _axpy_axes(a: np.ndarray, x: np.ndarray, span: np.ndarray, y: np.ndarray, n: int,
+def _axpy_axes(a: np.ndarray, x: np.ndarray, y: np.ndarray, n: int,
                i0: int, i1: int, i2: int, i3: int) -> None:
     """:func:`_axpy2` for the first ``n`` of the rows ``i0, i1, i2, i3`` of a and y (the
     others left as they are), two at a time: more rows per pass leave LLVM too many
     possibly overlapping stores to vectorise."""
     if n >= 2:
-        _axpy2(a, x, span, y, i0, i1)
+        _axpy2(a, x, y, i0, i1)
     elif n == 1:
-        _axpy1(a, x, span, y, i0)
+        _axpy1(a, x, y, i0)
     if n == 4:
-        _axpy2(a, x, span, y, i2, i3)
+        _axpy2(a, x, y, i2, i3)
     elif n == 3:
-        _axpy1(a, x, span, y, i2)
+        _axpy1(a, x, y, i2)
 
 
 @kernel(fastmath=FASTMATH)
-def excess4(u: np.ndarray, c_t: np.ndarray, c_t_span: np.ndarray, lower: np.ndarray,
+def excess4(u: np.ndarray, c_t: np.ndarray, lower: np.ndarray,
             upper: np.ndarray, cu: np.ndarray, worst: np.ndarray) -> None:
     """The largest violation of lower ≤ [u; u C_tᵀ] ≤ upper for each of the four axes (inputs
     ``u`` (4, m), bounds (4, m + r)) into ``worst`` (4,): −inf if none, NaN for an axis with
     a NaN input (callers test ``not worst <= tol``). ``cu`` (4, r): scratch for the rows."""
-    _excess_axes(u, c_t, c_t_span, lower, upper, cu, worst, 4, 0, 1, 2, 3)
+    _excess_axes(u, c_t, lower, upper, cu, worst, 4, 0, 1, 2, 3)
 
 
 @kernel(fastmath=FASTMATH)
-def _excess_axes(u: np.ndarray, c_t: np.ndarray, c_t_span: np.ndarray, lower: np.ndarray,
+def _excess_axes(u: np.ndarray, c_t: np.ndarray, lower: np.ndarray,
                  upper: np.ndarray, cu: np.ndarray, worst: np.ndarray, n: int, i0: int,
                  i1: int, i2: int, i3: int) -> None:
     """:func:`excess4` forming the rows C u of the first ``n`` of the axes ``i0, i1, i2, i3``
@@ -328,7 +297,7 @@ def _excess_axes(u: np.ndarray, c_t: np.ndarray, c_t_span: np.ndarray, lower: np
     m = u.shape[1]
     nr = c_t.shape[1]
     cu[:] = 0.0
-    _axpy_axes(u, c_t, c_t_span, cu, n, i0, i1, i2, i3)
+    _axpy_axes(u, c_t, cu, n, i0, i1, i2, i3)
     for ax in range(4):
         w = -math.inf
         for k in range(m):
@@ -548,20 +517,20 @@ def prepare_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConst
         r1, r2, up = rel[ax, 1], rel[ax, 2], rows.u_prev[i, ax]
         for k in range(m):
             f[ax, k] = r1 * c.f_state_t[1, k] + r2 * c.f_state_t[2, k] + up * c.f_uprev[k]
-    _axpy_axes(r_rel, c.f_ref_t, c.spans[0], f, n_act, i0, i1, i2, i3)
+    _axpy_axes(r_rel, c.f_ref_t, f, n_act, i0, i1, i2, i3)
     if c.use_vref:
         # The reference's own velocity, clipped: a jump in it is not a speed to match.
         vref[:] = 0.0
-        _axpy_axes(r_rel, c.vref_of_ref, c.spans[1], vref, n_act, i0, i1, i2, i3)
+        _axpy_axes(r_rel, c.vref_of_ref, vref, n_act, i0, i1, i2, i3)
         for ax in range(4):
             for k in range(m):
                 vref[ax, k] = min(max(vref[ax, k], v_lo[ax]), v_hi[ax])
-        _axpy_axes(vref, c.f_vref_t, c.spans[2], f, n_act, i0, i1, i2, i3)
+        _axpy_axes(vref, c.f_vref_t, f, n_act, i0, i1, i2, i3)
     u[:] = 0.0
-    _axpy_axes(f, c.neg_hinv, c.spans[3], u, n_act, i0, i1, i2, i3)
+    _axpy_axes(f, c.neg_hinv, u, n_act, i0, i1, i2, i3)
     # Bound check of the unconstrained optima.
     worst4 = sc.worst
-    _excess_axes(u, c.c_t, c.spans[4], lower, upper, sc.cu, worst4, n_act, i0, i1, i2, i3)
+    _excess_axes(u, c.c_t, lower, upper, sc.cu, worst4, n_act, i0, i1, i2, i3)
     for ax in range(4):
         worst = worst4[ax]
         rows.need[i, ax] = not worst <= 0.0  # a bound is active (or NaN): solve the QP
@@ -584,7 +553,7 @@ def advance_row(i: int, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> Non
     for ax in range(4):
         check = check or (need[ax] and solved[ax] == 1)
     if check:
-        excess4(u, c.c_t, c.spans[4], rows.lower[i], rows.upper[i], sc.cu, sc.worst)
+        excess4(u, c.c_t, rows.lower[i], rows.upper[i], sc.cu, sc.worst)
     for ax in range(4):
         rows.fallback[i, ax] = False
         if not need[ax]:

@@ -34,7 +34,6 @@ from uavmpc.tracker.kernels import (
     advance_rows,
     limit_excess,
     make_bundle,
-    nonzero_spans,
     plan,
     prepare_rows,
     scratch_floats,
@@ -173,8 +172,6 @@ def build_consts(config: TrackerConfig, model: CondensedModel) -> TrackerConsts:
     vref_of_ref[:, 0] = vref_of_ref[:, 1]
     c = np.ascontiguousarray
     ldp = LdpData.build(model.hessian, model.constraint_matrix)
-    products = (c(model.f_ref.T), vref_of_ref, c(model.f_vref.T), c(-model.hessian_inv),
-                c(model.constraint_matrix.T))
     return TrackerConsts(
         horizon_s=c(config.horizon_times_s), step_len_s=c(lengths),
         t_grid_s=np.concatenate([[0.0], config.horizon_times_s]), tau_s=float(config.tau_s),
@@ -185,7 +182,6 @@ def build_consts(config: TrackerConfig, model: CondensedModel) -> TrackerConsts:
         free_t=c(model.free.T), forced_t=c(model.forced.T),
         **{f"ldp_{name}": value for name, value in ldp._asdict().items()},
         iter_limit=int(config.iter_limit),
-        spans=np.stack([nonzero_spans(x) for x in products]),
     )
 
 
