@@ -321,11 +321,13 @@ def _integrate(
     lo = rows.lo[i]
     hi = rows.hi[i]
     dt = rows.substep_s[i]
-    k1 = np.empty(n)
-    k2 = np.empty(n)
-    k3 = np.empty(n)
-    k4 = np.empty(n)
-    xt = np.empty(n)
+    # The stages as views of one buffer: one allocation per step instead of five.
+    work = np.empty(5 * n)
+    k1 = work[0:n]
+    k2 = work[n:2 * n]
+    k3 = work[2 * n:3 * n]
+    k4 = work[3 * n:4 * n]
+    xt = work[4 * n:5 * n]
     for sub in range(n_sub):
         if not direct:
             # Zero-order hold of the rotor commands over the substep.
