@@ -81,3 +81,27 @@ def test_hessian_is_positive_definite_and_symmetric() -> None:
     model = CondensedModel.build(TrackerConfig())
     np.testing.assert_allclose(model.hessian, model.hessian.T)
     assert np.linalg.eigvalsh(model.hessian).min() > 0.0
+
+
+def test_bound_check_is_the_largest_violation_and_nan_for_a_nan_input() -> None:
+    from uavmpc.tracker.kernels import excess4
+
+    model = CondensedModel.build(TrackerConfig())
+    c_t = np.ascontiguousarray(model.constraint_matrix.T)
+    m, r = c_t.shape
+    rng = np.random.default_rng(5)
+    for trial in range(20):
+        u = rng.normal(scale=2.0, size=(4, m))
+        lower = rng.normal(scale=3.0, size=(4, m + r)) - 2.0
+        upper = lower + rng.uniform(0.0, 6.0, size=(4, m + r))
+        if trial % 4 == 0:
+            u[trial % 3 + 1, rng.integers(m)] = np.nan
+        worst = np.empty(4)
+        excess4(u, c_t, lower, upper, np.empty((4, r)), worst)
+        rows = np.concatenate([u, u @ c_t], axis=1)
+        for ax in range(4):
+            if np.isnan(u[ax]).any():
+                assert np.isnan(worst[ax])
+            else:
+                expected = max(np.max(lower[ax] - rows[ax]), np.max(rows[ax] - upper[ax]))
+                assert worst[ax] == pytest.approx(expected, abs=1e-12)

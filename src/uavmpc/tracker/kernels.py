@@ -298,17 +298,32 @@ def _excess_axes(u: np.ndarray, c_t: np.ndarray, lower: np.ndarray,
     nr = c_t.shape[1]
     cu[:] = 0.0
     _axpy_axes(u, c_t, cu, n, i0, i1, i2, i3)
-    for ax in range(4):
-        w = -math.inf
-        for k in range(m):
-            w = max(w, lower[ax, k] - u[ax, k], u[ax, k] - upper[ax, k])
-            if math.isnan(u[ax, k]):
-                w = math.nan
-                break
-        if not math.isnan(w):
-            for k in range(nr):
-                w = max(w, lower[ax, m + k] - cu[ax, k], cu[ax, k] - upper[ax, m + k])
-        worst[ax] = w
+    # The four axes' maxima side by side (a maximum is exact in any order): one chain of
+    # 2 (m + r) dependent maxima per axis would wait on each comparison's latency.
+    w0 = w1 = w2 = w3 = -math.inf
+    bad0 = bad1 = bad2 = bad3 = False
+    for k in range(m):
+        x0, x1, x2, x3 = u[0, k], u[1, k], u[2, k], u[3, k]
+        w0 = max(w0, lower[0, k] - x0, x0 - upper[0, k])
+        w1 = max(w1, lower[1, k] - x1, x1 - upper[1, k])
+        w2 = max(w2, lower[2, k] - x2, x2 - upper[2, k])
+        w3 = max(w3, lower[3, k] - x3, x3 - upper[3, k])
+        bad0 |= math.isnan(x0)
+        bad1 |= math.isnan(x1)
+        bad2 |= math.isnan(x2)
+        bad3 |= math.isnan(x3)
+    for k in range(nr):
+        j = m + k
+        x0, x1, x2, x3 = cu[0, k], cu[1, k], cu[2, k], cu[3, k]
+        w0 = max(w0, lower[0, j] - x0, x0 - upper[0, j])
+        w1 = max(w1, lower[1, j] - x1, x1 - upper[1, j])
+        w2 = max(w2, lower[2, j] - x2, x2 - upper[2, j])
+        w3 = max(w3, lower[3, j] - x3, x3 - upper[3, j])
+    # An axis with a NaN input: NaN.
+    worst[0] = math.nan if bad0 else w0
+    worst[1] = math.nan if bad1 else w1
+    worst[2] = math.nan if bad2 else w2
+    worst[3] = math.nan if bad3 else w3
 
 
 class Scratch(NamedTuple):
