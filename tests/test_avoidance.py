@@ -526,10 +526,13 @@ def test_a_climb_raised_again_mid_climb_starts_from_where_the_uav_is() -> None:
     t_from_0 = times[np.argmax(up >= 6.0)]  # there, starting where it is
     assert t_from_0 > t_from_3 + 0.5
     b_near = (times > t_from_3 + 0.05) & (times < t_from_0 - 0.05)
+    # A is met once even the slow edge from 0 has reached 3 m (t_from_3, the same curve), so
+    # the climb under way to the offset in force is not in A's way (see the next test).
+    a_near = times >= t_from_3
     known = Encounters(
         ids=("a", "b"), priority=np.array([1, 9]), avoiding=np.array([True, True]),
         silent_row=np.array([False, False]),
-        near_xy=np.vstack([np.ones_like(times, bool), b_near]),
+        near_xy=np.vstack([a_near, b_near]),
         dz_m=np.vstack([np.full_like(times, -3.0),   # A in the 3 m layer: we yield, climb
                         np.full_like(times, -6.0)]))  # B in the 6 m layer, passing late
     decisions = {}
@@ -539,6 +542,32 @@ def test_a_climb_raised_again_mid_climb_starts_from_where_the_uav_is() -> None:
         decisions[climbed] = s.decide(100.0, "me", 5, 100.0 + times, known, climbed_m=climbed)
     assert decisions[3.0].z_offset_m == 6.0 and not decisions[3.0].waiting_for
     assert decisions[0.0].z_offset_m == 3.0 and decisions[0.0].waiting_for == ("b",)
+
+
+def test_a_climb_under_way_stops_where_it_is_when_one_it_yields_to_is_in_its_way() -> None:
+    """Found with every fault at once (0.5 h, seed 11, trial 2): a UAV raised far up (to the
+    ceiling, nothing being clear) climbed on, yielding now to one hovering above it, straight
+    into it. The offset in force is 9 m (for A, in our layer), none of it climbed yet; B, whom
+    we yield to too, hovers 7 m up: the way to 9 m passes through it, so the climb stops at
+    what it has climbed and says it waits for B. The same UAV with the climb done (9 m
+    climbed) escapes B upwards, as before."""
+    from uavmpc.avoidance.encounters import Encounters
+
+    prm = AvoidanceParams()
+    times = np.r_[0.01, 0.01 + 0.2 * np.arange(1, 40)]
+    known = Encounters(
+        ids=("a", "b"), priority=np.array([1, 2]), avoiding=np.array([True, True]),
+        silent_row=np.array([False, False]),
+        near_xy=np.ones((2, times.size), bool),
+        dz_m=np.vstack([np.zeros_like(times), np.full_like(times, -7.0)]))
+    decisions = {}
+    for climbed in (0.0, 9.0):
+        s = HeightOffsetStrategy(prm)
+        s.z_offset_m = 9.0
+        decisions[climbed] = s.decide(100.0, "me", 5, 100.0 + times, known, climbed_m=climbed)
+    assert decisions[0.0].z_offset_m == 0.0 and decisions[0.0].waiting_for == ("b",)
+    assert decisions[0.0].unresolved == ("a",)  # A is met below: the UAV holds short
+    assert decisions[9.0].z_offset_m == 12.0 and not decisions[9.0].waiting_for
 
 
 def test_a_climb_does_not_close_in_on_a_uav_above_it() -> None:

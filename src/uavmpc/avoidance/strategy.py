@@ -737,6 +737,18 @@ class HeightOffsetStrategy:
         """
         prm = self.params
         z = self.z_offset_m
+        if climbed < z - LEVEL_M:
+            # A climb under way goes on only while its way up to the offset in force is clear:
+            # it was checked when the offset was raised, not against those heard of since.
+            # Found with every fault at once (0.5 h, seed 11, trial 2): uav5, raised to the
+            # ceiling for a non-cooperative UAV (nothing was clear), then yielding to uav3
+            # hovering 20 m above it, climbed on at 5 m/s straight into uav3 (0.39 m). It now
+            # stops where it is (the offset it has climbed) and holds there until the way is
+            # clear, as a climb that was never started would.
+            way = _blocked_way(enc, np.array([z]), z, climbed, ahead_s, half_h, prm,
+                               at=climbed)[0]
+            if way.any():
+                return climbed, False, tuple(i for i, b in zip(enc.ids, way, strict=True) if b)
         steps = math.floor((min(prm.max_offset_m, self.offset_ceiling_m) - z) / prm.dz_m + _EPS)
         sub = _subset(enc, must_yield)
         if steps < 1:
@@ -849,10 +861,12 @@ def _climbed(t_s: np.ndarray, prm: AvoidanceParams) -> np.ndarray:
 
 
 def _blocked_way(enc: Encounters, candidates: np.ndarray, z: float, climbed: float,
-                 ahead_s: np.ndarray, half_h: float, prm: AvoidanceParams) -> np.ndarray:
+                 ahead_s: np.ndarray, half_h: float, prm: AvoidanceParams,
+                 at: float | None = None) -> np.ndarray:
     """(c, k): whether the climb from the offset in force ``z`` (``climbed`` of it reached so
     far) to each of the ``candidates`` (c,) offsets meets each of the k known UAVs on the way,
-    at the predicted points ``ahead_s`` (m,) seconds from now (see ``_climb``)."""
+    at the predicted points ``ahead_s`` (m,) seconds from now (see ``_climb``). ``at``: the
+    offset the UAV is at, from which a climb escapes (default ``z``)."""
     fast = z + _climbed(np.maximum(ahead_s, 0.0), prm)  # (m,)
     slow = climbed + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
     hi = np.minimum(fast[None, :], candidates[:, None])[:, None, :]  # (c, 1, m)
@@ -865,7 +879,8 @@ def _blocked_way(enc: Encounters, candidates: np.ndarray, z: float, climbed: flo
     # distance: two plans at one height differ by centimetres, and holding there is
     # worse than climbing (found in the same campaign, trial 33).
     climbing = lo < candidates[:, None, None]
-    escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z >= -LEVEL_M)
+    here = z if at is None else at
+    escaping = _conflicts(enc, here, half_h) & (enc.dz_m + here >= -LEVEL_M)
     # Along the plans as announced: where a silent UAV could have gone since does not
     # hold a climb away from a conflict we know of (rule 7).
     h = _half(enc, half_h)
