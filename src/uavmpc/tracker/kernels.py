@@ -349,13 +349,12 @@ class Scratch(NamedTuple):
     z: np.ndarray
     skip: np.ndarray
     worst: np.ndarray
-    first: np.ndarray
 
 
 @kernel
 def scratch_floats(m: int) -> int:
     """Length of the float buffer :func:`scratch_views` cuts a :class:`Scratch` from."""
-    return 45 * m + 30
+    return 45 * m + 18
 
 
 @kernel
@@ -399,10 +398,8 @@ def scratch_views(buf: np.ndarray, skip: np.ndarray, m: int) -> Scratch:
     z = buf[o:o + m + 1]
     o += m + 1
     worst = buf[o:o + 4]
-    o += 4
-    first = buf[o:o + 12].reshape((4, 3))
     return Scratch(times, rr, r_rel, brake_s, vref, rows_free, rows, h_orig, cu, lam, lam_star,
-                   blo, bhi, y, col, ell, z, skip[:n], worst, first)
+                   blo, bhi, y, col, ell, z, skip[:n], worst)
 
 
 @kernel
@@ -589,22 +586,13 @@ def advance_row(i: int, rows: TrackerRows, c: TrackerConsts, sc: Scratch) -> Non
     rows.qp_solves[i] = solves
     if fell_back:
         rows.fallback_count[i] += 1
-    # Advance by one step of the same model: the first predicted state. Its twelve sums run
-    # side by side over k (each in the order of k): one chain of m dependent additions each
-    # would wait on the adder's latency.
-    first = sc.first
+    # Advance by one step of the same model: the first predicted state.
     for ax in range(4):
         for j in range(3):
-            first[ax, j] = rel[ax, 1] * c.free_t[1, j] + rel[ax, 2] * c.free_t[2, j]
-    for k in range(m):
-        fk = c.forced_t[k]
-        for ax in range(4):
-            uk = u[ax, k]
-            for j in range(3):
-                first[ax, j] += uk * fk[j]
-    for ax in range(4):
-        for j in range(3):
-            s0[ax, j] = first[ax, j]
+            acc = rel[ax, 1] * c.free_t[1, j] + rel[ax, 2] * c.free_t[2, j]
+            for k in range(m):
+                acc += u[ax, k] * c.forced_t[k, j]
+            s0[ax, j] = acc
         s0[ax, 0] += rows.p0[i, ax]
         rows.u_prev[i, ax] = u[ax, 0]
     rows.t_s[i] = rows.t_s[i] + c.horizon_s[0]
