@@ -7,11 +7,10 @@ whole and cut short after each of its sections: the difference between two cuts 
 section costs. The cut versions are the kernel's own source with a ``return`` inserted before
 a section (the anchors below must be found, or the script stops), compiled here, not cached.
 
-Next to each section it prints its arithmetic: the multiply-adds of the matrix products (from
-the matrices' nonzeros and the rows' moving axes: what the product needs, the zeros
-skipped) and, as the reference measured in the same
-run, what a plain compiled loop takes for that many multiply-adds on data in cache. The last
-line is JSON.
+Next to each section it prints its arithmetic: the multiply-adds its matrix products need
+(each matrix's nonzeros times the rows' moving axes) and, as the reference measured in the
+same run, what a plain compiled loop takes for that many multiply-adds on data in cache. The
+last line is JSON.
 """
 
 from __future__ import annotations
