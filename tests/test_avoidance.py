@@ -754,6 +754,28 @@ def test_with_no_layer_above_it_goes_down_to_a_clear_one_away_from_a_uav_level_w
     assert d.ceiling_hit and d.z_offset_m == 0.0 and d.unresolved == () and not d.holding
 
 
+def test_a_hold_goes_on_past_a_uav_it_leaves_behind_but_not_past_one_crossing_its_way() -> None:
+    """docs/safety.md, A6. Held short (no layer under the ceiling), 3–4 m from a higher
+    priority: parked beside the hold point, going on leaves it behind, so the hold ends; but
+    one crossing our way comes closer first, and going on would pass through it (found in the
+    lossy 16-UAV antipodal swap: a UAV let go every other round passed one at 1.24 m)."""
+    t = NOW + REL
+    own = line(t, (0.0, 0.0, 10.0), (2.0, 0.0, 0.0))  # on our way east at 2 m/s
+    head_on = msg("c", 1, line(t, (20.0, 0.0, 10.0), (-5.0, 0.0, 0.0)))
+    later = NOW + 0.1
+    t2 = later + REL
+    parked = msg("c", 1, hover((-3.0, 0.0, 10.0)), later)
+    crossing = msg("c", 1, line(t2, (3.0, -2.0, 10.0), (0.0, 4.0, 0.0), later), later)
+    ends = {}
+    for name, other in (("parked", parked), ("crossing", crossing)):
+        me = HeightOffsetStrategy()
+        me.limit_offset(P.dz_m / 2)  # no layer fits under the ceiling
+        d = me.update(NOW, "b", 2, t, own, {"c": head_on})
+        assert d.holding and d.unresolved == ("c",)
+        ends[name] = not me.update(later, "b", 2, t2, own, {"c": other}).holding
+    assert ends == {"parked": True, "crossing": False}
+
+
 def test_a_uav_standing_in_the_way_of_one_it_yields_to_says_it_cannot_make_way() -> None:
     """Found in the 24 h campaign (trial 42): uav3 waited at its waypoint right under uav5 (one
     layer up, so no way up), and uav1 flew to a waypoint beside it, straight through it. A UAV

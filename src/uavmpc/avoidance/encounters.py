@@ -63,6 +63,8 @@ class Encounters:
             (:attr:`~uavmpc.comms.PredictionMessage.heard`; default: all do).
         widen_v_m: (k,) how much the pair's half height is widened for both UAVs' vertical
             position uncertainty [m] (default 0; the horizontal widening is in ``near_xy``).
+        dxy_m: (k, m) the horizontal distance between us and them at each point [m] (what
+            tells a UAV we go away from from one we come closer to; default: unknown, inf).
     """
 
     ids: tuple[str, ...]
@@ -75,6 +77,7 @@ class Encounters:
     announced_xy: np.ndarray | None = None
     hears_us: np.ndarray | None = None
     widen_v_m: np.ndarray | None = None
+    dxy_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.announced_xy is None:
@@ -83,6 +86,8 @@ class Encounters:
             object.__setattr__(self, "hears_us", np.ones(len(self.ids), dtype=bool))
         if self.widen_v_m is None:
             object.__setattr__(self, "widen_v_m", np.zeros(len(self.ids)))
+        if self.dxy_m is None:
+            object.__setattr__(self, "dxy_m", np.full(self.near_xy.shape, np.inf))
 
     def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
         """(k,) we yield to them: their flag is down (docs/safety.md, A7), or
@@ -308,8 +313,9 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
                radius: float, announced_radius: float, extrapolate_s: float, box_own: np.ndarray,
                own_times: np.ndarray, own_pos: np.ndarray, box: np.ndarray,
                shifted: np.ndarray, near: np.ndarray, near_announced: np.ndarray, dz: np.ndarray,
-               ne: int, e_col: np.ndarray, e_silent: np.ndarray, e_near: np.ndarray,
-               e_announced: np.ndarray, e_dz: np.ndarray) -> int:
+               dxy: np.ndarray, ne: int, e_col: np.ndarray, e_silent: np.ndarray,
+               e_near: np.ndarray, e_announced: np.ndarray, e_dz: np.ndarray,
+               e_dxy: np.ndarray) -> int:
     """Row ``r``'s message from ``col`` against our plan (box test, then the cylinder's
     horizontal test at ``radius``); written as encounter row ``ne`` when it comes near (and
     fits the outputs), with the points near at ``announced_radius`` ≤ ``radius`` (the plan as
@@ -328,7 +334,7 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
     for k in range(n):
         shifted[k] = store.times_s[slot, k] + (ref - stamp)
     near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s, own_pos,
-                radius, near, dz)
+                radius, near, dz, dxy)
     hit = False
     for k in range(near.shape[0]):
         hit = hit or near[k]
@@ -339,9 +345,10 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
         e_silent[ne] = silent
         e_near[ne] = near
         e_dz[ne] = dz
+        e_dxy[ne] = dxy
         if announced_radius < radius:
             near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s,
-                        own_pos, announced_radius, near_announced, dz)
+                        own_pos, announced_radius, near_announced, dz, dxy)
             e_announced[ne] = near_announced
         else:
             e_announced[ne] = near
@@ -358,8 +365,8 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
                      use_index: bool, cell_m: float, start: np.ndarray, entries: np.ndarray,
                      sigma_max: float, e_start: np.ndarray, e_col: np.ndarray,
                      e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
-                     e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
-                     ) -> tuple[int, int]:
+                     e_dz: np.ndarray, e_dxy: np.ndarray, s_start: np.ndarray,
+                     s_col: np.ndarray) -> tuple[int, int]:
     """:func:`encounter_rows` for the receivers ``due[j0:j1]``, with the grid (``start``,
     ``entries``: :func:`build_grid`, when ``use_index``) and the widest sender's horizontal σ
     ``sigma_max`` given: their rows written from the start of the outputs ``e_*``, ``s_col``
@@ -379,6 +386,7 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
     near = np.empty(m, dtype=np.bool_)
     near_announced = np.empty(m, dtype=np.bool_)
     dz = np.empty(m)
+    dxy = np.empty(m)
     cand = np.empty(n_cols, dtype=np.int64)
     mark = np.full(n_cols, -1, dtype=np.int64)
     for j in range(j0, j1):
@@ -406,8 +414,8 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
             radius = max(announced, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
             ne = _encounter(rows, store, r, col, silent, ref, radius, announced, timeout_s, box_own,
-                            own_times[j], own_pos[j], box, shifted, near, near_announced, dz, ne,
-                            e_col, e_silent, e_near, e_announced, e_dz)
+                            own_times[j], own_pos[j], box, shifted, near, near_announced, dz,
+                            dxy, ne, e_col, e_silent, e_near, e_announced, e_dz, e_dxy)
         r_max = radius_m[j]
         for o in range(ov_start[j], ov_start[j + 1]):
             r_max = max(r_max, ov_radius[o])
@@ -432,8 +440,8 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
             radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
             ne = _encounter(rows, store, r, col, fresh, _reference_s(rows, r, col, use_received),
                             radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
-                            shifted, near, near_announced, dz, ne, e_col, e_silent, e_near,
-                            e_announced, e_dz)
+                            shifted, near, near_announced, dz, dxy, ne, e_col, e_silent, e_near,
+                            e_announced, e_dz, e_dxy)
     return ne, ns
 
 
@@ -446,8 +454,8 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                    own_sigma_h_m: np.ndarray, sigma_k: float,
                    use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
                    e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
-                   e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray
-                   ) -> tuple[int, int]:
+                   e_dz: np.ndarray, e_dxy: np.ndarray, s_start: np.ndarray,
+                   s_col: np.ndarray) -> tuple[int, int]:
     """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
     ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
     offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
@@ -457,7 +465,8 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
 
     Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
     ``e_announced`` (·, m: near along the plan as announced, without a silent sender's
-    widening), ``e_dz`` (·, m) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
+    widening), ``e_dz`` (·, m) and ``e_dxy`` (·, m: the horizontal distance, as
+    :attr:`Encounters.dxy_m`) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
     first, then the fresh ones, each in column order; and every silent column in
     ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
     its receive time with ``use_received``) is within ``timeout_s`` of now; a stale one is
@@ -479,7 +488,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                               silent_speed_mps, silent_accel_mps2, radius_m, ov_start, ov_col,
                               ov_radius, own_sigma_h_m, sigma_k, use_index, cell_m, start,
                               entries, _sigma_max(store), e_start, e_col, e_silent, e_near,
-                              e_announced, e_dz, s_start, s_col)
+                              e_announced, e_dz, e_dxy, s_start, s_col)
     e_start[due.shape[0]] = ne
     s_start[due.shape[0]] = ns
     return ne, ns
@@ -495,8 +504,8 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
                            own_sigma_h_m: np.ndarray, sigma_k: float, use_index: bool,
                            cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
                            e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
-                           e_dz: np.ndarray, s_start: np.ndarray, s_col: np.ndarray,
-                           blocks: int) -> tuple[int, int]:
+                           e_dz: np.ndarray, e_dxy: np.ndarray, s_start: np.ndarray,
+                           s_col: np.ndarray, blocks: int) -> tuple[int, int]:
     """:func:`encounter_rows` with the receivers in ``blocks`` ≥ 1 contiguous blocks, one per
     thread (the caller passes ``numba.get_num_threads()``): the same outputs, bit for bit.
 
@@ -523,7 +532,8 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
             silent_accel_mps2, radius_m, ov_start, ov_col, ov_radius, own_sigma_h_m, sigma_k,
             use_index, cell_m, start, entries, sigma_max, e_start, e_col[e0:e0 + share_e],
             e_silent[e0:e0 + share_e], e_near[e0:e0 + share_e],
-            e_announced[e0:e0 + share_e], e_dz[e0:e0 + share_e], s_start,
+            e_announced[e0:e0 + share_e], e_dz[e0:e0 + share_e], e_dxy[e0:e0 + share_e],
+            s_start,
             s_col[s0:s0 + share_s])
     if ne_b.max() > share_e or ns_b.max() > share_s:
         return nb * ne_b.max(), nb * ns_b.max()
@@ -541,6 +551,7 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
             e_near[ne + i] = e_near[e0 + i]
             e_announced[ne + i] = e_announced[e0 + i]
             e_dz[ne + i] = e_dz[e0 + i]
+            e_dxy[ne + i] = e_dxy[e0 + i]
         for i in range(ns_b[b]):
             s_col[ns + i] = s_col[s0 + i]
         ne += ne_b[b]
@@ -666,7 +677,7 @@ class EncounterFinder:
             self._cap_e = max(self._cap_e, 2 * ne)
             self._cap_s = max(self._cap_s, 2 * ns)
             self._out = None
-        e_start, e_col, e_silent, e_near, e_announced, e_dz, s_start, s_col = out
+        e_start, e_col, e_silent, e_near, e_announced, e_dz, e_dxy, s_start, s_col = out
         ids, st, rows = t.ids, t.store, t.rows
         result = []
         starts = e_start[:r_count + 1].tolist()
@@ -688,7 +699,8 @@ class EncounterFinder:
                 tuple(ids[c] for c in cols_j.tolist()), st.priority[slots].copy(),
                 st.avoiding[slots].copy(), e_silent[a:b].copy(), e_near[a:b].copy(),
                 e_dz[a:b].copy(), silent, e_announced[a:b].copy(),
-                np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v))
+                np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v,
+                e_dxy[a:b].copy()))
         return result
 
     def heard(self, row: int, now_s: float, own_xy_m: np.ndarray,
@@ -710,9 +722,9 @@ class EncounterFinder:
             ce, cs = self._cap_e, self._cap_s
             out = (np.zeros(r_count + 1, dtype=np.int64), np.zeros(ce, dtype=np.int64),
                    np.zeros(ce, dtype=np.bool_), np.zeros((ce, m), dtype=np.bool_),
-                   np.zeros((ce, m), dtype=np.bool_), np.zeros((ce, m)),
+                   np.zeros((ce, m), dtype=np.bool_), np.zeros((ce, m)), np.zeros((ce, m)),
                    np.zeros(r_count + 1, dtype=np.int64), np.zeros(cs, dtype=np.int64))
             self._out = out
         if out[0].shape[0] != r_count + 1:
-            return (out[0][:r_count + 1], *out[1:6], out[6][:r_count + 1], out[7])
+            return (out[0][:r_count + 1], *out[1:7], out[7][:r_count + 1], out[8])
         return out

@@ -25,6 +25,8 @@ form the avoidance calls at 10 Hz per UAV (alignment, then the horizontal test),
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from uavmpc.jit import kernel
@@ -61,10 +63,11 @@ def align_into(other_times_s: np.ndarray, other_positions_m: np.ndarray,
 @kernel
 def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
                 extrapolate_s: float, own_positions_m: np.ndarray, radius_m: float,
-                near_out: np.ndarray, dz_out: np.ndarray) -> None:
+                near_out: np.ndarray, dz_out: np.ndarray, dxy_out: np.ndarray) -> None:
     """One other prediction against ours: :func:`align_into`, then per point whether it is
-    known and horizontally within ``radius_m`` (``near_out`` (m,) bool) and our height minus
-    theirs (``dz_out`` (m,)).
+    known and horizontally within ``radius_m`` (``near_out`` (m,) bool), our height minus
+    theirs (``dz_out`` (m,)) and the horizontal distance between the two (``dxy_out`` (m,)
+    [m]; where the point is unknown, that of the extrapolation).
 
     Args:
         other_times_s: (n,) strictly increasing, n ≥ 2; other_positions_m: (n, 3).
@@ -77,8 +80,10 @@ def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_tim
     for i in range(m):
         dx = aligned[i, 0] - own_positions_m[i, 0]
         dy = aligned[i, 1] - own_positions_m[i, 1]
-        near_out[i] = near_out[i] and dx**2 + dy**2 <= r2
+        d2 = dx**2 + dy**2
+        near_out[i] = near_out[i] and d2 <= r2
         dz_out[i] = own_positions_m[i, 2] - aligned[i, 2]
+        dxy_out[i] = math.sqrt(d2)
 
 
 def align_batch(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
