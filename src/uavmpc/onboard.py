@@ -416,6 +416,10 @@ class OnboardStack:
         sched.next_avoidance_s[self.row] = float(t0_s)
         #: The prediction of the last broadcast (for logs), and how many were sent.
         self.last_broadcast: Prediction | None = None
+        #: The message of the last broadcast when its bytes are exactly its encoding (no
+        #: signature or seal): what a receiver decodes them to (a simulated world's receivers
+        #: take it rather than decode the same bytes again).
+        self.last_message: PredictionMessage | None = None
         self.predictions_sent = 0
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
         #: the broadcast flag down.
@@ -566,11 +570,14 @@ class OnboardStack:
                               and not stuck,
                               heard=self.heard, position_sigma_m=self.position_sigma_m)
         data = encode(msg)
+        self.last_message = msg
         if self.key is not None:
             data = sign(data, self.key)
+            self.last_message = None
         elif self.identity is not None:
             # Stamps order a sender's predictions; the sequence number is the count.
             data = seal(data, PREDICTION_CHANNEL, self.identity, self.predictions_sent)
+            self.last_message = None
         self.last_broadcast = pred
         self.predictions_sent += 1
         return data

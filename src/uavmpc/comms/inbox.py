@@ -220,10 +220,12 @@ class InboxTable:
         self.rows = new
 
     # ------------------------------------------------------------------ messages
-    def slot_for(self, data: bytes) -> int:
+    def slot_for(self, data: bytes, decoded: PredictionMessage | None = None) -> int:
         """The store slot holding the message ``data`` decodes to (decoded once per distinct
         byte string while its slot lives), pinned until :meth:`unpin`; raises
-        :class:`~uavmpc.comms.message.InvalidMessageError` naming the problem."""
+        :class:`~uavmpc.comms.message.InvalidMessageError` naming the problem. ``decoded``:
+        what ``data`` decodes to, when the caller knows (the message whose encoding ``data``
+        is: the round trip is exact, field for field), taken instead of decoding."""
         hit = self._decoded.get(data)
         if isinstance(hit, str):
             raise InvalidMessageError(hit)
@@ -231,7 +233,7 @@ class InboxTable:
             self.store.pinned[hit[0]] = 1
             return hit[0]
         try:
-            msg = decode(data)
+            msg = decode(data) if decoded is None else decoded
         except InvalidMessageError as exc:
             if self._failures >= _MAX_FAILURES_CACHED:
                 self._decoded = {k: v for k, v in self._decoded.items() if not isinstance(v, str)}

@@ -12,9 +12,12 @@ import numpy as np
 
 from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.link import SimulatedLink
-from uavmpc.comms.message import InvalidMessageError
+from uavmpc.comms.message import InvalidMessageError, PredictionMessage
 from uavmpc.log import FlightRecorder
 from uavmpc.onboard import OnboardStack
+
+#: At most this many broadcasts' messages are kept for their receivers.
+_MAX_SENT = 4096
 
 
 class WorldLink:
@@ -40,6 +43,10 @@ class WorldLink:
         self.recorder = recorder
         #: Broadcasts swallowed by dead radios.
         self.silenced = 0
+        #: The messages of the broadcasts in flight, by their bytes (:meth:`deliver` takes
+        #: them rather than decoding the bytes again); bounded: a broadcast lost to every
+        #: receiver is never taken.
+        self._sent: dict[bytes, PredictionMessage] = {}
 
     def publish(self, stack: OnboardStack, data: bytes, now: float) -> None:
         """``stack``'s broadcast ``data`` at world time ``now``."""
@@ -47,6 +54,10 @@ class WorldLink:
             self.silenced += 1  # a dead radio: the UAV does not know it
             return
         self.link.publish(data, stack.uav_id, now)
+        if stack.last_message is not None:
+            if len(self._sent) >= _MAX_SENT:
+                self._sent.clear()  # only costs decoding those again
+            self._sent[data] = stack.last_message
         pred = stack.last_broadcast
         if self.recorder is not None and pred is not None:
             self.recorder.prediction(stack.uav_id, now, pred.position_m, pred.heading_rad)
@@ -80,7 +91,8 @@ class WorldLink:
         errors: dict[int, str] = {}
         for j, pid in enumerate(pids.tolist()):
             try:
-                slots[j] = table.slot_for(self.link.payload(pid))
+                data = self.link.payload(pid)
+                slots[j] = table.slot_for(data, self._sent.pop(data, None))
             except InvalidMessageError as exc:
                 slots[j] = -1
                 errors[pid] = str(exc)
