@@ -258,7 +258,7 @@ class OnboardBatch:
     @property
     def inline(self) -> bool:
         """Every row solves its QPs inside the compiled tick (no Python solver)."""
-        return all(s is None for s in self.tracker.solvers)
+        return self.tracker.all_inline
 
     def tick_row(self, row: int, p: np.ndarray, v: np.ndarray, q: np.ndarray, dt: float,
                  q_out: np.ndarray, ff_out: np.ndarray) -> float:

@@ -714,7 +714,7 @@ class EncounterFinder:
         n = heard_columns(t.rows, t.store, int(row), float(now_s), self.use_received,
                           self.timeout_s, self.silent_hold_s, float(own_xy_m[0]),
                           float(own_xy_m[1]), out)
-        return tuple(t.ids[c] for c in out[:n].tolist())
+        return tuple(map(t.ids.__getitem__, out[:n].tolist()))
 
     def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:
         out = self._out

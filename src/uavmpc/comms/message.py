@@ -40,6 +40,7 @@ refuses ours: an old and a new stack never read each other silently wrong.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 import struct
@@ -169,10 +170,17 @@ def encode(msg: PredictionMessage) -> bytes:
     uid = msg.uav_id.encode("ascii")
     header = _HEADER.pack(MAGIC, msg.version, _FLAG_AVOIDING if msg.avoiding else 0, len(uid),
                           msg.points, msg.priority, msg.stamp_s)
-    heard = [bytes((len(h),)) + h.encode("ascii") for h in msg.heard]
+    heard = list(map(_heard_entry, msg.heard))
     return b"".join((header, uid, msg.times_s.astype(_F64).tobytes(),
                      msg.positions_m.astype(_F64).tobytes(), _SIGMA.pack(*msg.position_sigma_m),
                      bytes((len(heard),)), *heard))
+
+
+@functools.lru_cache(maxsize=4096)
+def _heard_entry(uav_id: str) -> bytes:
+    """A heard list's entry for a valid id: its length byte, then the id (a world's UAVs list
+    the same few hundred ids in every message: kept, not built again)."""
+    return bytes((len(uav_id),)) + uav_id.encode("ascii")
 
 
 def decode(data: bytes) -> PredictionMessage:

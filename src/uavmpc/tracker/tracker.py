@@ -262,6 +262,11 @@ class TrackerBatch:
         self._inline = np.array([i for i in range(self.n) if self.solvers[i] is None],
                                 dtype=np.int64)
 
+    @property
+    def all_inline(self) -> bool:
+        """Every row solves its QPs inside the compiled tick (no Python solver set)."""
+        return self._python.size == 0
+
     def set_limits(self, row: int, limits: DynamicLimits) -> None:
         """Row ``row`` flies within ``limits`` from its next tick on."""
         v_lo, v_hi = limits.velocity_bounds()
