@@ -246,15 +246,16 @@ def solve_one(
     """
     m = f.shape[0]
     n = lower.shape[0]
-    bad = 0
+    # Non-finite data (NaN in a bound, anything in f) before crossed bounds. Flags or-ed
+    # without branches: every problem passes here, and these loops vectorise.
+    non_finite = False
     for i in range(m):
-        if not math.isfinite(f[i]):
-            bad = NUMERICAL
+        non_finite |= not math.isfinite(f[i])
+    crossed = False
     for i in range(n):
-        if math.isnan(lower[i]) or math.isnan(upper[i]):
-            bad = NUMERICAL
-        elif lower[i] > upper[i] and bad == 0:
-            bad = INFEASIBLE
+        non_finite |= math.isnan(lower[i]) | math.isnan(upper[i])
+        crossed |= lower[i] > upper[i]
+    bad = NUMERICAL if non_finite else (INFEASIBLE if crossed else 0)
     if bad != 0:
         for i in range(n):
             ws[i] = 0
@@ -486,8 +487,10 @@ def solve_warm(
         nw_cached = -1
         c_age[p] = 0
     warm_start = nw_cached >= 0
-    for j in range(warm.shape[0]):
-        warm_start = warm_start or warm[j] != 0
+    for j in range(0 if warm_start else warm.shape[0]):
+        if warm[j] != 0:
+            warm_start = True
+            break
     # An attempt cycling at a degenerate vertex stops early, leaving room for the retries.
     budget = min(iter_limit, CYCLE_ROWS * lower.shape[0])
     st, it, nw = solve_one(f, lower, upper, warm, hess, hinv, cmat, q, gram, inv_norm, budget,
