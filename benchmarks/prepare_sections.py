@@ -19,10 +19,10 @@ import inspect
 import json
 import math
 import sys
-import time
 from typing import Any
 
 import numpy as np
+from cuts import best, copied, cut
 from numba import njit
 
 import uavmpc.tracker.kernels as K
@@ -57,14 +57,11 @@ def _cut_versions() -> list[Any]:
     src = src[src.index("def prepare_row"):]
     out = []
     for n in range(len(SECTIONS) + 1):
-        cut = src
+        code = src
         if n < len(SECTIONS):
-            anchor = SECTIONS[n][1]
-            if cut.count(anchor) != 1:
-                sys.exit(f"prepare_sections: section anchor not found once: {anchor!r}")
-            cut = cut.replace(anchor, "    return\n" + anchor)
+            code = cut(src, SECTIONS[n][1], "    return\n", "prepare_sections")
         space = dict(vars(K))
-        exec(compile(cut, f"<prepare cut {n}>", "exec"), space)
+        exec(compile(code, f"<prepare cut {n}>", "exec"), space)
         out.append(njit(fastmath=K.FASTMATH)(space["prepare_row"]))
     return out
 
@@ -90,15 +87,6 @@ def _macs(reps: int, a: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
     return y[0, 0]
 
 
-def _best(f: Any, *args: Any, repeat: int = 7) -> float:
-    best = math.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f(*args)
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def main(uavs: int = 20, seconds: float = 12.0) -> None:
     set_threads(1)
     area = 100.0 * math.sqrt(uavs / 5.0)
@@ -109,19 +97,16 @@ def main(uavs: int = 20, seconds: float = 12.0) -> None:
     rows0, refs, c = tb.rows, tb.table(), tb.consts
     m = c.horizon_s.shape[0]
 
-    def fresh() -> Any:
-        return type(rows0)(*[a.copy() for a in rows0])
-
     reps = 500
     per_row = []
     for prep in _cut_versions():
         loop = _timer(prep)
         sc = K.make_scratch(m)
-        loop(1, uavs, fresh(), refs, c, sc)  # compile
+        loop(1, uavs, copied(rows0), refs, c, sc)  # compile
         # The rows' state is not advanced between calls: every call prepares the same tick.
-        per_row.append(_best(loop, reps, uavs, fresh(), refs, c, sc) / (reps * uavs))
+        per_row.append(best(loop, reps, uavs, copied(rows0), refs, c, sc) / (reps * uavs))
     whole = per_row[-1]
-    ra = fresh()
+    ra = copied(rows0)
     sc = K.make_scratch(m)
     for i in range(uavs):
         K.prepare_row(i, ra, refs, c, sc)
@@ -134,7 +119,7 @@ def main(uavs: int = 20, seconds: float = 12.0) -> None:
     y = np.zeros((2, 2 * m + 1))
     _macs(1, a, x, y)
     r = 20000
-    ns_per_mac = _best(_macs, r, a, x, y) / (r * 2 * m * (2 * m + 1)) * 1e9
+    ns_per_mac = best(_macs, r, a, x, y) / (r * 2 * m * (2 * m + 1)) * 1e9
 
     print(f"{uavs} UAVs after {seconds:g} s: prepare_row {whole * 1e9:.0f} ns per row, "
           f"{axes_per_row:.2f} of 4 axes moving; a plain compiled multiply-add in cache "

@@ -24,9 +24,9 @@ import inspect
 import json
 import math
 import sys
-import time
 from typing import Any
 
+from cuts import best, copied, cut
 from numba import njit
 
 import uavmpc.solvers.batchqp as B
@@ -73,14 +73,12 @@ def _cut_solvers() -> list[Any]:
     row = row[row.index("def solve_row"):]
     out = []
     for n in range(len(SECTIONS) + 1):
-        cut = one
+        code = one
         if n < len(SECTIONS):
             _, anchor, ret = SECTIONS[n]
-            if cut.count(anchor) != 1:
-                sys.exit(f"qp_sections: section anchor not found once: {anchor!r}")
-            cut = cut.replace(anchor, ret + anchor)
+            code = cut(one, anchor, ret, "qp_sections")
         space = dict(vars(B))
-        exec(compile(cut, f"<solve_one cut {n}>", "exec"), space)
+        exec(compile(code, f"<solve_one cut {n}>", "exec"), space)
         space["solve_one"] = njit(fastmath=B.FASTMATH)(space["solve_one"])
         exec(compile(warm, "<solve_warm>", "exec"), space)
         space["solve_warm"] = njit(fastmath=B.FASTMATH)(space["solve_warm"])
@@ -114,15 +112,6 @@ def _timer(solve: Any) -> Any:
     return loop
 
 
-def _best(f: Any, *args: Any, repeat: int = 7) -> float:
-    best = math.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f(*args)
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def main(uavs: int = 20, seconds: float = 12.0, ticks: int = 50) -> None:
     set_threads(1)
     area = 100.0 * math.sqrt(uavs / 5.0)
@@ -136,13 +125,13 @@ def main(uavs: int = 20, seconds: float = 12.0, ticks: int = 50) -> None:
     # axis, and the UAVs' axes, started together, tend to refresh at the same tick.
     moments = []
     for _ in range(ticks):
-        moments.append((type(tb.rows)(*[a.copy() for a in tb.rows]), tb.table()))
+        moments.append((copied(tb.rows), tb.table()))
         w.run(w.period_s)
 
     # The problems: solves per row, iterations per solve (whole solver, once).
     solves = iterations = 0
     for rows0, refs in moments:
-        probe = type(rows0)(*[a.copy() for a in rows0])
+        probe = copied(rows0)
         sc = K.make_scratch(m)
         for i in range(uavs):
             K.prepare_row(i, probe, refs, c, sc)
@@ -158,10 +147,10 @@ def main(uavs: int = 20, seconds: float = 12.0, ticks: int = 50) -> None:
         loop = _timer(solve)
         total = 0.0
         for rows0, refs in moments:
-            rows = type(rows0)(*[a.copy() for a in rows0])
+            rows = copied(rows0)
             sc = K.make_scratch(m)
             loop(1, uavs, rows, rows0, refs, c, sc)  # compile (first), warm the caches
-            total += _best(loop, reps, uavs, rows, rows0, refs, c, sc, repeat=3) / reps
+            total += best(loop, reps, uavs, rows, rows0, refs, c, sc, repeat=3) / reps
         per_pass.append(total)
     base = per_pass[0]
     whole = (per_pass[-1] - base) / solves
