@@ -15,20 +15,15 @@ last line is JSON.
 
 from __future__ import annotations
 
-import inspect
 import json
-import math
 import sys
 from typing import Any
 
 import numpy as np
-from cuts import best, copied, cut
+from cuts import best, compiled, copied, cut, flown, source_of
 from numba import njit
 
 import uavmpc.tracker.kernels as K
-from uavmpc.drivers.world import World
-from uavmpc.jit import set_threads
-from uavmpc.scenarios.random_walk import random_walk
 
 #: (label, the source line the section starts with).
 SECTIONS = [
@@ -53,16 +48,13 @@ PRODUCTS = {"f: reference product": ("f_ref_t",),
 
 def _cut_versions() -> list[Any]:
     """prepare_row cut before each section (and whole, last), compiled."""
-    src = inspect.getsource(K.prepare_row.py_func)
-    src = src[src.index("def prepare_row"):]
+    src = source_of(K.prepare_row)
     out = []
     for n in range(len(SECTIONS) + 1):
         code = src
         if n < len(SECTIONS):
             code = cut(src, SECTIONS[n][1], "    return\n", "prepare_sections")
-        space = dict(vars(K))
-        exec(compile(code, f"<prepare cut {n}>", "exec"), space)
-        out.append(njit(fastmath=K.FASTMATH)(space["prepare_row"]))
+        out.append(compiled(code, dict(vars(K)), "prepare_row", K.FASTMATH))
     return out
 
 
@@ -88,11 +80,7 @@ def _macs(reps: int, a: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
 
 
 def main(uavs: int = 20, seconds: float = 12.0) -> None:
-    set_threads(1)
-    area = 100.0 * math.sqrt(uavs / 5.0)
-    w = World(random_walk(uavs, area_m=area, duration_s=seconds + 10.0, seed=1),
-              avoidance=True, seed=1)
-    w.run(seconds)
+    w = flown(uavs, seconds)
     tb = w.onboard.tracker
     rows0, refs, c = tb.rows, tb.table(), tb.consts
     m = c.horizon_s.shape[0]

@@ -20,20 +20,15 @@ trust.
 
 from __future__ import annotations
 
-import inspect
 import json
-import math
 import sys
 from typing import Any
 
-from cuts import best, copied, cut
+from cuts import best, compiled, copied, cut, flown, source_of
 from numba import njit
 
 import uavmpc.solvers.batchqp as B
 import uavmpc.tracker.kernels as K
-from uavmpc.drivers.world import World
-from uavmpc.jit import set_threads
-from uavmpc.scenarios.random_walk import random_walk
 
 #: (label, the source line the section starts with, the return inserted before it).
 #: The label names the code from the previous anchor (or the start of the QP stage: the row's
@@ -65,12 +60,7 @@ SECTIONS = [
 
 def _cut_solvers() -> list[Any]:
     """solve_row compiled on solve_one cut before each section (and whole, last)."""
-    one = inspect.getsource(B.solve_one.py_func)
-    one = one[one.index("def solve_one"):]
-    warm = inspect.getsource(B.solve_warm.py_func)
-    warm = warm[warm.index("def solve_warm"):]
-    row = inspect.getsource(K.solve_row.py_func)
-    row = row[row.index("def solve_row"):]
+    one, warm, row = source_of(B.solve_one), source_of(B.solve_warm), source_of(K.solve_row)
     out = []
     for n in range(len(SECTIONS) + 1):
         code = one
@@ -78,14 +68,10 @@ def _cut_solvers() -> list[Any]:
             _, anchor, ret = SECTIONS[n]
             code = cut(one, anchor, ret, "qp_sections")
         space = dict(vars(B))
-        exec(compile(code, f"<solve_one cut {n}>", "exec"), space)
-        space["solve_one"] = njit(fastmath=B.FASTMATH)(space["solve_one"])
-        exec(compile(warm, "<solve_warm>", "exec"), space)
-        space["solve_warm"] = njit(fastmath=B.FASTMATH)(space["solve_warm"])
+        compiled(code, space, "solve_one", B.FASTMATH)
         row_space = dict(vars(K))
-        row_space["solve_warm"] = space["solve_warm"]
-        exec(compile(row, "<solve_row>", "exec"), row_space)
-        out.append(njit(fastmath=K.FASTMATH)(row_space["solve_row"]))
+        row_space["solve_warm"] = compiled(warm, space, "solve_warm", B.FASTMATH)
+        out.append(compiled(row, row_space, "solve_row", K.FASTMATH))
     return out
 
 
@@ -113,11 +99,7 @@ def _timer(solve: Any) -> Any:
 
 
 def main(uavs: int = 20, seconds: float = 12.0, ticks: int = 50) -> None:
-    set_threads(1)
-    area = 100.0 * math.sqrt(uavs / 5.0)
-    w = World(random_walk(uavs, area_m=area, duration_s=seconds + 10.0, seed=1),
-              avoidance=True, seed=1)
-    w.run(seconds)
+    w = flown(uavs, seconds)
     tb = w.onboard.tracker
     c = tb.consts
     m = c.horizon_s.shape[0]
