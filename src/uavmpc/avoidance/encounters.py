@@ -63,8 +63,9 @@ class Encounters:
             (:attr:`~uavmpc.comms.PredictionMessage.heard`; default: all do).
         widen_v_m: (k,) how much the pair's half height is widened for both UAVs' vertical
             position uncertainty [m] (default 0; the horizontal widening is in ``near_xy``).
-        dxy_m: (k, m) the horizontal distance between us and them at each point [m] (what
-            tells a UAV we go away from from one we come closer to; default: unknown, inf).
+        dxy_m: (k, m) the horizontal distance between us and them at each point [m] (it
+            tells a UAV we move away from from one we come closer to first; default: unknown,
+            inf).
     """
 
     ids: tuple[str, ...]
