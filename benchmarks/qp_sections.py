@@ -13,9 +13,9 @@ problems from the same warm sets. Prints ns per QP solve and section, the solves
 UAV-tick and the iterations per solve; the last line is JSON.
 
 A cut lets the compiler drop everything after it, so the code before it may compile
-differently: a section of a few hundred ns is within that effect (the data checks read
-0.6 µs here, 27 ns alone in a plain loop). The whole and the large sections are what to
-trust.
+differently: a section of a few hundred ns is within that effect (the data checks, two
+short branch-free loops, read about 0.6 µs here). The whole and the large sections are what
+to trust.
 """
 
 from __future__ import annotations

@@ -570,14 +570,12 @@ class OnboardStack:
                               and not stuck,
                               heard=self.heard, position_sigma_m=self.position_sigma_m)
         data = encode(msg)
-        self.last_message = msg
+        self.last_message = msg if self.key is None and self.identity is None else None
         if self.key is not None:
             data = sign(data, self.key)
-            self.last_message = None
         elif self.identity is not None:
             # Stamps order a sender's predictions; the sequence number is the count.
             data = seal(data, PREDICTION_CHANNEL, self.identity, self.predictions_sent)
-            self.last_message = None
         self.last_broadcast = pred
         self.predictions_sent += 1
         return data
