@@ -137,20 +137,24 @@ _FRESH, _SILENT, _IGNORED = 0, 1, 2
 
 
 @kernel
-def _reference_s(rows: InboxRows, r: int, col: int, use_received: bool) -> float:
-    """The time row ``r`` takes column ``col``'s message to be from: its stamp, or its
-    receive time with the receive-time reference (when known)."""
-    if use_received and not math.isnan(rows.held_received_s[r, col]):
-        return rows.held_received_s[r, col]
-    return rows.held_stamp_s[r, col]
+def _reference_s(stamp_s: float, received_s: float, use_received: bool) -> float:
+    """The time a receiver takes a held message to be from: its stamp ``stamp_s``, or, with
+    the receive-time reference, its receive time ``received_s`` (when known, not NaN).
+
+    This and :func:`_standing` take numbers, not the records: they run for every column of
+    a row, and a compiled call that takes a record increments and decrements the reference
+    count of each of its arrays (an atomic operation each) on every call."""
+    if use_received and not math.isnan(received_s):
+        return received_s
+    return stamp_s
 
 
 @kernel
-def _standing(rows: InboxRows, r: int, col: int, now_s: float, use_received: bool,
-              timeout_s: float, silent_hold_s: float) -> int:
-    """:data:`_FRESH` (within ``timeout_s`` of now), :data:`_SILENT` (stale, at most
-    ``silent_hold_s`` old) or :data:`_IGNORED` (older, or stamped too far ahead)."""
-    age = now_s - _reference_s(rows, r, col, use_received)
+def _standing(ref_s: float, now_s: float, timeout_s: float, silent_hold_s: float) -> int:
+    """:data:`_FRESH` (a message from ``ref_s``, :func:`_reference_s`, within ``timeout_s``
+    of ``now_s``), :data:`_SILENT` (stale, at most ``silent_hold_s`` old) or
+    :data:`_IGNORED` (older, or stamped too far ahead)."""
+    age = now_s - ref_s
     if abs(age) <= timeout_s:
         return _FRESH
     return _SILENT if 0.0 < age <= silent_hold_s else _IGNORED
@@ -165,7 +169,8 @@ def heard_from_all(rows: InboxRows, r: int, cols: np.ndarray, now_s: float,
     for c in cols:
         if rows.held_slot[r, c] < 0:
             return False
-        if _standing(rows, r, c, now_s, use_received, timeout_s, silent_hold_s) == _IGNORED:
+        ref = _reference_s(rows.held_stamp_s[r, c], rows.held_received_s[r, c], use_received)
+        if _standing(ref, now_s, timeout_s, silent_hold_s) == _IGNORED:
             return False
     return True
 
@@ -184,7 +189,8 @@ def heard_columns(rows: InboxRows, store: Store, r: int, now_s: float, use_recei
     for c in range(s_count):
         if c == rows.own_col[r] or rows.held_slot[r, c] < 0:
             continue
-        if _standing(rows, r, c, now_s, use_received, timeout_s, silent_hold_s) == _IGNORED:
+        ref = _reference_s(rows.held_stamp_s[r, c], rows.held_received_s[r, c], use_received)
+        if _standing(ref, now_s, timeout_s, silent_hold_s) == _IGNORED:
             continue
         cols[n] = c
         n += 1
@@ -403,7 +409,9 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
         for col in range(n_cols):
             if rows.held_slot[r, col] < 0:
                 continue
-            if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) != _SILENT:
+            ref = _reference_s(rows.held_stamp_s[r, col], rows.held_received_s[r, col],
+                               use_received)
+            if _standing(ref, now, timeout_s, silent_hold_s) != _SILENT:
                 continue
             if ns < cap_s:
                 s_col[ns] = col
@@ -411,7 +419,6 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
             widen = pair_widening_m(own_sigma_h_m[j], store.sigma_m[rows.held_slot[r, col], 0],
                                     sigma_k)
             announced = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
-            ref = _reference_s(rows, r, col, use_received)
             radius = max(announced, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
             ne = _encounter(rows, store, r, col, silent, ref, radius, announced, timeout_s, box_own,
@@ -434,15 +441,16 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
                     n_cand += 1
         for c in range(n_cand):
             col = cand[c]
-            if _standing(rows, r, col, now, use_received, timeout_s, silent_hold_s) != _FRESH:
+            ref = _reference_s(rows.held_stamp_s[r, col], rows.held_received_s[r, col],
+                               use_received)
+            if _standing(ref, now, timeout_s, silent_hold_s) != _FRESH:
                 continue
             widen = pair_widening_m(own_sigma_h_m[j], store.sigma_m[rows.held_slot[r, col], 0],
                                     sigma_k)
             radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
-            ne = _encounter(rows, store, r, col, fresh, _reference_s(rows, r, col, use_received),
-                            radius, radius, timeout_s, box_own, own_times[j], own_pos[j], box,
-                            shifted, near, near_announced, dz, dxy, ne, e_col, e_silent, e_near,
-                            e_announced, e_dz, e_dxy)
+            ne = _encounter(rows, store, r, col, fresh, ref, radius, radius, timeout_s, box_own,
+                            own_times[j], own_pos[j], box, shifted, near, near_announced, dz,
+                            dxy, ne, e_col, e_silent, e_near, e_announced, e_dz, e_dxy)
     return ne, ns
 
 

@@ -6,8 +6,8 @@ for all of them and decoding is a pure function of the bytes, so a :class:`Inbox
 each distinct byte string once into a **slot** of its store (:class:`Store`) and each receiver
 holds, per sender, the slot of the newest message it accepted (:class:`InboxRows`). The rule
 a receiver applies to each copy it gets — reject a future-stamped or stale one, ignore its
-own, keep it only if newer than what it holds — is one compiled law, :func:`accept_copy`,
-run for a whole tick's deliveries by :func:`accept_copies` and for one datagram by
+own, keep it only if newer than what it holds — is one compiled law, :func:`accept_copies`,
+run for a whole tick's deliveries and, through :func:`accept_copy`, for one datagram by
 :meth:`uavmpc.comms.link.Inbox.accept` (a view on one row).
 
 Slots are reference-counted by the receivers holding them and reused once nobody does; a
@@ -26,7 +26,7 @@ import numpy as np
 from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, decode
 from uavmpc.jit import kernel
 
-#: Outcomes of :func:`accept_copy`.
+#: Outcomes of :func:`accept_copies`.
 KEPT, SUPERSEDED, FUTURE, STALE, OWN = 0, 1, 2, 3, 4
 #: The rejection reasons as :func:`~uavmpc.comms.message.validate_on_receipt` names them.
 FUTURE_REASON = "future-stamped"
@@ -100,44 +100,62 @@ class InboxRows(NamedTuple):
 
 
 @kernel
-def accept_copy(rows: InboxRows, store: Store, r: int, slot: int, now_s: float) -> int:
-    """The receiver's rule for one valid message (store ``slot``) arriving at row ``r`` at its
-    clock ``now_s``: :data:`FUTURE` / :data:`STALE` (stamp check, counted), :data:`OWN` (its
-    own echo, ignored), :data:`SUPERSEDED` (not newer than the one held, counted) or
-    :data:`KEPT` (held from now on)."""
-    col = store.col[slot]
-    stamp = store.stamp_s[slot]
-    if not rows.receive_time[r]:
-        ahead = stamp - now_s
-        if ahead > rows.max_future_s[r]:
-            rows.future[r] += 1
-            return FUTURE
-        if -ahead > rows.max_age_s[r]:
-            rows.stale[r] += 1
-            return STALE
-    if col == rows.own_col[r]:
-        return OWN
-    held = rows.held_slot[r, col]
-    if held >= 0 and stamp <= rows.held_stamp_s[r, col]:
-        rows.superseded[r] += 1
-        return SUPERSEDED
-    if held >= 0:
-        store.holders[held] -= 1
-    store.holders[slot] += 1
-    rows.held_slot[r, col] = slot
-    rows.held_stamp_s[r, col] = stamp
-    rows.held_received_s[r, col] = now_s if rows.receive_time[r] else np.nan
-    rows.accepted[r] += 1
-    return KEPT
+def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: np.ndarray,
+                  now_s: np.ndarray) -> int:
+    """The receiver's rule for valid messages, a tick's deliveries in their order: copy k,
+    the message in store slot ``slots[k]`` (K,), arriving at row ``receivers[k]`` at that
+    row's clock ``now_s[receivers[k]]`` ((N,) per row). Each copy is :data:`FUTURE` or
+    :data:`STALE` (the stamp check, counted), :data:`OWN` (the receiver's own echo, ignored),
+    :data:`SUPERSEDED` (not newer than the one held, counted) or :data:`KEPT` (held from now
+    on). Returns the outcome of the last copy (of the only one, :func:`accept_copy`).
+
+    The rule is written in the loop itself rather than called per copy: a compiled call that
+    takes the records increments and decrements the reference count of each of their arrays
+    on every call (an atomic operation each), which cost 12 times the rule itself (1 828
+    copies at 300 UAVs: 147 µs against 12 µs)."""
+    outcome = KEPT
+    for k in range(receivers.shape[0]):
+        r = receivers[k]
+        slot = slots[k]
+        t = now_s[r]
+        col = store.col[slot]
+        stamp = store.stamp_s[slot]
+        if not rows.receive_time[r]:
+            ahead = stamp - t
+            if ahead > rows.max_future_s[r]:
+                rows.future[r] += 1
+                outcome = FUTURE
+                continue
+            if -ahead > rows.max_age_s[r]:
+                rows.stale[r] += 1
+                outcome = STALE
+                continue
+        if col == rows.own_col[r]:
+            outcome = OWN
+            continue
+        held = rows.held_slot[r, col]
+        if held >= 0 and stamp <= rows.held_stamp_s[r, col]:
+            rows.superseded[r] += 1
+            outcome = SUPERSEDED
+            continue
+        if held >= 0:
+            store.holders[held] -= 1
+        store.holders[slot] += 1
+        rows.held_slot[r, col] = slot
+        rows.held_stamp_s[r, col] = stamp
+        rows.held_received_s[r, col] = t if rows.receive_time[r] else np.nan
+        rows.accepted[r] += 1
+        outcome = KEPT
+    return outcome
 
 
 @kernel
-def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: np.ndarray,
-                  now_s: np.ndarray) -> None:
-    """:func:`accept_copy` for a tick's deliveries in their order: copy k of ``slots`` (K,)
-    to row ``receivers[k]`` at that row's clock ``now_s[receivers[k]]``."""
-    for k in range(receivers.shape[0]):
-        accept_copy(rows, store, receivers[k], slots[k], now_s[receivers[k]])
+def accept_copy(rows: InboxRows, store: Store, r: int, slot: int, now_s: float) -> int:
+    """:func:`accept_copies` for one message (store ``slot``) arriving at row ``r`` at its
+    clock ``now_s``: its outcome."""
+    clock = np.empty(rows.own_col.shape[0])
+    clock[r] = now_s
+    return accept_copies(rows, store, np.full(1, r), np.full(1, slot), clock)
 
 
 @kernel
