@@ -301,3 +301,36 @@ def test_a_message_lists_every_uav_whose_plan_it_counts_near_or_not() -> None:
     assert finder.heard(0, now, own_xy) == ("far", "near", "silent")  # column order
     assert finder.heard(0, now, own_xy, limit=2) == ("near", "silent")  # nearest first
     assert finder.heard(0, now + 20.0, own_xy) == ()  # all beyond silent_hold_s now
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(2, 60))
+def test_beyond_the_limit_the_heard_list_is_the_nearest_in_a_stable_order(
+        seed: int, limit: int, senders: int) -> None:
+    """The heard list beyond its limit: the first ``limit`` of the senders counted, sorted by
+    horizontal distance with ties in column order (found without sorting them all). Senders
+    on a coarse grid, so that many are at the same distance."""
+    rng = np.random.default_rng(seed)
+    now = 100.0
+    table = InboxTable(["a"])
+    table.col_of("a")
+    for k in range(senders):
+        stamp = now - rng.choice([0.2, 4.0, 30.0])  # fresh, silent, ignored
+        x, y = rng.integers(-3, 4, 2) * 10.0
+        msg = PredictionMessage(SCHEMA_VERSION, f"s{k}", k + 2, stamp, stamp + HORIZON,
+                                np.tile([x, y, 10.0], (40, 1)), True)
+        slot = table.slot_for(encode(msg))
+        accept_copies(table.rows, table.store, np.array([0]), np.array([slot]),
+                      np.array([stamp + 0.05]))
+        table.unpin()
+    finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0, use_received=False)
+    counted = []
+    for col in range(1, len(table.ids)):
+        slot = table.rows.held_slot[0, col]
+        if now - table.store.stamp_s[slot] <= 10.0:
+            x, y = table.store.positions_m[slot, 0, :2]
+            counted.append((x * x + y * y, col))
+    expected = tuple(table.ids[c] for _, c in sorted(counted)[:limit])
+    if len(counted) <= limit:  # all of them, in column order
+        expected = tuple(table.ids[c] for _, c in sorted(counted, key=lambda e: e[1]))
+    assert finder.heard(0, now, np.zeros(2), limit=limit) == expected
