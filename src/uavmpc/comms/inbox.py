@@ -143,7 +143,8 @@ def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
         store.holders[slot] += 1
         rows.held_slot[r, col] = slot
         rows.held_stamp_s[r, col] = stamp
-        rows.held_received_s[r, col] = t if rows.receive_time[r] else np.nan
+        if rows.receive_time[r]:  # otherwise it stays NaN, as the rows start: one
+            rows.held_received_s[r, col] = t  # scattered store less per copy
         rows.accepted[r] += 1
         outcome = KEPT
     return outcome
