@@ -713,13 +713,16 @@ def avoidance_round(batch: OnboardBatch,
         p = stacks[i].hold_probes(float(plan_s[j]), times[j], own[j, 0])
         if p is not None:
             held.append((j, p))
-    at = [*range(due.size)] + [j for j, p in held for _ in range(p.shape[0])]
-    plans = np.concatenate([own, *(p for _, p in held)]) if held else own
     ov = [overrides[i] if overrides is not None else stacks[i].encounter_overrides()
           for i in which]
-    found = finder.find(due[at], times[at], plans, plan_s[at],
-                        np.array([stacks[i].params.radius_m for i in which])[at],
-                        [ov[j] for j in at], batch.position_sigma_m[due][at])
+    radius = np.array([stacks[i].params.radius_m for i in which])
+    sigma = batch.position_sigma_m[due]
+    if held:
+        at = [*range(due.size)] + [j for j, p in held for _ in range(p.shape[0])]
+        found = finder.find(due[at], times[at], np.concatenate([own, *(p for _, p in held)]),
+                            plan_s[at], radius[at], [ov[j] for j in at], sigma[at])
+    else:  # most rounds: the rows once each, as they are
+        found = finder.find(due, times, own, plan_s, radius, ov, sigma)
     probes: dict[int, list[Encounters]] = {}
     k = due.size
     for j, p in held:
