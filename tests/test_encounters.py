@@ -304,7 +304,7 @@ def test_a_message_lists_every_uav_whose_plan_it_counts_near_or_not() -> None:
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(2, 60))
+@given(st.integers(0, 2**32 - 1), st.integers(0, 40), st.integers(2, 60))
 def test_beyond_the_limit_the_heard_list_is_the_nearest_in_a_stable_order(
         seed: int, limit: int, senders: int) -> None:
     """The heard list beyond its limit: the first ``limit`` of the senders counted, sorted by

@@ -198,6 +198,8 @@ def heard_columns(rows: InboxRows, store: Store, r: int, now_s: float, use_recei
     if n <= limit:
         out[:n] = cols[:n]
         return n
+    if limit == 0:
+        return 0
     d2 = np.empty(n)
     for j in range(n):
         slot = rows.held_slot[r, cols[j]]
