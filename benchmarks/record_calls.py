@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from cuts import best
 from numba import njit
 
 from uavmpc.comms.inbox import InboxRows, InboxTable, accept_copies
@@ -50,16 +50,15 @@ def _count_in_loop(rows: InboxRows, receivers: np.ndarray) -> None:
         rows.accepted[r] += 1
 
 
-def _best(f: Callable[..., Any], args: tuple[Any, ...], repeat: int = 7,
-          number: int = 50) -> float:
+def _us_per_call(f: Callable[..., Any], args: tuple[Any, ...], number: int = 50) -> float:
+    """µs per call of ``f(*args)``: the best of 7 batches of ``number`` calls (:func:`best`)."""
     f(*args)
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
+
+    def batch() -> None:
         for _ in range(number):
             f(*args)
-        times.append((time.perf_counter() - t0) / number)
-    return min(times) * 1e6
+
+    return best(batch) / number * 1e6
 
 
 def main(copies: int = 1828) -> None:
@@ -69,9 +68,10 @@ def main(copies: int = 1828) -> None:
     slots = np.zeros(copies, dtype=np.int64)  # one broadcast's copies: u0's message
     table.store.col[0] = 0
     table.store.stamp_s[0] = 10.0
-    rule = _best(accept_copies, (table.rows, table.store, receivers, slots, np.full(n, 10.05)))
-    in_loop = _best(_count_in_loop, (table.rows, receivers))
-    per_copy = _best(_count_per_copy, (table.rows, receivers))
+    rule = _us_per_call(accept_copies,
+                        (table.rows, table.store, receivers, slots, np.full(n, 10.05)))
+    in_loop = _us_per_call(_count_in_loop, (table.rows, receivers))
+    per_copy = _us_per_call(_count_per_copy, (table.rows, receivers))
     print(f"{copies} copies: the receiver's rule {rule:.1f} µs; a counter incremented in the "
           f"loop {in_loop:.1f} µs, by a helper taking the record {per_copy:.1f} µs "
           f"({per_copy / in_loop:.0f}×)")
