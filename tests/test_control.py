@@ -271,7 +271,7 @@ def _attitude_loops(airframe: Airframe) -> dict[str, Callable[..., np.ndarray]]:
                dt_s: float) -> np.ndarray:
         out = np.empty(n)
         attitude_kernel(q, w, qd, thrust_n, ff, ctrl, gains, inertia, inverse, n, lo, hi, dt_s,
-                        False, out)
+                        False, out, np.empty(3))
         return out
 
     return {"kernel": kernel, "oracle": AttitudeController(airframe).update}

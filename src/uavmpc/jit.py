@@ -95,11 +95,32 @@ def _cache_dir() -> str:
 CACHE_DIR = _cache_dir()
 
 
-def kernel(fn: F | None = None, /, **options: Any) -> Any:
-    """``numba.njit(cache=True, **options)`` with the cache in :data:`CACHE_DIR`.
+def kernel(fn: F | None = None, /, *, allocates: bool = False, **options: Any) -> Any:
+    """``numba.njit(cache=True, **options)`` with the cache in :data:`CACHE_DIR`, compiled
+    without numba's reference counting unless ``allocates``.
 
-    Use as ``@kernel`` or ``@kernel(fastmath=FASTMATH)``.
+    Use as ``@kernel``, ``@kernel(fastmath=FASTMATH)`` or ``@kernel(allocates=True)``.
+
+    numba counts the references to every array a compiled function holds, with an atomic
+    add and subtract, and keeps those it cannot prove redundant: around a call of a kernel
+    that has branches or loops, once per array it is passed (a record of 29 arrays costs 58)
+    and per view it takes (``rows.x[i]``). A kernel that only borrows the arrays its caller
+    holds needs none of that, so a kernel is compiled without numba's runtime (its ``_nrt``
+    flag off), and the atomics vanish. A kernel that creates an array (``np.empty``, a copy,
+    an array expression, a slice assignment numba may copy through, a ``parallel=True`` loop)
+    or receives a new one from a kernel it calls must say ``allocates=True``: it is compiled
+    with the runtime, which frees those arrays. Forgetting it is caught: making an array
+    without the runtime does not compile (numba says "NRT required but not enabled", or that
+    only arrays passed in can be returned: its constructors are kernels too), and a new array
+    received from a call would never be freed, which ``tests/test_jit.py`` looks for over
+    whole flights (the runtime's allocation counts). The machine code's arithmetic is the
+    same either way: the flights are bit for bit those with the runtime everywhere
+    (``benchmarks/final_states.py``). Measured in docs/scale.md ("Reference counts").
     """
+    if allocates or options.get("parallel"):
+        options = {**options, "_nrt": True}
+    else:
+        options = {**options, "_nrt": False}
 
     def decorate(f: F) -> F:
         saved = numba.config.CACHE_DIR

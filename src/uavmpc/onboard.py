@@ -116,14 +116,18 @@ def onboard_pre(i: int, trk: TrackerRows, stats: StackStats, p: np.ndarray) -> N
 @kernel
 def onboard_post(i: int, trk: TrackerRows, consts: TrackerConsts, ctl: ControlRows,
                  stats: StackStats, p: np.ndarray, v: np.ndarray, q: np.ndarray, dt: float,
-                 q_out: np.ndarray, ff_out: np.ndarray) -> float:
+                 q_out: np.ndarray, ff_out: np.ndarray, cmd: np.ndarray) -> float:
     """Row i after its tracker ticked: SE(3) control of the estimate (``p``, ``v``, ``q``)
     towards the new virtual-UAV state, and the bookkeeping. Returns the thrust [N]; writes the
-    attitude target into ``q_out`` (4,) and the body-rate feedforward into ``ff_out`` (3,)."""
+    attitude target into ``q_out`` (4,) and the body-rate feedforward into ``ff_out`` (3,).
+    ``cmd`` (3, 3): work array (the virtual UAV's position, velocity and acceleration)."""
     s = trk.state[i]
     heading = (s[3, 0] + np.pi) % (2.0 * np.pi) - np.pi
-    thrust = se3_row(i, ctl, p, v, q, s[:3, 0].copy(), s[:3, 1].copy(), s[:3, 2].copy(),
-                     heading, s[3, 1], dt, q_out, ff_out)
+    for d in range(3):  # the state's columns as contiguous rows, as the law takes them
+        for ax in range(3):
+            cmd[d, ax] = s[ax, d]
+    thrust = se3_row(i, ctl, p, v, q, cmd[0], cmd[1], cmd[2], heading, s[3, 1], dt, q_out,
+                     ff_out)
     stats.ticks[i] += 1
     stats.max_z_offset_m[i] = max(stats.max_z_offset_m[i], trk.z_offset_m[i])
     if stats.avoiding[i]:
@@ -140,9 +144,10 @@ def onboard_post(i: int, trk: TrackerRows, consts: TrackerConsts, ctl: ControlRo
 def onboard_row(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
                 ctl: ControlRows, stats: StackStats, p: np.ndarray, v: np.ndarray,
                 q: np.ndarray, dt: float, sc: object, q_out: np.ndarray,
-                ff_out: np.ndarray, cycles: np.ndarray) -> float:
+                ff_out: np.ndarray, cmd: np.ndarray, cycles: np.ndarray) -> float:
     """The numerical part of row i's tick: bookkeeping, tracker (with the compiled solver),
-    SE(3) controller. ``sc``: :func:`~uavmpc.tracker.kernels.make_scratch`'s work arrays.
+    SE(3) controller. ``sc``: :func:`~uavmpc.tracker.kernels.make_scratch`'s work arrays;
+    ``cmd``: :func:`onboard_post`'s.
     ``cycles``: (0,) int64, or (4,) or longer to add the CPU cycles of the tracker's stages
     (:func:`~uavmpc.tracker.kernels.tick_row`) to its first three and those of the control
     and bookkeeping to the fourth."""
@@ -152,13 +157,13 @@ def onboard_row(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerC
     c1 = cycle_count() if timed else 0
     tick_row(i, trk, refs, consts, sc, cycles)
     c2 = cycle_count() if timed else 0
-    thrust = onboard_post(i, trk, consts, ctl, stats, p, v, q, dt, q_out, ff_out)
+    thrust = onboard_post(i, trk, consts, ctl, stats, p, v, q, dt, q_out, ff_out, cmd)
     if timed:
         cycles[3] += (c1 - c0) + (cycle_count() - c2)
     return thrust
 
 
-@kernel
+@kernel(allocates=True)
 def onboard_one(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
                 ctl: ControlRows, stats: StackStats, p: np.ndarray, v: np.ndarray,
                 q: np.ndarray, dt: float, buf: np.ndarray, skip: np.ndarray, q_out: np.ndarray,
@@ -167,10 +172,10 @@ def onboard_one(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerC
     :func:`~uavmpc.tracker.kernels.scratch_views`)."""
     sc = scratch_views(buf, skip, consts.horizon_s.shape[0])
     return onboard_row(i, trk, refs, consts, ctl, stats, p, v, q, dt, sc, q_out, ff_out,
-                       np.empty(0, dtype=np.int64))
+                       np.empty((3, 3)), np.empty(0, dtype=np.int64))
 
 
-@kernel
+@kernel(allocates=True)
 def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
                     consts: TrackerConsts, times_out: np.ndarray, pos_out: np.ndarray,
                     climbed_out: np.ndarray) -> None:
@@ -268,7 +273,7 @@ class OnboardBatch:
             onboard_pre(row, t.rows, self.stats, p)
             t.step(np.array([row], dtype=np.int64))
             return float(onboard_post(row, t.rows, t.consts, self.control, self.stats, p, v, q,
-                                      dt, q_out, ff_out))
+                                      dt, q_out, ff_out, np.empty((3, 3))))
         table = t.table()
         if self._one is None or self._one[0] is not table:
             self._one = (table, bind(onboard_one, row, t.rows, table, t.consts, self.control,

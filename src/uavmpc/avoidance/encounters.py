@@ -175,7 +175,7 @@ def heard_from_all(rows: InboxRows, r: int, cols: np.ndarray, now_s: float,
     return True
 
 
-@kernel
+@kernel(allocates=True)
 def heard_columns(rows: InboxRows, store: Store, r: int, now_s: float, use_received: bool,
                   timeout_s: float, silent_hold_s: float, own_x: float, own_y: float,
                   out: np.ndarray) -> int:
@@ -228,7 +228,7 @@ def heard_columns(rows: InboxRows, store: Store, r: int, now_s: float, use_recei
     return limit
 
 
-@kernel
+@kernel(allocates=True)
 def build_grid(store: Store, extrapolate_s: float, cell_m: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """A hashed grid of cells ``cell_m`` wide over the inflated boxes of the held slots
@@ -274,7 +274,7 @@ def build_grid(store: Store, extrapolate_s: float, cell_m: float
     return start, np.empty(0, dtype=np.int64)  # not reached
 
 
-@kernel
+@kernel(allocates=True)
 def grid_candidates(rows: InboxRows, store: Store, r: int, box: np.ndarray, cell_m: float,
                     start: np.ndarray, entries: np.ndarray, mark: np.ndarray, stamp: int,
                     out: np.ndarray) -> int:
@@ -333,7 +333,7 @@ def pair_widening_m(own_sigma_m: float, other_sigma_m: float, sigma_k: float) ->
     return sigma_k * math.sqrt(own_sigma_m * own_sigma_m + other_sigma_m * other_sigma_m)
 
 
-@kernel
+@kernel(allocates=True)
 def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
                radius: float, announced_radius: float, extrapolate_s: float, box_own: np.ndarray,
                own_times: np.ndarray, own_pos: np.ndarray, box: np.ndarray,
@@ -380,7 +380,7 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
     return ne + 1
 
 
-@kernel
+@kernel(allocates=True)
 def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1: int,
                      own_times: np.ndarray, own_pos: np.ndarray, now_s: np.ndarray,
                      timeout_s: float, silent_hold_s: float, use_received: bool,
@@ -472,7 +472,7 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
     return ne, ns
 
 
-@kernel
+@kernel(allocates=True)
 def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np.ndarray,
                    own_pos: np.ndarray, now_s: np.ndarray, timeout_s: float,
                    silent_hold_s: float, use_received: bool, silent_radius_m: float,

@@ -60,7 +60,7 @@ def align_into(other_times_s: np.ndarray, other_positions_m: np.ndarray,
         known[i] = at <= t_end
 
 
-@kernel
+@kernel(allocates=True)
 def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
                 extrapolate_s: float, own_positions_m: np.ndarray, radius_m: float,
                 near_out: np.ndarray, dz_out: np.ndarray, dxy_out: np.ndarray) -> None:

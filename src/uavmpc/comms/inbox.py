@@ -150,7 +150,7 @@ def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
     return outcome
 
 
-@kernel
+@kernel(allocates=True)
 def accept_copy(rows: InboxRows, store: Store, r: int, slot: int, now_s: float) -> int:
     """:func:`accept_copies` for one message (store ``slot``) arriving at row ``r`` at its
     clock ``now_s``: its outcome."""

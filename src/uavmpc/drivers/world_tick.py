@@ -34,7 +34,7 @@ N_CYCLES = len(STAGES) + 1
 LOOP_ON_CALLER = ("omp",)
 
 
-@kernel
+@kernel(allocates=True)
 def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
                pair_d, cycles, est):
     """One 10 ms tick of every UAV on the calling thread, the compiled solver inline: each
@@ -107,22 +107,24 @@ def world_pre(trk, stats, plant):
         onboard_pre(i, trk, stats, plant.x[i, 0:3])
 
 
-@kernel
+@kernel(allocates=True)
 def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
                pair_d):
     """:func:`world_tick` after the trackers ticked (Python solvers): control and plants."""
     qd = np.empty(4)
     ff = np.empty(3)
+    cmd = np.empty((3, 3))
     for i in range(plant.x.shape[0]):
         x = plant.x[i]
-        thrust = onboard_post(i, trk, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, qd, ff)
+        thrust = onboard_post(i, trk, consts, ctl, stats, x[0:3], x[3:6], x[6:10], dt, qd, ff,
+                              cmd)
         if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
     _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
     return -1
 
 
-@kernel
+@kernel(allocates=True)
 def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, est, spent):
     """Rows ``first`` … ``end`` − 1 of :func:`world_tick`, with work arrays of their own
     (one thread's block). Returns −1, or the first row whose target could not be flown (the
@@ -130,16 +132,17 @@ def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, est,
     sc = make_scratch(consts.horizon_s.shape[0])
     qd = np.empty(4)
     ff = np.empty(3)
+    cmd = np.empty((3, 3))
     timed = spent.shape[0] > 0
     estimated = est.shape[0] > 0
     for i in range(first, end):
         x = plant.x[i]
         if estimated:
             thrust = onboard_row(i, trk, refs, consts, ctl, stats, est[i, 0:3], est[i, 3:6],
-                                 x[6:10], dt, sc, qd, ff, spent)
+                                 x[6:10], dt, sc, qd, ff, cmd, spent)
         else:
             thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10],
-                                 dt, sc, qd, ff, spent)
+                                 dt, sc, qd, ff, cmd, spent)
         c0 = cycle_count() if timed else 0
         if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i

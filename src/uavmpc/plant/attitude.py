@@ -144,6 +144,7 @@ def attitude_kernel(
     dt: float,
     freeze: bool,
     out: np.ndarray,
+    alpha: np.ndarray,
 ) -> None:
     """One step of the attitude loop; writes the rotor commands [rad/s] of the first ``n``
     rotors into ``out``.
@@ -154,7 +155,8 @@ def attitude_kernel(
     ``hi``: :func:`mixer_matrices`. ``ctrl`` (7,) is the loop's state, updated in place: [0:3]
     rate integrator [rad/s²], [3:6] last measured rate, [6] 1.0 once [3:6] holds a measurement.
     ``freeze`` holds the rate integrator (set while the vehicle rests on the ground, where the
-    rates cannot follow and the integrator would wind up).
+    rates cannot follow and the integrator would wind up). ``alpha`` (3,): work array (the
+    angular acceleration commanded).
     """
     qc = (q[0], q[1], q[2], q[3])
     qdt = weighted_target(qc, (qd[0], qd[1], qd[2], qd[3]), gains[6, 0])
@@ -165,7 +167,6 @@ def attitude_kernel(
         for i in range(3):
             ctrl[3 + i] = w[i]
         ctrl[6] = 1.0
-    alpha = np.empty(3)
     for i in range(3):
         sp = gains[0, i] * 2.0 * ev[i] + ff[i]
         lim = gains[1, i]

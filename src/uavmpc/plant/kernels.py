@@ -301,7 +301,7 @@ def settle(i: int, rows: Any) -> None:
     contact(i, rows, 0.0)
 
 
-@kernel
+@kernel(allocates=True)
 def _integrate(
     i: int, rows: Any, n_sub: int, direct: bool, cmd: np.ndarray, qd: np.ndarray,
     thrust_n: float, ff: np.ndarray,
@@ -321,19 +321,21 @@ def _integrate(
     lo = rows.lo[i]
     hi = rows.hi[i]
     dt = rows.substep_s[i]
-    # The stages as views of one buffer: one allocation per step instead of five.
-    work = np.empty(5 * n)
+    # The stages (and the attitude loop's work) as views of one buffer: one allocation per
+    # step instead of six.
+    work = np.empty(5 * n + 3)
     k1 = work[0:n]
     k2 = work[n:2 * n]
     k3 = work[2 * n:3 * n]
     k4 = work[3 * n:4 * n]
     xt = work[4 * n:5 * n]
+    alpha = work[5 * n:5 * n + 3]
     for sub in range(n_sub):
         if not direct:
             # Zero-order hold of the rotor commands over the substep.
             attitude_kernel(
                 x[6:10], x[10:13], qd, thrust_n, ff, ctrl, gains, inertia, mix_inv, nr, lo, hi,
-                dt, rows.landed[i] != 0.0, cmd,
+                dt, rows.landed[i] != 0.0, cmd, alpha,
             )
         if rows.armed[i] == 0.0:  # motors cut: the rotors spin down
             for k in range(nr):
@@ -357,7 +359,7 @@ def _integrate(
     rows.t_s[i] += n_sub * dt
 
 
-@kernel
+@kernel(allocates=True)
 def plant_step(
     i: int, rows: Any, n_sub: int, qd: np.ndarray, thrust_n: float, ff: np.ndarray
 ) -> None:
@@ -370,7 +372,7 @@ def plant_step(
     _integrate(i, rows, n_sub, False, cmd, qd, thrust_n, ff)
 
 
-@kernel
+@kernel(allocates=True)
 def plant_step_motors(i: int, rows: Any, n_sub: int, omega_cmd: np.ndarray) -> None:
     """:func:`plant_step` with the rotor-speed commands ``omega_cmd`` (≥ n,) [rad/s] held
     instead of the attitude loop's (the loop and its state are left alone)."""

@@ -455,6 +455,32 @@ def solve_one(
     return OPTIMAL, iterations, nw
 
 
+@kernel(fastmath=FASTMATH, allocates=True)
+def _solve_relaxed(
+    relax: float, f: np.ndarray, lower: np.ndarray, upper: np.ndarray, hess: np.ndarray,
+    hinv: np.ndarray, cmat: np.ndarray, q: np.ndarray, gram: np.ndarray, inv_norm: np.ndarray,
+    budget: int, u: np.ndarray, ws: np.ndarray, lf: np.ndarray, widx: np.ndarray,
+    wside: np.ndarray, lam: np.ndarray, lam_star: np.ndarray, blo: np.ndarray, bhi: np.ndarray,
+    y: np.ndarray, col: np.ndarray, ell: np.ndarray, z: np.ndarray, rows: np.ndarray,
+    skip: np.ndarray,
+) -> tuple[int, int, int]:
+    """:func:`solve_warm`'s retry from an empty working set with every bound relaxed by
+    ``relax`` (0: as they are); returns :func:`solve_one`'s (status, iterations, |W|). Apart
+    from :func:`solve_warm`, which then allocates nothing: retries are rare."""
+    n = lower.shape[0]
+    lo = np.empty(n)
+    hi = np.empty(n)
+    for j in range(n):
+        # Row-dependent amounts: a uniform shift keeps parallel rows coincident.
+        r = relax * (1.0 + j / n)
+        lo[j] = lower[j] - r * max(1.0, abs(lower[j]))
+        hi[j] = upper[j] + r * max(1.0, abs(upper[j]))
+    ws[:] = 0
+    unconstrained(f, hinv, cmat, u, rows)
+    return solve_one(f, lo, hi, ws, hess, hinv, cmat, q, gram, inv_norm, budget, u, ws, lf, widx,
+                     wside, -1, lam, lam_star, blo, bhi, y, col, ell, z, rows, skip)
+
+
 @kernel(fastmath=FASTMATH)
 def solve_warm(
     f: np.ndarray, lower: np.ndarray, upper: np.ndarray, warm: np.ndarray,
@@ -506,19 +532,9 @@ def solve_warm(
             break  # a cold attempt used the caller's whole budget
         if relax == 0.0 and not warm_start:  # the first attempt was the cold one
             continue
-        n = lower.shape[0]
-        lo = np.empty(n)
-        hi = np.empty(n)
-        for j in range(n):
-            # Row-dependent amounts: a uniform shift keeps parallel rows coincident.
-            r = relax * (1.0 + j / n)
-            lo[j] = lower[j] - r * max(1.0, abs(lower[j]))
-            hi[j] = upper[j] + r * max(1.0, abs(upper[j]))
-        ws[:] = 0
-        unconstrained(f, hinv, cmat, u, rows)
-        st, it2, nw = solve_one(f, lo, hi, ws, hess, hinv, cmat, q, gram, inv_norm, budget, u,
-                                ws, lf, widx, wside, -1, lam, lam_star, blo, bhi, y, col, ell, z,
-                                rows, skip)
+        st, it2, nw = _solve_relaxed(relax, f, lower, upper, hess, hinv, cmat, q, gram,
+                                     inv_norm, budget, u, ws, lf, widx, wside, lam, lam_star,
+                                     blo, bhi, y, col, ell, z, rows, skip)
         it += it2
         c_age[p] = 0
         if relax == 0.0:
@@ -530,7 +546,7 @@ def solve_warm(
     return st, it
 
 
-@kernel(fastmath=FASTMATH)
+@kernel(fastmath=FASTMATH, allocates=True)
 def solve_batch(
     f: np.ndarray, lower: np.ndarray, upper: np.ndarray, warm: np.ndarray,
     hess: np.ndarray, hinv: np.ndarray, cmat: np.ndarray, q: np.ndarray, gram: np.ndarray,

@@ -357,7 +357,7 @@ def scratch_floats(m: int) -> int:
     return 45 * m + 18
 
 
-@kernel
+@kernel(allocates=True)
 def scratch_views(buf: np.ndarray, skip: np.ndarray, m: int) -> Scratch:
     """The work arrays of a tick as views of one float buffer (:func:`scratch_floats` long)
     and one int8 buffer (2m + 1): a driver passes two arrays to a kernel, not nineteen."""
@@ -402,7 +402,7 @@ def scratch_views(buf: np.ndarray, skip: np.ndarray, m: int) -> Scratch:
                    blo, bhi, y, col, ell, z, skip[:n], worst)
 
 
-@kernel
+@kernel(allocates=True)
 def make_scratch(m: int) -> Scratch:
     """Fresh work arrays of one row's tick (shared by the rows of one call)."""
     return scratch_views(np.empty(scratch_floats(m)), np.zeros(2 * m + 1, dtype=np.int8), m)
@@ -648,7 +648,7 @@ def tick_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
     cycles[2] += cycle_count() - c2
 
 
-@kernel
+@kernel(allocates=True)
 def tick_rows(idx: np.ndarray, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
               buf: np.ndarray, skip: np.ndarray) -> None:
     """:func:`tick_row` for the rows ``idx`` (work arrays: :func:`scratch_views`' buffers)."""
@@ -658,7 +658,7 @@ def tick_rows(idx: np.ndarray, rows: TrackerRows, refs: ReferenceTable, c: Track
         tick_row(i, rows, refs, c, sc, untimed)
 
 
-@kernel
+@kernel(allocates=True)
 def prepare_rows(idx: np.ndarray, rows: TrackerRows, refs: ReferenceTable, c: TrackerConsts,
                  buf: np.ndarray, skip: np.ndarray) -> None:
     """:func:`prepare_row` for the rows ``idx`` (a Python solver takes the marked axes)."""
@@ -668,7 +668,7 @@ def prepare_rows(idx: np.ndarray, rows: TrackerRows, refs: ReferenceTable, c: Tr
         rows.iterations[i] = 0
 
 
-@kernel
+@kernel(allocates=True)
 def advance_rows(idx: np.ndarray, rows: TrackerRows, c: TrackerConsts, buf: np.ndarray,
                  skip: np.ndarray) -> None:
     """:func:`advance_row` for the rows ``idx``."""
@@ -677,7 +677,7 @@ def advance_rows(idx: np.ndarray, rows: TrackerRows, c: TrackerConsts, buf: np.n
         advance_row(i, rows, c, sc)
 
 
-@kernel(fastmath=FASTMATH_ORDERED)
+@kernel(fastmath=FASTMATH_ORDERED, allocates=True)
 def plan(rel: np.ndarray, u: np.ndarray, p0: np.ndarray, free_t: np.ndarray,
          forced_t: np.ndarray, out: np.ndarray) -> None:
     """A tick's plan from its record (``rel`` (4, 3), ``u`` (4, m), ``p0`` (4,); see
@@ -756,14 +756,14 @@ class TrackerBundle(structref.StructRefProxy):
 structref.define_proxy(TrackerBundle, _BundleType, ["rows", "refs", "consts", "buf", "skip"])
 
 
-@kernel
+@kernel(allocates=True)
 def make_bundle(rows: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
                 buf: np.ndarray, skip: np.ndarray) -> TrackerBundle:
     """A :class:`TrackerBundle` of these records (compiled, so that it is cached)."""
     return TrackerBundle(rows, refs, consts, buf, skip)
 
 
-@kernel
+@kernel(allocates=True)
 def tick_bundle(i: int, b: TrackerBundle, out: np.ndarray) -> tuple[bool, int, int, int]:
     """:func:`tick_row` on a bundle's records, then :func:`snapshot_row`: a tracker ticking
     alone, in one call."""

@@ -1,0 +1,109 @@
+"""How uavmpc compiles its kernels (:func:`uavmpc.jit.kernel`): without numba's reference
+counting unless a kernel says it allocates, and then no array a kernel makes is ever lost."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numba
+import numpy as np
+import pytest
+from numba.core.runtime import _nrt_python, rtsys
+
+from uavmpc.drivers.world import World
+from uavmpc.jit import kernel, using_threads
+from uavmpc.scenarios import load
+from uavmpc.scenarios.random_walk import random_walk
+
+
+@kernel
+def _borrows(x: np.ndarray) -> float:
+    return x[1:3].sum()
+
+
+@kernel
+def _makes(n: int) -> float:
+    return np.zeros(n).sum()
+
+
+@kernel(allocates=True)
+def _new_array(n: int) -> np.ndarray:
+    return np.zeros(n)
+
+
+@kernel
+def _drops_what_it_gets(n: int) -> float:
+    # The mistake the flag cannot refuse at compile time: a new array received from a call.
+    return _new_array(n)[0]
+
+
+@kernel(allocates=True)
+def _keeps_count(n: int) -> float:
+    return _new_array(n)[0]
+
+
+@contextmanager
+def _allocation_count() -> Iterator[list[int]]:
+    """[arrays numba's runtime allocated, arrays it freed] during the block."""
+    was_on = _nrt_python.memsys_stats_enabled()
+    _nrt_python.memsys_enable_stats()
+    before = rtsys.get_allocation_stats()
+    counts = [0, 0]
+    try:
+        yield counts
+    finally:
+        after = rtsys.get_allocation_stats()
+        counts[:] = [after.alloc - before.alloc, after.free - before.free]
+        if not was_on:
+            _nrt_python.memsys_disable_stats()
+
+
+def test_a_kernel_borrows_arrays_without_the_runtime_and_must_say_when_it_makes_one() -> None:
+    assert _borrows(np.arange(4.0)) == 3.0
+    refused = r"NRT required|Only accept returning of array passed"
+    with pytest.raises(numba.core.errors.NumbaError, match=refused):
+        _makes(3)
+    assert _keeps_count(3) == 0.0
+
+
+def test_the_allocation_count_sees_an_array_lost_between_two_kernels() -> None:
+    """The failure the flight test below looks for, made on purpose: it must show."""
+    _drops_what_it_gets(2), _keeps_count(2)  # compiled before counting
+    with _allocation_count() as lost:
+        for _ in range(100):
+            _drops_what_it_gets(2)
+    assert lost[0] - lost[1] == 100
+    with _allocation_count() as kept:
+        for _ in range(100):
+            _keeps_count(2)
+    assert kept == [100, 100]
+
+
+def _flights() -> list[tuple[str, World]]:
+    landing = load("moving_target_landing")
+    return [
+        ("batched, avoidance", World(random_walk(6, area_m=60.0, duration_s=20.0, seed=2),
+                                     avoidance=True, seed=2)),
+        ("per object", World(random_walk(3, area_m=40.0, duration_s=20.0, seed=2),
+                             avoidance=True, seed=2, batched=False)),
+        ("observer", World(random_walk(4, area_m=50.0, duration_s=20.0, seed=2),
+                           avoidance=True, seed=2, gnss="single")),
+        ("landing", World(landing, avoidance=True, seed=1)),
+    ]
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_flights_free_every_array_their_kernels_make(threads) -> None:
+    """Over whole flights (the tick, deliveries, avoidance rounds, broadcasts, observers, the
+    deck), the arrays numba's runtime allocates are all freed: a kernel compiled without the
+    runtime that received a new array would leave one behind at every call."""
+    with using_threads(threads):
+        for name, world in _flights():
+            world.run(1.0)  # compiled (or loaded) and past the start
+            with _allocation_count() as n:
+                world.run(3.0)
+            allocated, freed = n
+            assert allocated > 1000, name  # the count is live: the kernels allocate
+            # Arrays the world holds between ticks are replaced, not added: a few either way.
+            assert abs(allocated - freed) < 50, (name, allocated, freed)
