@@ -27,9 +27,23 @@ from uavmpc.plant.attitude import attitude_kernel
 N_RIGID = 13
 """Rigid-body part of the state vector: p (3), v (3), q (4), Ω (3)."""
 
+
+def work_floats(max_rotors: int) -> int:
+    """The width of a :class:`~uavmpc.plant.rows.PlantRows` row's work area for vehicles of
+    up to ``max_rotors`` rotors: for a row of nr rotors, the four RK4 stages and the stage
+    state (13 + nr each), the attitude loop's angular acceleration (3), then the rotor
+    commands (nr, from :func:`work_command_column`)."""
+    return work_command_column(max_rotors) + max_rotors
+
+
+@kernel(inline="always")
+def work_command_column(n_rotors: int) -> int:
+    """Where a row of ``n_rotors`` rotors keeps its rotor commands in its work area."""
+    return 5 * (N_RIGID + n_rotors) + 3
+
 __all__ = ["N_RIGID", "attitude_target_ok", "contact", "deck_contact", "fly_target", "ground",
            "normalize_quat", "plant_step",
-           "plant_step_motors", "quat_norm", "quat_rotation", "rhs", "settle"]
+           "plant_step_motors", "quat_norm", "quat_rotation", "rhs", "settle", "work_floats"]
 
 
 @intrinsic
@@ -301,12 +315,13 @@ def settle(i: int, rows: Any) -> None:
     contact(i, rows, 0.0)
 
 
-@kernel(allocates=True)
+@kernel
 def _integrate(
-    i: int, rows: Any, n_sub: int, direct: bool, cmd: np.ndarray, qd: np.ndarray,
-    thrust_n: float, ff: np.ndarray,
+    i: int, rows: Any, n_sub: int, direct: bool, qd: np.ndarray, thrust_n: float,
+    ff: np.ndarray,
 ) -> None:
-    """``n_sub`` substeps of row ``i``: (attitude loop unless ``direct``) → RK4 → ground."""
+    """``n_sub`` substeps of row ``i``: (attitude loop unless ``direct``) → RK4 → ground. The
+    rotor commands are those in the row's work area (``direct``) or the attitude loop's."""
     nr = rows.n_rotors[i]
     n = N_RIGID + nr
     x = rows.x[i]
@@ -321,15 +336,16 @@ def _integrate(
     lo = rows.lo[i]
     hi = rows.hi[i]
     dt = rows.substep_s[i]
-    # The stages (and the attitude loop's work) as views of one buffer: one allocation per
-    # step instead of six.
-    work = np.empty(5 * n + 3)
+    # The stages, the attitude loop's work and the commands: the row's own work area (a row
+    # is stepped by one thread at a time), laid out as :func:`work_floats` counts it.
+    work = rows.work[i]
     k1 = work[0:n]
     k2 = work[n:2 * n]
     k3 = work[2 * n:3 * n]
     k4 = work[3 * n:4 * n]
     xt = work[4 * n:5 * n]
-    alpha = work[5 * n:5 * n + 3]
+    alpha = work[5 * n:5 * n + 3]  # the attitude loop's angular acceleration
+    cmd = work[work_command_column(nr):work_command_column(nr) + nr]
     for sub in range(n_sub):
         if not direct:
             # Zero-order hold of the rotor commands over the substep.
@@ -359,7 +375,7 @@ def _integrate(
     rows.t_s[i] += n_sub * dt
 
 
-@kernel(allocates=True)
+@kernel
 def plant_step(
     i: int, rows: Any, n_sub: int, qd: np.ndarray, thrust_n: float, ff: np.ndarray
 ) -> None:
@@ -368,16 +384,18 @@ def plant_step(
     :func:`attitude_target_ok`, then :func:`normalize_quat`), collective thrust ``thrust_n`` [N]
     and body-rate feedforward ``ff`` (3,) [rad/s]. Runs the attitude loop at every substep,
     holds the row's ``wind_mps``, and advances its ``t_s`` by ``n_sub`` substeps."""
-    cmd = np.empty(rows.n_rotors[i])  # written by the attitude loop before each use
-    _integrate(i, rows, n_sub, False, cmd, qd, thrust_n, ff)
+    _integrate(i, rows, n_sub, False, qd, thrust_n, ff)
 
 
 @kernel(allocates=True)
 def plant_step_motors(i: int, rows: Any, n_sub: int, omega_cmd: np.ndarray) -> None:
     """:func:`plant_step` with the rotor-speed commands ``omega_cmd`` (≥ n,) [rad/s] held
     instead of the attitude loop's (the loop and its state are left alone)."""
-    cmd = omega_cmd[:rows.n_rotors[i]].copy()
-    _integrate(i, rows, n_sub, True, cmd, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, np.zeros(3))
+    nr = rows.n_rotors[i]
+    first = work_command_column(nr)
+    for k in range(nr):
+        rows.work[i, first + k] = omega_cmd[k]
+    _integrate(i, rows, n_sub, True, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, np.zeros(3))
 
 
 @kernel

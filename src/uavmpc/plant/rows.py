@@ -19,7 +19,7 @@ import numpy as np
 
 from uavmpc.plant.airframe import G_MPS2, Airframe
 from uavmpc.plant.attitude import mixer_matrices, pack_attitude_gains
-from uavmpc.plant.kernels import N_RIGID
+from uavmpc.plant.kernels import N_RIGID, work_floats
 
 __all__ = ["PlantRows", "copy_row"]
 
@@ -57,6 +57,11 @@ class PlantRows(NamedTuple):
         mix_inv: (N, R, 4) mixer (pseudo-inverse of alloc) [(rad/s)² per N, N m].
         lo, hi: (N,) range of ω² the mixer commands while flying [(rad/s)²].
         substep_s: (N,) integration and attitude-loop step [s].
+
+    Work area (no state: every step overwrites it before reading it):
+        work: (N, :func:`~uavmpc.plant.kernels.work_floats` (R)) a row's RK4 stages, attitude
+            loop and rotor commands during its step; a row's own, so that rows step on any
+            thread without allocating.
     """
 
     x: np.ndarray
@@ -77,6 +82,7 @@ class PlantRows(NamedTuple):
     lo: np.ndarray
     hi: np.ndarray
     substep_s: np.ndarray
+    work: np.ndarray
 
     @classmethod
     def empty(cls, n: int, max_rotors: int) -> PlantRows:
@@ -92,6 +98,7 @@ class PlantRows(NamedTuple):
             phys=np.zeros((n, 8)), inertia=np.zeros((n, 3, 3)), inertia_inv=np.zeros((n, 3, 3)),
             alloc=np.zeros((n, 4, r)), att_gains=np.zeros((n, 7, 3)), mix_inv=np.zeros((n, r, 4)),
             lo=np.zeros(n), hi=np.zeros(n), substep_s=np.zeros(n),
+            work=np.zeros((n, work_floats(r))),
         )
 
     @property
