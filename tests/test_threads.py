@@ -125,40 +125,23 @@ def test_the_demo_flies_on_one_thread_unless_told(monkeypatch, tmp_path, restore
     assert seen == [1, 2, 2]
 
 
-def test_one_thread_takes_the_loop_where_it_runs_on_the_caller() -> None:
-    # In a fresh process (this one may have flown on two threads already): the quick start
-    # loads only the plain tick; then, without it, the threading layer decides.
+def test_one_thread_flies_the_plain_tick_and_two_the_threaded_one() -> None:
+    # In a fresh process (this one may have flown on two threads already): each thread count
+    # compiles (or loads) only the tick it flies.
     import os
     import subprocess
     import sys
 
-    code = ("import numba\n"
-            "from uavmpc.drivers.world import World\n"
+    code = ("from uavmpc.drivers.world import World\n"
             "from uavmpc.drivers.world_tick import world_tick, world_tick_threads\n"
+            "from uavmpc.jit import set_threads\n"
             "from uavmpc.scenarios.random_walk import random_walk\n"
-            "w = World(random_walk(3, duration_s=1.0, seed=1), seed=1)\n"
-            "w.ticker.quick_start = True\n"
-            "w.run(0.2)\n"
-            "print(len(world_tick.overloads), len(world_tick_threads.overloads))\n"
             "World(random_walk(3, duration_s=1.0, seed=1), seed=1).run(0.2)\n"
-            "print(len(world_tick_threads.overloads), numba.threading_layer())\n")
+            "print(len(world_tick.overloads), len(world_tick_threads.overloads))\n"
+            "set_threads(2)\n"
+            "World(random_walk(3, duration_s=1.0, seed=1), seed=1).run(0.2)\n"
+            "print(len(world_tick.overloads), len(world_tick_threads.overloads))\n")
     env = {**os.environ, "UAVMPC_THREADS": "1"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout.split()
-    assert out[:2] == ["1", "0"]
-    from uavmpc.drivers.world_tick import LOOP_ON_CALLER
-
-    assert out[2] == ("1" if out[3] in LOOP_ON_CALLER else "0")
-
-
-def test_the_quick_start_flies_the_same_flight(restore_threads) -> None:
-    set_threads(1)
-    sc = random_walk(6, area_m=110.0, duration_s=6.0, seed=5)
-    flights = []
-    for quick in (True, False):
-        w = World(sc, seed=5)
-        w.ticker.quick_start = quick
-        r = w.run(6.0)
-        flights.append((r.positions_m, r.z_offset_m, r.min_distance_m))
-    for a, b in zip(*flights, strict=True):
-        assert np.array_equal(a, b)
+    assert out == ["1", "0", "1", "1"]

@@ -124,10 +124,8 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   realtime: float | None = None, uavs: int | None = None,
                   cruise_heights: tuple[float, ...] | None = None,
                   faults: Any = None, launch_check: float | None = None,
-                  live_port: int | None = None, quick_start: bool = False) -> dict:
-    """Fly a scenario; write its summary, flight log and figures to ``out``; the summary.
-    ``quick_start``: on one thread, the tick that compiles fastest (a short first flight's;
-    :attr:`~uavmpc.drivers.world_tick.CompiledTick.quick_start`)."""
+                  live_port: int | None = None) -> dict:
+    """Fly a scenario; write its summary, flight log and figures to ``out``; the summary."""
     import contextlib
     import dataclasses
 
@@ -154,7 +152,6 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
           if logged else contextlib.nullcontext()) as rec:
         world = World.from_spec(spec, recorder=rec)
-        world.ticker.quick_start = quick_start
         result = _fly_world(world, sc, duration=duration, ros2=ros2, realtime=realtime,
                             live_port=live_port)
     summary = result.summary().with_sections(
@@ -274,7 +271,7 @@ def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     with _compiling() as watch:
         s = _run_scenario("swap_through_static", out, avoidance=True, seed=args.seed,
-                          duration=None, loss=None, latency=None, quick_start=True)
+                          duration=None, loss=None, latency=None)
     _print_world_summary(s, out)
     _print_compiled(watch)
     return 0 if not s.collisions else 1

@@ -25,13 +25,6 @@ from uavmpc.tracker.kernels import make_scratch
 STAGES = ("prepare", "qp", "advance", "control", "plant", "trace")
 #: The length of a profile: a cycle count per stage, then the number of UAV-ticks.
 N_CYCLES = len(STAGES) + 1
-#: numba's threading layers that run a one-thread parallel loop on the calling thread. With
-#: them, one thread also takes :func:`world_tick_threads` (one block): the same rows compile
-#: to faster code in numba's loop body (measured: a 1 h random-walk campaign, 2 workers of one
-#: thread, 40 s instead of 46 s; the flights bit for bit the same). numba's own ``workqueue``
-#: hands even one block to a pool thread, which a busy core wakes late (the same campaign:
-#: 64 s), so there one thread takes :func:`world_tick`.
-LOOP_ON_CALLER = ("omp",)
 
 
 @kernel(allocates=True)
@@ -51,10 +44,10 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     ``est``: (N, 6) the estimated [p, v] the stacks fly on (attitude and rates stay the
     plants' own), or (0, 6) for the true state.
 
-    :func:`world_tick_threads` is the same tick over threads (and, with an OpenMP threading
-    layer, on one: :data:`LOOP_ON_CALLER`). Two kernels rather than one with a branch: a
-    command compiles only the one it runs (the threaded one costs about 16 s more to compile
-    on a cold cache, :attr:`CompiledTick.quick_start`)."""
+    :func:`world_tick_threads` is the same tick over threads. Two kernels rather than one
+    with a branch: a command compiles only the one it runs (the threaded one costs about 16 s
+    more to compile on a cold cache), and on one thread this one is faster (no parallel
+    region to enter; docs/scale.md)."""
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     spent = np.zeros(N_CYCLES if timed else 0, dtype=np.int64)
@@ -220,10 +213,6 @@ class CompiledTick:
         self.estimator = estimator
         self.windy = windy
         self.cycles = np.zeros(N_CYCLES if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
-        #: On one thread, fly :func:`world_tick` rather than :func:`world_tick_threads` on one
-        #: block: a cold cache compiles it ~16 s faster, but it runs ~13 % slower (see
-        #: :data:`LOOP_ON_CALLER`). For a short first flight, like the demo's.
-        self.quick_start = False
         self._kernels: tuple[Any, dict[bool, Any]] | None = None
         self._no_estimate = np.zeros((0, 6))
 
@@ -247,14 +236,10 @@ class CompiledTick:
                           self.n_sub, self.period_s, *traces)
 
     def blocks(self) -> int:
-        """The row blocks the tick runs in: 0 for :func:`world_tick`, else the blocks of
-        :func:`world_tick_threads` (the current thread count, ≥ 1; see :attr:`quick_start`)."""
-        threads = numba.get_num_threads()  # (also starts numba's threads: the layer is known)
-        if threads > 1:
-            return min(threads, self.plants.x.shape[0])
-        if self.quick_start or numba.threading_layer() not in LOOP_ON_CALLER:
-            return 0
-        return 1
+        """The row blocks the tick runs in: 0 for :func:`world_tick` (one thread, or one
+        UAV), else the blocks of :func:`world_tick_threads` (the current thread count)."""
+        blocks = min(numba.get_num_threads(), self.plants.x.shape[0])
+        return blocks if blocks > 1 else 0
 
     def bound(self, table: Any, traces: tuple[Any, ...], blocks: int | None = None) -> Any:
         """The tick :meth:`blocks` chooses (``blocks``: its answer, if the caller has it),
