@@ -589,7 +589,7 @@ class World:
         if self.batched and self.onboard.inline:
             # Compile (or load) the tick before the clock starts: wall_s and the real-time
             # factor measure flying, not a first run's compilation.
-            self.ticker.bound(self.onboard.tracker.table(), tr.kernel_args(0))
+            self.ticker.start(tr.kernel_args(0))
         self.phase_wall_s = [0.0, 0.0, 0.0]
         # The compiled tick times its stages in CPU cycles, read against the wall clock.
         self.ticker.cycles[:] = 0

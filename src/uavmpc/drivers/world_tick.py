@@ -214,6 +214,8 @@ class CompiledTick:
         self.windy = windy
         self.cycles = np.zeros(N_CYCLES if HAS_CYCLE_COUNTER else 0, dtype=np.int64)
         self._kernels: tuple[Any, dict[bool, Any]] | None = None
+        #: The reference table, row blocks and bound tick of the current run (:meth:`start`).
+        self._run: tuple[Any, int, Any] | None = None
         self._no_estimate = np.zeros((0, 6))
 
     def __call__(self, traces: tuple[Any, ...]) -> int:
@@ -225,8 +227,10 @@ class CompiledTick:
         trk = ob.tracker
         table = trk.table()
         if ob.inline:
-            blocks = self.blocks()
-            tick = self.bound(table, traces, blocks)
+            run = self._run
+            if run is None or run[0] is not table:  # a new table (a new mission): bind again
+                run = self.start(traces)
+            _, blocks, tick = run
             args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
                     self.period_s, *traces, self.cycles, self.estimates())
             return tick(*args, blocks) if blocks else tick(*args)
@@ -234,6 +238,17 @@ class CompiledTick:
         trk.step()
         return world_post(trk.rows, trk.consts, ob.control, ob.stats, self.plants,
                           self.n_sub, self.period_s, *traces)
+
+    def start(self, traces: tuple[Any, ...]) -> tuple[Any, int, Any]:
+        """Before a run (``traces``: its first tick's): the tick this thread count flies,
+        bound to the records (compiled or loaded now, so that a run's clock measures flying),
+        kept for the run's ticks with its row blocks; returns (table, blocks, tick). The
+        thread count is read here, not at every tick: a run flies on the threads it started
+        with."""
+        table = self.onboard.tracker.table()
+        blocks = self.blocks()
+        self._run = (table, blocks, self.bound(table, traces, blocks))
+        return self._run
 
     def blocks(self) -> int:
         """The row blocks the tick runs in: 0 for :func:`world_tick` (one thread, or one
