@@ -117,10 +117,8 @@ def kernel(fn: F | None = None, /, *, allocates: bool = False, **options: Any) -
     same either way: the flights are bit for bit those with the runtime everywhere
     (``benchmarks/final_states.py``). Measured in docs/scale.md ("Reference counts").
     """
-    if allocates or options.get("parallel"):
-        options = {**options, "_nrt": True}
-    else:
-        options = {**options, "_nrt": False}
+    # Set on every kernel: a callee without the flag would inherit its caller's.
+    options = {**options, "_nrt": bool(allocates or options.get("parallel"))}
 
     def decorate(f: F) -> F:
         saved = numba.config.CACHE_DIR

@@ -256,10 +256,10 @@ class CompiledTick:
         blocks = min(numba.get_num_threads(), self.plants.x.shape[0])
         return blocks if blocks > 1 else 0
 
-    def bound(self, table: Any, traces: tuple[Any, ...], blocks: int | None = None) -> Any:
-        """The tick :meth:`blocks` chooses (``blocks``: its answer, if the caller has it),
-        bound to these records, compiled on first use."""
-        threaded = (self.blocks() if blocks is None else blocks) > 0
+    def bound(self, table: Any, traces: tuple[Any, ...], blocks: int) -> Any:
+        """The tick for ``blocks`` (:meth:`blocks`' answer) bound to these records, compiled
+        on first use."""
+        threaded = blocks > 0
         if self._kernels is None or self._kernels[0] is not table:
             self._kernels = (table, {})
         bound = self._kernels[1]
