@@ -27,6 +27,10 @@ from uavmpc.plant.attitude import attitude_kernel
 N_RIGID = 13
 """Rigid-body part of the state vector: p (3), v (3), q (4), Ω (3)."""
 
+__all__ = ["N_RIGID", "attitude_target_ok", "contact", "deck_contact", "fly_target", "ground",
+           "normalize_quat", "plant_step",
+           "plant_step_motors", "quat_norm", "quat_rotation", "rhs", "settle", "work_floats"]
+
 
 def work_floats(max_rotors: int) -> int:
     """The width of a :class:`~uavmpc.plant.rows.PlantRows` row's work area for vehicles of
@@ -40,10 +44,6 @@ def work_floats(max_rotors: int) -> int:
 def work_command_column(n_rotors: int) -> int:
     """Where a row of ``n_rotors`` rotors keeps its rotor commands in its work area."""
     return 5 * (N_RIGID + n_rotors) + 3
-
-__all__ = ["N_RIGID", "attitude_target_ok", "contact", "deck_contact", "fly_target", "ground",
-           "normalize_quat", "plant_step",
-           "plant_step_motors", "quat_norm", "quat_rotation", "rhs", "settle", "work_floats"]
 
 
 @intrinsic

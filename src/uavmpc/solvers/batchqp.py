@@ -465,8 +465,8 @@ def _solve_relaxed(
     skip: np.ndarray,
 ) -> tuple[int, int, int]:
     """:func:`solve_warm`'s retry from an empty working set with every bound relaxed by
-    ``relax`` (0: as they are); returns :func:`solve_one`'s (status, iterations, |W|). Apart
-    from :func:`solve_warm`, which then allocates nothing: retries are rare."""
+    ``relax`` (0: as they are); returns :func:`solve_one`'s (status, iterations, |W|). A kernel
+    of its own so that :func:`solve_warm` allocates nothing (retries are rare)."""
     n = lower.shape[0]
     lo = np.empty(n)
     hi = np.empty(n)
