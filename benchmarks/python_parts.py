@@ -38,10 +38,9 @@ TIMED: list[tuple[Any, str, str]] = [
     (inbox.InboxTable, "slot_for", "    decode (once per broadcast)"),
     (delivery, "accept_copies", "    into the inbox rows"),
     (world.World, "_emit", "broadcast"),
-    (onboard.OnboardStack, "emit", "  message"),
-    (encounters.EncounterFinder, "heard", "    heard list"),
-    (onboard, "from_prediction", "    built"),
-    (onboard, "encode", "    encoded"),
+    (onboard, "broadcast", "  messages"),
+    (onboard, "broadcast_rows", "    written (compiled)"),
+    (onboard.OnboardStack, "sent", "    each stack's bookkeeping"),
     (delivery.WorldLink, "publish", "  onto the link"),
 ]
 

@@ -21,6 +21,7 @@ then the numerical part of every UAV at once (:func:`onboard_row` on the rows of
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -33,12 +34,26 @@ from uavmpc.avoidance import (
     EncounterStrategy,
     ResolutionStrategy,
 )
-from uavmpc.avoidance.encounters import EncounterFinder, Encounters
+from uavmpc.avoidance.encounters import EncounterFinder, Encounters, heard_columns
 from uavmpc.avoidance.strategy import HOLD_SPEED_MPS
 from uavmpc.comms.auth import Identity, Roster, seal, sign
-from uavmpc.comms.inbox import InboxTable
+from uavmpc.comms.inbox import InboxRows, InboxTable, Store
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
-from uavmpc.comms.message import PredictionMessage, encode, from_prediction
+from uavmpc.comms.message import (
+    MAX_ABS_POSITION_M,
+    MAX_HEARD,
+    MAX_MESSAGE_BYTES,
+    MAX_POINTS,
+    MIN_POINTS,
+    PRIORITY_RANGE,
+    PredictionMessage,
+    encode,
+    first_problem,
+    from_prediction,
+    sigma_in_range,
+    unchecked,
+    write_message,
+)
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
 from uavmpc.jit import bind, cycle_count, kernel
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
@@ -61,7 +76,7 @@ from uavmpc.tracker.kernels import (
     scratch_views,
     tick_row,
 )
-from uavmpc.tracker.tracker import TrackerOutput
+from uavmpc.tracker.tracker import TrackerOutput, prediction_from
 
 #: How often the avoidance re-plans (the tracker ticks at 100 Hz, predictions arrive at 2 Hz).
 AVOIDANCE_PERIOD_S = 0.1
@@ -218,6 +233,110 @@ def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
             pos_out[j, k, 2] -= up
 
 
+class SentRows(NamedTuple):
+    """What N stacks broadcast last, one row each (written by :func:`broadcast_rows`).
+
+    Attributes:
+        plan: (N, 4, m, 3) its plan per axis (x, y, z, heading) and step [p, v, a]
+            (:func:`~uavmpc.tracker.kernels.plan`); times_s: (N, m) its times [s, the
+            stack's clock].
+        heard: (N, :data:`~uavmpc.comms.message.MAX_HEARD`) int64 the inbox columns its heard
+            list named, the first ``heard_count`` (N,) of them.
+    """
+
+    plan: np.ndarray
+    times_s: np.ndarray
+    heard: np.ndarray
+    heard_count: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int, m: int) -> SentRows:
+        return cls(np.zeros((n, 4, m, 3)), np.zeros((n, m)),
+                   np.zeros((n, MAX_HEARD), dtype=np.int64), np.zeros(n, dtype=np.int64))
+
+
+@kernel(allocates=True)
+def broadcast_rows(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
+                   consts: TrackerConsts, stamp_s: np.ndarray, avoiding: np.ndarray,
+                   priority: np.ndarray, sigma_m: np.ndarray, counts_heard: np.ndarray,
+                   use_received: np.ndarray, timeout_s: np.ndarray, silent_hold_s: np.ndarray,
+                   rows: InboxRows, store: Store, entries: np.ndarray, sent: SentRows,
+                   out: np.ndarray, length: np.ndarray) -> None:
+    """The broadcasts of rows ``idx`` (R,) in one call: each one's plan of its last tick into
+    ``sent`` (the very plan :func:`avoidance_plans` hands the avoidance), its heard list (the
+    columns of inbox row ``inbox_row[j]`` that :func:`~uavmpc.avoidance.encounters.
+    heard_columns` counts, when ``counts_heard[j]``, with that row's finder parameters
+    ``use_received``, ``timeout_s``, ``silent_hold_s`` (R,)), and its message's bytes into
+    ``out[j]`` (:func:`~uavmpc.comms.message.write_message`, stamped ``stamp_s[j]``, flag
+    ``avoiding[j]``, ``priority[j]``, the row's ``sigma_m``), their number into
+    ``length[j]``. A message the laws of :class:`~uavmpc.comms.PredictionMessage` would
+    refuse (a plan not finite or out of bounds, an uncertainty out of range, an id no message
+    may carry: an all-zero entry of ``entries``, the table's
+    :attr:`~uavmpc.comms.inbox.InboxTable.entries`) is not written: ``length[j] = -1``, and
+    the caller builds it the checked way, which names the problem."""
+    h = consts.horizon_s
+    m = h.shape[0]
+    pos = np.empty((m, 3))
+    floats = np.empty(3)
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        r = inbox_row[j]
+        p = sent.plan[i]
+        plan(trk.rel[i], trk.u_plan[i], trk.p0[i], consts.free_t, consts.forced_t, p)
+        times = sent.times_s[i]
+        t0 = trk.t_s[i] - h[0]
+        for k in range(m):
+            times[k] = t0 + h[k]
+            for ax in range(3):
+                pos[k, ax] = p[ax, k, 0]
+        sent.heard_count[i] = 0
+        own = entries[rows.own_col[r]]
+        if (own[0] == 0 or not MIN_POINTS <= m <= MAX_POINTS or not math.isfinite(stamp_s[j])
+                or not PRIORITY_RANGE[0] <= priority[j] <= PRIORITY_RANGE[1]
+                or not sigma_in_range(sigma_m[i, 0], sigma_m[i, 1])
+                or first_problem(times, pos, MAX_ABS_POSITION_M)[0] != 0):
+            length[j] = -1
+            continue
+        n = 0
+        if counts_heard[j]:
+            n = heard_columns(rows, store, r, stamp_s[j], use_received[j], timeout_s[j],
+                              silent_hold_s[j], pos[0, 0], pos[0, 1], sent.heard[i])
+        sent.heard_count[i] = n
+        floats[0] = stamp_s[j]
+        floats[1] = sigma_m[i, 0]
+        floats[2] = sigma_m[i, 1]
+        length[j] = write_message(out[j], own, avoiding[j], priority[j], floats, times, pos,
+                                  entries, sent.heard[i, :n])
+
+
+def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
+              now_s: np.ndarray) -> list[bytes]:
+    """The broadcasts of ``stacks`` (rows of ``batch`` with one inbox table, each due),
+    stamped ``now_s`` (R,) each on its own clock: one compiled call
+    (:func:`broadcast_rows`), then each stack's bookkeeping (:meth:`OnboardStack.sent`).
+    Returns each one's bytes, signed or sealed when the stack has a key or an identity."""
+    r_count = len(stacks)
+    table = stacks[0].inbox.table
+    finders = [s.heard_finder for s in stacks]
+    # Per row: whether it lists whom it heard, and its finder's parameters.
+    params = np.array([(True, f.use_received, f.timeout_s, f.silent_hold_s) if f is not None
+                       else (False, False, 0.0, 0.0) for f in finders], dtype=float)
+    stamp = np.ascontiguousarray(now_s, dtype=float)
+    out = np.empty((r_count, MAX_MESSAGE_BYTES), dtype=np.uint8)
+    length = np.empty(r_count, dtype=np.int64)
+    trk = batch.tracker
+    broadcast_rows(np.array([s.row for s in stacks], dtype=np.int64),
+                   np.array([s.inbox.row for s in stacks], dtype=np.int64), trk.rows,
+                   trk.consts, stamp, np.array([s.flag_up for s in stacks]),
+                   np.array([s.priority for s in stacks], dtype=np.int64),
+                   batch.position_sigma_m, params[:, 0] != 0.0, params[:, 1] != 0.0,
+                   params[:, 2].copy(), params[:, 3].copy(), table.rows, table.store,
+                   table.entries, batch.sent, out, length)
+    n = length.tolist()
+    return [s.sent(float(stamp[j]), out[j, :n[j]].tobytes() if n[j] >= 0 else None)
+            for j, s in enumerate(stacks)]
+
+
 class Schedule(NamedTuple):
     """When N stacks next plan and broadcast, one row each (written by the stacks; a driver
     ticking many reads them to find who is due).
@@ -256,6 +375,8 @@ class OnboardBatch:
         self.control = ControlRows.empty(n)
         self.stats = StackStats.empty(n)
         self.schedule = Schedule.empty(n)
+        #: What each row broadcast last (:func:`broadcast`).
+        self.sent = SentRows.empty(n, self.tracker.config.steps)
         self.position_sigma_m = np.zeros((n, 2))
         self.n = n
         self._one: tuple[ReferenceTable, object] | None = None
@@ -413,18 +534,15 @@ class OnboardStack:
                         else None)
         self.nominal_limits = self.tracker.limits
         self.decision: AvoidanceDecision | None = None
-        #: The ids its last message listed as heard (docs/safety.md, A2).
-        self.heard: tuple[str, ...] = ()
         self.broadcast_period_s = float(broadcast_period_s)
         sched = batch.schedule
         sched.next_broadcast_s[self.row] = float(t0_s) + float(broadcast_phase_s)
         sched.next_avoidance_s[self.row] = float(t0_s)
-        #: The prediction of the last broadcast (for logs), and how many were sent.
-        self.last_broadcast: Prediction | None = None
         #: The message of the last broadcast when its bytes are exactly its encoding (no
         #: signature or seal): what a receiver decodes them to (a simulated world's receivers
         #: take it rather than decode the same bytes again).
         self.last_message: PredictionMessage | None = None
+        #: How many predictions it has broadcast.
         self.predictions_sent = 0
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
         #: the broadcast flag down.
@@ -560,30 +678,65 @@ class OnboardStack:
     def emit(self, now_s: float) -> bytes | None:
         """After the tick: the prediction message when a broadcast is due (stamped ``now_s``)."""
         self.mark_ticked()
-        sched = self.batch.schedule
-        if now_s < sched.next_broadcast_s[self.row] - _SCHEDULE_TOL_S:
+        if now_s < self.batch.schedule.next_broadcast_s[self.row] - _SCHEDULE_TOL_S:
             return None
-        sched.next_broadcast_s[self.row] += self.broadcast_period_s
-        pred = self.tracker.prediction()
-        # The acknowledgement (docs/safety.md, A2): every UAV whose plan we count.
-        self.heard = (self._finder.heard(self.row, now_s, pred.position_m[0, :2])
-                      if self._finder is not None else ())
-        # The flag says "I will make way": down while our hold cannot (AvoidanceDecision.stuck).
+        return broadcast(self.batch, (self,), np.array([now_s]))[0]
+
+    @property
+    def flag_up(self) -> bool:
+        """What its messages' flag says: "I will make way" (it runs avoidance on a vehicle
+        it steers), down while its hold cannot (:attr:`AvoidanceDecision.stuck`)."""
         stuck = self.decision is not None and self.decision.stuck
-        msg = from_prediction(pred, uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
-                              avoiding=self.avoidance is not None and self.cooperative
-                              and not stuck,
-                              heard=self.heard, position_sigma_m=self.position_sigma_m)
-        data = encode(msg)
+        return self.avoidance is not None and self.cooperative and not stuck
+
+    @property
+    def heard_finder(self) -> EncounterFinder | None:
+        """The finder whose :meth:`~uavmpc.avoidance.encounters.EncounterFinder.heard` its
+        messages list (docs/safety.md, A2), or None: it lists nobody."""
+        return self._finder
+
+    def sent(self, now_s: float, data: bytes | None) -> bytes:
+        """Its broadcast at ``now_s`` (:func:`broadcast`): ``data``, the bytes written from
+        its row of :attr:`OnboardBatch.sent`, or None to build the message the checked way
+        (raises :class:`~uavmpc.comms.message.InvalidMessageError` naming what is wrong).
+        Returns the bytes to send (signed or sealed with its key or identity)."""
+        sched = self.batch.schedule
+        sched.next_broadcast_s[self.row] += self.broadcast_period_s
+        msg: PredictionMessage | None = None
+        if data is None:  # raises, naming the field the compiled checks stopped at
+            msg = from_prediction(self.prediction(), uav_id=self.uav_id,
+                                  priority=self.priority, stamp_s=now_s, avoiding=self.flag_up,
+                                  heard=self.heard, position_sigma_m=self.position_sigma_m)
+            data = encode(msg)
+        elif self.key is None and self.identity is None:
+            sent = self.batch.sent
+            i = self.row
+            msg = unchecked(self.uav_id, int(self.priority), now_s, sent.times_s[i].copy(),
+                            sent.plan[i, :3, :, 0].T.copy(), self.flag_up, self.heard,
+                            self.position_sigma_m)
         self.last_message = msg if self.key is None and self.identity is None else None
         if self.key is not None:
             data = sign(data, self.key)
         elif self.identity is not None:
             # Stamps order a sender's predictions; the sequence number is the count.
             data = seal(data, PREDICTION_CHANNEL, self.identity, self.predictions_sent)
-        self.last_broadcast = pred
         self.predictions_sent += 1
         return data
+
+    @property
+    def heard(self) -> tuple[str, ...]:
+        """The ids its last message listed as heard (docs/safety.md, A2)."""
+        sent = self.batch.sent
+        cols = sent.heard[self.row, :sent.heard_count[self.row]].tolist()
+        return tuple(map(self.inbox.table.ids.__getitem__, cols))
+
+    @property
+    def last_broadcast(self) -> Prediction | None:
+        """The prediction of its last broadcast (None before the first)."""
+        if not self.predictions_sent:
+            return None
+        sent = self.batch.sent
+        return prediction_from(sent.plan[self.row], sent.times_s[self.row])
 
     def mark_ticked(self) -> None:
         """The stack's row has ticked (a driver ticking many rows at once says so)."""

@@ -23,7 +23,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, decode
+from uavmpc.comms.message import (
+    ENTRY_BYTES,
+    SCHEMA_VERSION,
+    InvalidMessageError,
+    PredictionMessage,
+    decode,
+    id_entry,
+    valid_id,
+)
 from uavmpc.jit import kernel
 
 #: Outcomes of :func:`accept_copies`.
@@ -195,6 +203,10 @@ class InboxTable:
         self.cols: dict[str, int] = {}
         n = len(self.receivers)
         self.rows = self._rows(n, max(4, n))
+        #: (S, :data:`~uavmpc.comms.message.ENTRY_BYTES`) uint8 each column's id as a message
+        #: lists it (:func:`~uavmpc.comms.message.id_entry`; zeros for an id no message may
+        #: carry): what a compiled broadcast writes into its heard list.
+        self.entries = np.zeros((self.rows.held_slot.shape[1], ENTRY_BYTES), dtype=np.uint8)
         self.store = Store.empty(max(8, 2 * n), points)
         #: Per store slot: its message's heard list (compiled code never reads it).
         self.heard: list[tuple[str, ...]] = [()] * self.store.holders.shape[0]
@@ -224,6 +236,8 @@ class InboxTable:
             self.cols[uav_id] = col
             if col >= self.rows.held_slot.shape[1]:
                 self._grow_columns(2 * col)
+            if valid_id(uav_id):
+                self.entries[col] = np.frombuffer(id_entry(uav_id), dtype=np.uint8)
         return col
 
     def _grow_columns(self, s: int) -> None:
@@ -237,6 +251,9 @@ class InboxTable:
                      "superseded", "future", "stale"):
             getattr(new, name)[:] = getattr(old, name)
         self.rows = new
+        entries = np.zeros((s, ENTRY_BYTES), dtype=np.uint8)
+        entries[:s0] = self.entries
+        self.entries = entries
 
     # ------------------------------------------------------------------ messages
     def slot_for(self, data: bytes, decoded: PredictionMessage | None = None) -> int:

@@ -71,6 +71,9 @@ PRIORITY_RANGE = (-(2**31), 2**31 - 1)
 _HEADER = struct.Struct("<4sBBBHid")
 _SIGMA = struct.Struct("<dd")
 _FLAG_AVOIDING = 0x01
+#: An id in a heard list: its length (uint8), then up to :data:`MAX_ID_LEN` ASCII characters.
+ENTRY_BYTES = 1 + MAX_ID_LEN
+_MAGIC_BYTES = np.frombuffer(MAGIC, dtype=np.uint8)
 _ID_RE = re.compile(r"[A-Za-z0-9_-]{1,32}")
 # A non-empty heard list joined by NUL, checked in one match (a 300-UAV world checks 80 000
 # ids a second): with exactly len - 1 NULs in it (none inside an id), it matches exactly when
@@ -165,22 +168,97 @@ def from_prediction(prediction: Any, *, uav_id: str, priority: int, stamp_s: flo
                              position_sigma_m=position_sigma_m)
 
 
+def unchecked(uav_id: str, priority: int, stamp_s: float, times_s: np.ndarray,
+              positions_m: np.ndarray, avoiding: bool, heard: tuple[str, ...],
+              position_sigma_m: tuple[float, float]) -> PredictionMessage:
+    """The message of fields the same laws have checked already (a compiled broadcast checks
+    them before it writes the bytes: :func:`~uavmpc.onboard.broadcast_rows`), built without
+    checking them again: field for field what :func:`decode` makes of those bytes.
+    ``times_s`` (m,) and ``positions_m`` (m, 3): fresh float64 arrays, taken and made
+    read-only."""
+    msg = object.__new__(PredictionMessage)
+    times_s.flags.writeable = False
+    positions_m.flags.writeable = False
+    for name, value in (("version", SCHEMA_VERSION), ("uav_id", uav_id),
+                        ("priority", priority), ("stamp_s", stamp_s), ("times_s", times_s),
+                        ("positions_m", positions_m), ("avoiding", avoiding),
+                        ("received_s", None), ("heard", heard),
+                        ("position_sigma_m", position_sigma_m)):
+        object.__setattr__(msg, name, value)
+    return msg
+
+
 def encode(msg: PredictionMessage) -> bytes:
     """The wire bytes of ``msg`` (see the module docstring). ``received_s`` is not sent."""
-    uid = msg.uav_id.encode("ascii")
-    header = _HEADER.pack(MAGIC, msg.version, _FLAG_AVOIDING if msg.avoiding else 0, len(uid),
-                          msg.points, msg.priority, msg.stamp_s)
-    heard = list(map(_heard_entry, msg.heard))
-    return b"".join((header, uid, msg.times_s.astype(_F64).tobytes(),
-                     msg.positions_m.astype(_F64).tobytes(), _SIGMA.pack(*msg.position_sigma_m),
-                     bytes((len(heard),)), *heard))
+    entries = np.frombuffer(b"".join(map(id_entry, (msg.uav_id, *msg.heard))),
+                            dtype=np.uint8).reshape(-1, ENTRY_BYTES)
+    out = np.empty(MAX_MESSAGE_BYTES, dtype=np.uint8)
+    n = write_message(out, entries[0], msg.avoiding, msg.priority,
+                      np.array([msg.stamp_s, *msg.position_sigma_m]), msg.times_s,
+                      msg.positions_m, entries, _HEARD_ROWS[:len(msg.heard)])
+    return out[:n].tobytes()
+
+
+#: Rows 1… of an ``encode`` call's entries: its heard ids, in order.
+_HEARD_ROWS = np.arange(1, MAX_HEARD + 1, dtype=np.int64)
 
 
 @functools.lru_cache(maxsize=4096)
-def _heard_entry(uav_id: str) -> bytes:
-    """A heard list's entry for a valid id: its length byte, then the id (a world's UAVs list
-    the same few hundred ids in every message: kept, not built again)."""
-    return bytes((len(uav_id),)) + uav_id.encode("ascii")
+def id_entry(uav_id: str) -> bytes:
+    """An id as the wire writes it, padded to :data:`ENTRY_BYTES`: its length byte, the id
+    in ASCII, zeros (a world's UAVs list the same few hundred ids in every message: kept, not
+    built again). Only for an id :func:`valid_id` accepts."""
+    raw = uav_id.encode("ascii")
+    return bytes((len(raw),)) + raw + bytes(ENTRY_BYTES - 1 - len(raw))
+
+
+def valid_id(uav_id: object) -> bool:
+    """``uav_id`` may name a UAV in a message: 1–32 characters of ``[A-Za-z0-9_-]``."""
+    return isinstance(uav_id, str) and _ID_RE.fullmatch(uav_id) is not None
+
+
+@kernel
+def _copy_bytes(out: np.ndarray, at: int, src: np.ndarray) -> int:
+    for k in range(src.shape[0]):
+        out[at + k] = src[k]
+    return at + src.shape[0]
+
+
+@kernel
+def write_message(out: np.ndarray, uid: np.ndarray, avoiding: bool, priority: int,
+                  floats: np.ndarray, times: np.ndarray, pos: np.ndarray, entries: np.ndarray,
+                  heard: np.ndarray) -> int:
+    """The wire format, written once: the bytes of a message into ``out`` (uint8, at least
+    :data:`MAX_MESSAGE_BYTES`); returns their length. ``uid`` (:data:`ENTRY_BYTES`,) the
+    sender's :func:`id_entry`; ``floats`` (3,) [stamp_s, σ horizontal, σ vertical];
+    ``times`` (m,) and ``pos`` (m, 3) C-contiguous float64; the heard list is rows
+    ``heard`` (h,) of ``entries`` (K, :data:`ENTRY_BYTES`). The fields must be valid
+    (:class:`PredictionMessage` checks them): nothing is checked here. Float64 are written in
+    the machine's byte order, little-endian on every platform numba targets."""
+    m = times.shape[0]
+    for k in range(4):
+        out[k] = _MAGIC_BYTES[k]
+    out[4] = SCHEMA_VERSION
+    out[5] = _FLAG_AVOIDING if avoiding else 0
+    n = uid[0]
+    out[6] = n
+    out[7] = m & 0xFF
+    out[8] = (m >> 8) & 0xFF
+    word = priority & 0xFFFFFFFF  # two's complement int32
+    for k in range(4):
+        out[9 + k] = (word >> (8 * k)) & 0xFF
+    fb = floats.view(np.uint8)
+    at = _copy_bytes(out, 13, fb[0:8])
+    at = _copy_bytes(out, at, uid[1:1 + n])
+    at = _copy_bytes(out, at, times.view(np.uint8))
+    at = _copy_bytes(out, at, pos.reshape(3 * m).view(np.uint8))
+    at = _copy_bytes(out, at, fb[8:24])
+    out[at] = heard.shape[0]
+    at += 1
+    for j in range(heard.shape[0]):
+        e = entries[heard[j]]
+        at = _copy_bytes(out, at, e[0:e[0] + 1])
+    return at
 
 
 def decode(data: bytes) -> PredictionMessage:
@@ -281,7 +359,7 @@ def validate_on_receipt(msg: PredictionMessage, now_s: float, max_future_s: floa
 
 
 def _check_id(uav_id: Any) -> None:
-    if not isinstance(uav_id, str) or _ID_RE.fullmatch(uav_id) is None:
+    if not valid_id(uav_id):
         raise InvalidMessageError(
             f"uav_id: must be 1–{MAX_ID_LEN} characters of [A-Za-z0-9_-], got {uav_id!r}")
 
@@ -293,7 +371,7 @@ def _check_sigma(sigma: Any) -> tuple[float, float]:
         raise InvalidMessageError(f"position_sigma_m: must be (horizontal, vertical), got "
                                   f"{sigma!r}") from None
     out = (_finite(h, "position_sigma_m"), _finite(v, "position_sigma_m"))
-    if not all(0.0 <= x <= MAX_SIGMA_M for x in out):
+    if not sigma_in_range(*out):
         raise InvalidMessageError(f"position_sigma_m: each must be in [0, {MAX_SIGMA_M:g}] m, "
                                   f"got {list(out)}")
     return out
@@ -346,7 +424,7 @@ def _check_arrays(times: np.ndarray, pos: np.ndarray) -> None:
         raise InvalidMessageError(f"points: m={m} outside [{MIN_POINTS}, {MAX_POINTS}]")
     if pos.shape != (m, 3):
         raise InvalidMessageError(f"positions_m: must have shape ({m}, 3), got {pos.shape}")
-    kind, i = _first_problem(times, pos, MAX_ABS_POSITION_M)
+    kind, i = first_problem(times, pos, MAX_ABS_POSITION_M)
     if kind == _NON_FINITE_TIME:
         raise InvalidMessageError(f"times_s[{i}]: non-finite value {times[i]}")
     if kind == _NON_FINITE_POSITION:
@@ -361,11 +439,18 @@ def _check_arrays(times: np.ndarray, pos: np.ndarray) -> None:
             f"{MAX_ABS_POSITION_M:g} m")
 
 
+@kernel
+def sigma_in_range(horizontal_m: float, vertical_m: float) -> bool:
+    """A stated position uncertainty is usable: each 1σ in [0, :data:`MAX_SIGMA_M`] m
+    (false for NaN)."""
+    return 0.0 <= horizontal_m <= MAX_SIGMA_M and 0.0 <= vertical_m <= MAX_SIGMA_M
+
+
 _NON_FINITE_TIME, _NON_FINITE_POSITION, _NOT_INCREASING, _ABSURD_POSITION = 1, 2, 3, 4
 
 
 @kernel
-def _first_problem(times: np.ndarray, pos: np.ndarray, bound: float) -> tuple[int, int]:
+def first_problem(times: np.ndarray, pos: np.ndarray, bound: float) -> tuple[int, int]:
     """The first problem of a message's arrays, in the order they are reported: (kind, index)
     or (0, 0). Every message received or sent passes here, so it is one pass, compiled."""
     m = times.shape[0]

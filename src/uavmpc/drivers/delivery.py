@@ -81,8 +81,9 @@ class WorldLink:
             if len(self._sent) >= _MAX_SENT:
                 self._sent.clear()  # only costs decoding those again
             self._sent[data] = stack.last_message
-        pred = stack.last_broadcast
-        if self.recorder is not None and pred is not None:
+        if self.recorder is not None:
+            pred = stack.last_broadcast
+            assert pred is not None  # it has just broadcast
             self.recorder.prediction(stack.uav_id, now, pred.position_m, pred.heading_rad)
             self.recorder.link(now, "sent", stack.uav_id, stamp_s=now)
 

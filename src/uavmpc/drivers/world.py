@@ -71,6 +71,7 @@ from uavmpc.onboard import (
     OnboardBatch,
     OnboardStack,
     avoidance_round,
+    broadcast,
 )
 from uavmpc.plant import Airframe, PlantRows, Wind
 from uavmpc.plant.interface import heading_of
@@ -771,12 +772,12 @@ class World:
         if now < self._next_emit_s:
             return
         sched = self.onboard.schedule
-        for i in np.flatnonzero(now + self._offsets
-                                >= sched.next_broadcast_s - 1e-9).tolist():
-            u = self.uavs[i]
-            data = u.stack.emit(now + u.clock_offset_s)
-            if data is not None:
-                self.wire.publish(u.stack, data, now)
+        due = np.flatnonzero(now + self._offsets >= sched.next_broadcast_s - 1e-9)
+        if due.size:
+            stacks = [self._stacks[i] for i in due.tolist()]
+            for stack, data in zip(stacks, broadcast(self.onboard, stacks,
+                                                     now + self._offsets[due]), strict=True):
+                self.wire.publish(stack, data, now)
         # The next tick anyone can be due at (a tick early is harmless).
         self._next_emit_s = float(np.min(sched.next_broadcast_s - self._offsets)) \
             - self.period_s

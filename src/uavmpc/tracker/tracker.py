@@ -142,9 +142,14 @@ def prediction_of(rel: np.ndarray, u: np.ndarray, p0: np.ndarray, consts: Tracke
     out = np.empty((N_AXES, u.shape[1], 3))
     plan(np.ascontiguousarray(rel), np.ascontiguousarray(u), np.ascontiguousarray(p0),
          consts.free_t, consts.forced_t, out)
-    times = (t_s - consts.horizon_s[0]) + consts.horizon_s
+    return prediction_from(out, (t_s - consts.horizon_s[0]) + consts.horizon_s)
+
+
+def prediction_from(out: np.ndarray, times_s: np.ndarray) -> Prediction:
+    """The prediction of a plan ``out`` (4, m, 3) (:func:`~uavmpc.tracker.kernels.plan`)
+    stamped ``times_s`` (m,) [s] (its own copies of both)."""
     xyz = out[:3]
-    return Prediction(times_s=times, position_m=xyz[:, :, 0].T.copy(),
+    return Prediction(times_s=times_s.copy(), position_m=xyz[:, :, 0].T.copy(),
                       velocity_mps=xyz[:, :, 1].T.copy(),
                       acceleration_mps2=xyz[:, :, 2].T.copy(),
                       heading_rad=out[3, :, 0].copy(), heading_rate_radps=out[3, :, 1].copy())
