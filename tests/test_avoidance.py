@@ -821,9 +821,9 @@ def test_a_stuck_uav_broadcasts_its_flag_down_and_the_others_yield_to_it() -> No
 
     world = World.from_spec(trial_run(RandomWalkSpec(avoidance=True), 42))
     flags = []
-    world.wire.publish = lambda stack, data, now, send=world.wire.publish: (
-        flags.append((stack.uav_id, stack.decision is not None and stack.decision.stuck)),
-        send(stack, data, now))
+    world.wire.publish = lambda stacks, data, now, send=world.wire.publish: (
+        flags.extend((s.uav_id, s.decision is not None and s.decision.stuck) for s in stacks),
+        send(stacks, data, now))
     r = world.run(60.0)
     assert not r.collisions and float(np.min(r.min_distance_m)) > 2.0
     assert ("uav3", True) in flags  # it said so

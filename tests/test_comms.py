@@ -279,6 +279,40 @@ def test_range_limit_uses_positions_at_publish_time() -> None:
         SimulatedLink(range_m=10.0)
 
 
+@pytest.mark.parametrize("loss, burst_len, ranged", [
+    (0.0, 0.0, False), (0.3, 0.0, False), (0.3, 3.0, False), (0.2, 0.0, True), (0.2, 2.0, True)])
+def test_a_ticks_broadcasts_at_once_draw_and_deliver_as_one_by_one(loss: float, burst_len: float,
+                                                                   ranged: bool) -> None:
+    """``publish_many`` is the world's tick of broadcasts: the same random draws, copies,
+    chain states and statistics as ``publish`` called for each in turn, also when a sender
+    joins in the middle of a tick or sends twice in one."""
+    rng = np.random.default_rng(0)
+    ids = [f"u{i}" for i in range(10)]
+    where = {u: rng.normal(size=3) * 40.0 for u in [*ids, "late"]}
+    kw = dict(latency_s=0.05, jitter_s=0.02, loss=loss, burst_len=burst_len, seed=4,
+              range_m=60.0 if ranged else None, position_of=where.get if ranged else None)
+    one, many = SimulatedLink(ids, **kw), SimulatedLink(ids, **kw)
+    got: dict[str, list] = {"one": [], "many": []}
+    for k in range(200):
+        t = 0.01 * k
+        senders = [u for u in ids if rng.random() < 0.3]
+        if k == 100:
+            senders += ["late", senders[0] if senders else "u0"]  # a newcomer; one twice
+        data = [f"{s}-{k}-{j}".encode() for j, s in enumerate(senders)]
+        for d, s in zip(data, senders, strict=True):
+            one.publish(d, s, t)
+        many.publish_many(data, senders, t)
+        for name, link in (("one", one), ("many", many)):
+            due = link.take_due(t)
+            if due is not None:
+                got[name].append((k, due[0].tolist(), [link.payload(p) for p in due[1]]))
+                link.release(due[1])
+    assert got["one"] == got["many"] and len(got["one"]) > 100
+    assert vars(one.stats) == vars(many.stats)
+    assert (one.stats.dropped > 0) == (loss > 0.0)
+    assert (one.stats.dropped_range > 0) == ranged
+
+
 def test_link_rejects_bad_parameters() -> None:
     for kwargs, match in (({"loss": 1.5}, "loss"), ({"latency_s": -0.1}, "latency_s"),
                           ({"jitter_s": float("nan")}, "jitter_s")):

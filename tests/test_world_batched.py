@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 import oracles
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -64,6 +65,43 @@ def test_batched_equals_per_object_with_a_python_solver() -> None:
     a, b = _both(lambda: random_walk(3, duration_s=10.0, seed=2), 5.0, seed=2,
                  tracker_config=daqp)
     _assert_same_flight(a, b)
+
+
+def test_every_broadcast_decodes_to_the_message_its_receivers_take() -> None:
+    """A tick's broadcasts are written in one compiled call and the message a receiver takes
+    instead of decoding them is built from the same rows: field for field, the bytes decode
+    to it (heard lists included), and a sender's heard list names only UAVs it holds."""
+    from uavmpc.comms.message import decode
+
+    world = World(random_walk(6, duration_s=10.0, seed=2), avoidance=True, seed=2)
+    sent = []
+    world.wire.publish = lambda stacks, data, now, send=world.wire.publish: (
+        sent.extend((s.last_message, d, s.heard) for s, d in zip(stacks, data, strict=True)),
+        send(stacks, data, now))
+    world.run(6.0)
+    assert len(sent) > 50
+    for msg, data, heard in sent:
+        got = decode(data)
+        for f in dataclasses.fields(got):
+            a, b = getattr(got, f.name), getattr(msg, f.name)
+            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), f.name
+        assert not msg.times_s.flags.writeable and not msg.positions_m.flags.writeable
+        assert heard == msg.heard and msg.uav_id not in heard
+    assert max(len(h) for _, _, h in sent) == 5  # everyone heard everyone
+
+
+def test_a_broadcast_the_message_laws_refuse_is_named_not_sent() -> None:
+    """A position uncertainty out of range (or a plan that is not finite) stops the compiled
+    broadcast; the checked path then names the field, and nothing is published."""
+    from uavmpc.comms.message import InvalidMessageError
+
+    world = World(random_walk(3, duration_s=5.0, seed=1), avoidance=True, seed=1)
+    world.run(1.0)
+    world.onboard.position_sigma_m[1] = (150.0, 0.0)
+    sent = world.uavs[1].stack.predictions_sent
+    with pytest.raises(InvalidMessageError, match=r"position_sigma_m: each must be in \[0, 100\]"):
+        world.run(1.0)
+    assert world.uavs[1].stack.predictions_sent == sent  # it never went out
 
 
 def test_runs_in_chunks_continue_the_same_flight() -> None:

@@ -13,7 +13,7 @@ decode and validate whatever arrives (:class:`Inbox`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
 
@@ -203,45 +203,73 @@ class SimulatedLink:
                 self._state = grown
 
     def publish(self, msg_bytes: bytes, sender_id: str, t_s: float) -> None:
-        if not isinstance(msg_bytes, bytes | bytearray):
-            raise TypeError(f"msg_bytes: expected bytes, got {type(msg_bytes).__name__}")
-        self.join(sender_id)
-        sender = self._members[sender_id]
-        n = len(self._members)
-        self.stats.published += 1
-        self.stats.sent += n - 1
-        if n == 1:
+        self.publish_many((msg_bytes,), (sender_id,), t_s)
+
+    def publish_many(self, payloads: Sequence[bytes], sender_ids: Sequence[str],
+                     t_s: float) -> None:
+        """Broadcasts at ``t_s``: ``payloads[b]`` from ``sender_ids[b]``, exactly as
+        :meth:`publish` one after the other (the same draws, the same copies), in one pass
+        over all of them (a world's broadcasts of a tick)."""
+        for data in payloads:
+            if not isinstance(data, bytes | bytearray):
+                raise TypeError(f"msg_bytes: expected bytes, got {type(data).__name__}")
+        b = len(payloads)
+        if b > 1 and (any(s not in self._members for s in sender_ids)
+                      or (self._thresholds is not None and len(set(sender_ids)) < b)):
+            # A sender joining changes how many draws the next broadcast takes, and a sender
+            # twice steps its chains between its two broadcasts: one by one.
+            for data, sender_id in zip(payloads, sender_ids, strict=True):
+                self.publish_many((data,), (sender_id,), t_s)
             return
-        receivers = self._others.get((n, sender))
-        if receivers is None:
-            receivers = self._others[(n, sender)] = np.delete(np.arange(n), sender)
+        for sender_id in sender_ids:
+            self.join(sender_id)
+        n = len(self._members)
+        self.stats.published += b
+        self.stats.sent += b * (n - 1)
+        if n == 1 or b == 0:
+            return
+        senders = np.array([self._members[s] for s in sender_ids], dtype=np.int64)
+        receivers = np.stack([self._receivers(n, int(s)) for s in senders.tolist()])
         # Draw for every receiver, in join order, whether or not it is in range: the random
-        # stream then does not depend on where the UAVs are, only on the call order.
+        # stream then does not depend on where the UAVs are, only on the call order. Per
+        # broadcast: n − 1 uniforms for the loss, then n − 1 for the jitter.
+        draws = self._rng.random(2 * b * (n - 1)).reshape(b, 2, n - 1)
         if self._thresholds is None:
-            lost = self._rng.random(n - 1) < self.loss
+            lost = draws[:, 0] < self.loss
         else:
-            row = self._state[sender]
-            lost = self._rng.random(n - 1) < self._thresholds[row[receivers] + 1]
-        delay = self.latency_s + self.jitter_s * self._rng.random(n - 1)
+            chain = self._state[senders[:, None], receivers]
+            lost = draws[:, 0] < self._thresholds[chain + 1]
+        delay = self.latency_s + self.jitter_s * draws[:, 1]
         if self.range_m is None:
             if self._thresholds is not None:
-                row[receivers] = lost
+                self._state[senders[:, None], receivers] = lost
             kept = ~lost
-            dropped = int(np.count_nonzero(lost))
+            self.stats.dropped += int(np.count_nonzero(lost))
         else:
-            in_range = self._in_range(sender_id, receivers)
+            in_range = np.stack([self._in_range(sender_id, receivers[j])
+                                 for j, sender_id in enumerate(sender_ids)])
             if self._thresholds is not None:
                 # Out of range nothing was sent: those chains keep their state.
-                row[receivers[in_range]] = lost[in_range]
+                self._state[senders[:, None], receivers] = np.where(in_range, lost, chain)
             kept = in_range & ~lost
-            self.stats.dropped_range += int(n - 1 - np.count_nonzero(in_range))
-            dropped = int(np.count_nonzero(in_range & lost))
-        self.stats.dropped += dropped
-        count = n - 1 - dropped if self.range_m is None else int(np.count_nonzero(kept))
-        if count == n - 1:
-            self._queue(t_s + delay, receivers, bytes(msg_bytes), count, sender)
-        elif count:
-            self._queue(t_s + delay[kept], receivers[kept], bytes(msg_bytes), count, sender)
+            self.stats.dropped_range += int(b * (n - 1) - np.count_nonzero(in_range))
+            self.stats.dropped += int(np.count_nonzero(in_range & lost))
+        counts = np.count_nonzero(kept, axis=1).tolist()
+        for j, count in enumerate(counts):
+            if count == n - 1:
+                self._queue(t_s + delay[j], receivers[j], bytes(payloads[j]), count,
+                            int(senders[j]))
+            elif count:
+                k = kept[j]
+                self._queue(t_s + delay[j][k], receivers[j][k], bytes(payloads[j]), count,
+                            int(senders[j]))
+
+    def _receivers(self, n: int, sender: int) -> np.ndarray:
+        """(n − 1,) every member but ``sender``, in join order."""
+        out = self._others.get((n, sender))
+        if out is None:
+            out = self._others[(n, sender)] = np.delete(np.arange(n), sender)
+        return out
 
     def _queue(self, at_s: np.ndarray, receivers: np.ndarray, payload: bytes, count: int,
                sender: int | None) -> None:

@@ -71,21 +71,29 @@ class WorldLink:
         #: receiver is never taken.
         self._sent: dict[bytes, PredictionMessage] = {}
 
-    def publish(self, stack: OnboardStack, data: bytes, now: float) -> None:
-        """``stack``'s broadcast ``data`` at world time ``now``."""
-        if now >= self.silent_from_s.get(stack.uav_id, math.inf):
-            self.silenced += 1  # a dead radio: the UAV does not know it
-            return
-        self.link.publish(data, stack.uav_id, now)
-        if stack.last_message is not None:
-            if len(self._sent) >= _MAX_SENT:
-                self._sent.clear()  # only costs decoding those again
-            self._sent[data] = stack.last_message
+    def publish(self, stacks: Sequence[OnboardStack], data: Sequence[bytes],
+                now: float) -> None:
+        """The broadcasts ``data[j]`` of ``stacks[j]`` at world time ``now``, in that order
+        (a tick's, onto the link in one pass)."""
+        silent = self.silent_from_s
+        if silent and any(now >= silent.get(s.uav_id, math.inf) for s in stacks):
+            on = [j for j, s in enumerate(stacks) if now < silent.get(s.uav_id, math.inf)]
+            self.silenced += len(stacks) - len(on)  # dead radios: the UAVs do not know it
+            stacks = [stacks[j] for j in on]
+            data = [data[j] for j in on]
+        self.link.publish_many(data, [s.uav_id for s in stacks], now)
+        sent = self._sent
+        for stack, payload in zip(stacks, data, strict=True):
+            if stack.last_message is not None:
+                if len(sent) >= _MAX_SENT:
+                    sent.clear()  # only costs decoding those again
+                sent[payload] = stack.last_message
         if self.recorder is not None:
-            pred = stack.last_broadcast
-            assert pred is not None  # it has just broadcast
-            self.recorder.prediction(stack.uav_id, now, pred.position_m, pred.heading_rad)
-            self.recorder.link(now, "sent", stack.uav_id, stamp_s=now)
+            for stack in stacks:
+                pred = stack.last_broadcast
+                assert pred is not None  # it has just broadcast
+                self.recorder.prediction(stack.uav_id, now, pred.position_m, pred.heading_rad)
+                self.recorder.link(now, "sent", stack.uav_id, stamp_s=now)
 
     def receive_one(self, i: int, now: float) -> None:
         """Row ``i``'s due datagrams into its stack's inbox (the per-object path)."""

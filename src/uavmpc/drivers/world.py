@@ -775,9 +775,8 @@ class World:
         due = np.flatnonzero(now + self._offsets >= sched.next_broadcast_s - 1e-9)
         if due.size:
             stacks = [self._stacks[i] for i in due.tolist()]
-            for stack, data in zip(stacks, broadcast(self.onboard, stacks,
-                                                     now + self._offsets[due]), strict=True):
-                self.wire.publish(stack, data, now)
+            self.wire.publish(stacks, broadcast(self.onboard, stacks, now + self._offsets[due]),
+                              now)
         # The next tick anyone can be due at (a tick early is harmless).
         self._next_emit_s = float(np.min(sched.next_broadcast_s - self._offsets)) \
             - self.period_s
@@ -814,7 +813,7 @@ class World:
             out = u.stack.tick(now + u.clock_offset_s, state)
             u.plant.step(out.target, self.period_s)
             if out.outgoing is not None:
-                self.wire.publish(u.stack, out.outgoing, now)
+                self.wire.publish((u.stack,), (out.outgoing,), now)
         self.ticker.trace(traces)
 
     # ------------------------------------------------------------------------------ views
