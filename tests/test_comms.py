@@ -313,6 +313,20 @@ def test_a_ticks_broadcasts_at_once_draw_and_deliver_as_one_by_one(loss: float, 
     assert (one.stats.dropped_range > 0) == ranged
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.floats(0.0, 1.0), st.sampled_from([0.25, 0.5, 2.0e9 + 0.07])),
+                max_size=300), st.booleans())
+def test_the_links_delivery_order_is_a_stable_sort(keys: list[float], spread: bool) -> None:
+    """The order a broadcast's copies are queued in (by delivery time, equal times in
+    sending order) is numpy's stable argsort, ties and all."""
+    from uavmpc.comms.link import stable_order
+
+    k = np.array(keys) * (1.0 if spread else 1e-12) + 1.7e9
+    order = np.empty(len(keys), dtype=np.int64)
+    stable_order(k, len(keys), order, np.empty(len(keys) + 1, dtype=np.int64))
+    assert order.tolist() == np.argsort(k, kind="stable").tolist()
+
+
 def test_link_rejects_bad_parameters() -> None:
     for kwargs, match in (({"loss": 1.5}, "loss"), ({"latency_s": -0.1}, "latency_s"),
                           ({"jitter_s": float("nan")}, "jitter_s")):

@@ -26,6 +26,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from uavmpc.avoidance import (
@@ -233,6 +234,20 @@ def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
             pos_out[j, k, 2] -= up
 
 
+@kernel(parallel=True)
+def avoidance_plans_threads(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
+                            consts: TrackerConsts, times_out: np.ndarray, pos_out: np.ndarray,
+                            climbed_out: np.ndarray, blocks: int) -> None:
+    """:func:`avoidance_plans` with the rows in ``blocks`` contiguous blocks, one per thread
+    (each row's outputs are its own: the same for any number)."""
+    r_count = idx.shape[0]
+    nb = max(1, min(r_count, blocks))
+    for b in numba.prange(nb):
+        lo, hi = b * r_count // nb, (b + 1) * r_count // nb
+        avoidance_plans(idx[lo:hi], trk, refs, consts, times_out[lo:hi], pos_out[lo:hi],
+                        climbed_out[lo:hi])
+
+
 class SentRows(NamedTuple):
     """What N stacks broadcast last, one row each (written by :func:`broadcast_rows`).
 
@@ -309,6 +324,26 @@ def broadcast_rows(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
                                   entries, sent.heard[i, :n])
 
 
+@kernel(parallel=True)
+def broadcast_rows_threads(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
+                           consts: TrackerConsts, stamp_s: np.ndarray, avoiding: np.ndarray,
+                           priority: np.ndarray, sigma_m: np.ndarray, counts_heard: np.ndarray,
+                           use_received: np.ndarray, timeout_s: np.ndarray,
+                           silent_hold_s: np.ndarray, rows: InboxRows, store: Store,
+                           entries: np.ndarray, sent: SentRows, out: np.ndarray,
+                           length: np.ndarray, blocks: int) -> None:
+    """:func:`broadcast_rows` with the rows in ``blocks`` contiguous blocks, one per thread:
+    each row's outputs are its own, so the bytes are the same for any number."""
+    r_count = idx.shape[0]
+    nb = max(1, min(r_count, blocks))
+    for b in numba.prange(nb):
+        lo, hi = b * r_count // nb, (b + 1) * r_count // nb
+        broadcast_rows(idx[lo:hi], inbox_row[lo:hi], trk, consts, stamp_s[lo:hi],
+                       avoiding[lo:hi], priority[lo:hi], sigma_m, counts_heard[lo:hi],
+                       use_received[lo:hi], timeout_s[lo:hi], silent_hold_s[lo:hi], rows, store,
+                       entries, sent, out[lo:hi], length[lo:hi])
+
+
 def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
               now_s: np.ndarray) -> list[bytes]:
     """The broadcasts of ``stacks`` (rows of ``batch`` with one inbox table, each due),
@@ -325,13 +360,17 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     out = np.empty((r_count, MAX_MESSAGE_BYTES), dtype=np.uint8)
     length = np.empty(r_count, dtype=np.int64)
     trk = batch.tracker
-    broadcast_rows(np.array([s.row for s in stacks], dtype=np.int64),
-                   np.array([s.inbox.row for s in stacks], dtype=np.int64), trk.rows,
-                   trk.consts, stamp, np.array([s.flag_up for s in stacks]),
-                   np.array([s.priority for s in stacks], dtype=np.int64),
-                   batch.position_sigma_m, params[:, 0] != 0.0, params[:, 1] != 0.0,
-                   params[:, 2].copy(), params[:, 3].copy(), table.rows, table.store,
-                   table.entries, batch.sent, out, length)
+    args = (np.array([s.row for s in stacks], dtype=np.int64),
+            np.array([s.inbox.row for s in stacks], dtype=np.int64), trk.rows, trk.consts,
+            stamp, np.array([s.flag_up for s in stacks]),
+            np.array([s.priority for s in stacks], dtype=np.int64), batch.position_sigma_m,
+            params[:, 0] != 0.0, params[:, 1] != 0.0, params[:, 2].copy(), params[:, 3].copy(),
+            table.rows, table.store, table.entries, batch.sent, out, length)
+    threads = numba.get_num_threads()
+    if threads > 1 and r_count > 1:
+        broadcast_rows_threads(*args, threads)
+    else:
+        broadcast_rows(*args)
     n = length.tolist()
     return [s.sent(float(stamp[j]), out[j, :n[j]].tobytes() if n[j] >= 0 else None)
             for j, s in enumerate(stacks)]
@@ -862,7 +901,12 @@ def avoidance_round(batch: OnboardBatch,
     times = np.empty((due.size, m))
     own = np.empty((due.size, m, 3))
     climbed = np.empty(due.size)
-    avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
+    threads = numba.get_num_threads()
+    if threads > 1 and due.size > 1:
+        avoidance_plans_threads(due, trk.rows, trk.table(), trk.consts, times, own, climbed,
+                                threads)
+    else:
+        avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
     which = due.tolist()
     # A UAV holding short also has its probes found (docs/safety.md, A6): the same receiver
     # row again, once per probe, after the plans of this round.

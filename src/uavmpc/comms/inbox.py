@@ -21,6 +21,7 @@ import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from uavmpc.comms.message import (
@@ -115,7 +116,34 @@ def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
     row's clock ``now_s[receivers[k]]`` ((N,) per row). Each copy is :data:`FUTURE` or
     :data:`STALE` (the stamp check, counted), :data:`OWN` (the receiver's own echo, ignored),
     :data:`SUPERSEDED` (not newer than the one held, counted) or :data:`KEPT` (held from now
-    on). Returns the outcome of the last copy (of the only one, :func:`accept_copy`).
+    on). Returns the outcome of the last copy (of the only one, :func:`accept_copy`)."""
+    return _accept_block(rows, store, receivers, slots, now_s, 0, rows.own_col.shape[0],
+                         store.holders)
+
+
+@kernel(parallel=True)
+def accept_copies_threads(rows: InboxRows, store: Store, receivers: np.ndarray,
+                          slots: np.ndarray, now_s: np.ndarray, blocks: int) -> None:
+    """:func:`accept_copies` with the receivers in ``blocks`` contiguous blocks of rows, one
+    per thread: each thread takes the copies of its rows, in their order, and counts the
+    slots' holders in an array of its own, added up after (integers: the same counts in any
+    order). The same rows and counts for any number of blocks."""
+    n = rows.own_col.shape[0]
+    nb = max(1, min(n, blocks))
+    delta = np.zeros((nb, store.holders.shape[0]), dtype=np.int64)
+    for b in numba.prange(nb):
+        _accept_block(rows, store, receivers, slots, now_s, b * n // nb, (b + 1) * n // nb,
+                      delta[b])
+    for b in range(nb):
+        for c in range(delta.shape[1]):
+            store.holders[c] += delta[b, c]
+
+
+@kernel
+def _accept_block(rows: InboxRows, store: Store, receivers: np.ndarray, slots: np.ndarray,
+                  now_s: np.ndarray, r_lo: int, r_hi: int, holders: np.ndarray) -> int:
+    """:func:`accept_copies` for the copies whose receiver is in rows [``r_lo``, ``r_hi``),
+    the slots' holder counts changed in ``holders`` (C,) (the store's, or a thread's own).
 
     The rule is written in the loop itself rather than called per copy: a compiled call that
     takes the records increments and decrements the reference count of each of their arrays
@@ -124,6 +152,8 @@ def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
     outcome = KEPT
     for k in range(receivers.shape[0]):
         r = receivers[k]
+        if r < r_lo or r >= r_hi:
+            continue
         slot = slots[k]
         t = now_s[r]
         col = store.col[slot]
@@ -147,8 +177,8 @@ def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
             outcome = SUPERSEDED
             continue
         if held >= 0:
-            store.holders[held] -= 1
-        store.holders[slot] += 1
+            holders[held] -= 1
+        holders[slot] += 1
         rows.held_slot[r, col] = slot
         rows.held_stamp_s[r, col] = stamp
         if rows.receive_time[r]:  # otherwise it stays NaN, as the rows start: one

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal, Protocol, runtime_checkable
+from typing import Literal, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -29,6 +29,7 @@ from uavmpc.comms.inbox import (
     accept_copy,
 )
 from uavmpc.comms.message import InvalidMessageError, PredictionMessage
+from uavmpc.jit import kernel
 
 
 @runtime_checkable
@@ -89,6 +90,217 @@ def _burst_thresholds(loss: float, burst_len: float) -> np.ndarray:
                          f"{p:.3g} > 1 (bursts that short cannot lose that much: need "
                          f"burst_len ≥ loss / (1 − loss) = {loss / (1.0 - loss):.3g})")
     return np.array([loss, min(p, 1.0), 1.0 - r])
+
+
+class InFlight(NamedTuple):
+    """The copies a :class:`SimulatedLink` has in flight: one chunk per broadcast, in sending
+    order, each chunk's copies sorted by (delivery time, sequence number) — the order a heap
+    per receiver would give. Grown as needed.
+
+    Attributes:
+        at_s: (Q,) when each copy is due [s]; seq: (Q,) int64 its sequence number (ties of
+            equal times go in sending order); receiver: (Q,) int64 its receiver's member index
+            (−1: taken by :meth:`SimulatedLink.receive` already).
+        pos, end: (C,) int64 a chunk's copies not yet delivered are [pos, end); sender: (C,)
+            int64 its sender (−1: bytes injected); payload: (C,) int64 its payload id; taken:
+            (C,) bool some of its copies were taken by ``receive``.
+    """
+
+    at_s: np.ndarray
+    seq: np.ndarray
+    receiver: np.ndarray
+    pos: np.ndarray
+    end: np.ndarray
+    sender: np.ndarray
+    payload: np.ndarray
+    taken: np.ndarray
+
+    @classmethod
+    def empty(cls, copies: int, chunks: int) -> InFlight:
+        return cls(np.zeros(copies), np.zeros(copies, dtype=np.int64),
+                   np.zeros(copies, dtype=np.int64), np.zeros(chunks, dtype=np.int64),
+                   np.zeros(chunks, dtype=np.int64), np.zeros(chunks, dtype=np.int64),
+                   np.zeros(chunks, dtype=np.int64), np.zeros(chunks, dtype=np.bool_))
+
+
+@kernel
+def stable_order(keys: np.ndarray, n: int, order: np.ndarray, bucket: np.ndarray) -> None:
+    """``order[:n]``: the indices of ``keys[:n]`` in ascending order, equal keys in index
+    order (``np.argsort(keys[:n], kind="stable")``), in expected linear time for keys spread
+    like a link's delivery times: a bucket per key by where it lies between the smallest and
+    the largest (monotone in the key, so equal keys share a bucket), filled in index order,
+    each bucket then sorted by insertion. ``bucket`` (n + 1,) int64: work."""
+    if n == 0:
+        return
+    lo = hi = keys[0]
+    for i in range(1, n):
+        lo = min(lo, keys[i])
+        hi = max(hi, keys[i])
+    if not hi > lo:  # all equal (or not finite): index order
+        for i in range(n):
+            order[i] = i
+        return
+    scale = n / (hi - lo)
+    bucket[:] = 0
+    for i in range(n):
+        bucket[min(int((keys[i] - lo) * scale), n - 1) + 1] += 1
+    for b in range(n):
+        bucket[b + 1] += bucket[b]
+    for i in range(n):  # bucket[b]: where bucket b's next index goes
+        b = min(int((keys[i] - lo) * scale), n - 1)
+        order[bucket[b]] = i
+        bucket[b] += 1
+    for i in range(1, n):  # insertion: moves only within a bucket, never past an equal key
+        cur = order[i]
+        j = i - 1
+        while j >= 0 and keys[order[j]] > keys[cur]:
+            order[j + 1] = order[j]
+            j -= 1
+        order[j + 1] = cur
+
+
+@kernel(allocates=True)
+def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders: np.ndarray,
+                 loss: float, thresholds: np.ndarray, burst: bool, state: np.ndarray,
+                 in_range: np.ndarray, ranged: bool, latency_s: float, jitter_s: float,
+                 t_s: float, first_pid: int, first_seq: int, pids: np.ndarray,
+                 counts: np.ndarray) -> tuple[int, int, int, int]:
+    """The copies of broadcasts from ``senders`` (B,) at ``t_s`` onto the queue, a chunk
+    each after its ``chunks`` chunks and ``used`` copies (room for B × (n − 1) more): for
+    broadcast j and the k-th other member r in join order, the draws ``draws[j, 0, k]`` (lost
+    below ``loss``, or with ``burst`` below ``thresholds[state[s, r] + 1]``, the pair's
+    chain then stepping if r is in range) and ``draws[j, 1, k]`` (the delay ``latency_s +
+    jitter_s`` × draw); with ``ranged``, ``in_range[j, k]`` says whether r is in range. A
+    broadcast with copies gets the next payload id from ``first_pid`` on in ``pids[j]`` (−1
+    without), its copies' count in ``counts[j]``, and sequence numbers from ``first_seq`` on
+    in receiver order. Returns (chunks, used, copies lost, copies out of range)."""
+    n1 = draws.shape[2]
+    at = np.empty(n1)
+    rcv = np.empty(n1, dtype=np.int64)
+    order = np.empty(n1, dtype=np.int64)
+    bucket = np.empty(n1 + 1, dtype=np.int64)
+    seq = first_seq
+    pid = first_pid
+    lost_n = 0
+    out_n = 0
+    for j in range(senders.shape[0]):
+        s = senders[j]
+        c = 0
+        for k in range(n1):
+            r = k if k < s else k + 1
+            lost = draws[j, 0, k] < (thresholds[state[s, r] + 1] if burst else loss)
+            near = in_range[j, k] if ranged else True
+            if burst and near:  # out of range nothing was sent: the chain keeps its state
+                state[s, r] = 1 if lost else 0
+            if not near:
+                out_n += 1
+            elif lost:
+                lost_n += 1
+            else:
+                at[c] = t_s + (latency_s + jitter_s * draws[j, 1, k])
+                rcv[c] = r
+                c += 1
+        counts[j] = c
+        if c == 0:
+            pids[j] = -1
+            continue
+        stable_order(at, c, order, bucket)  # equal times in sending order
+        for i in range(c):
+            q.at_s[used + i] = at[order[i]]
+            q.seq[used + i] = seq + order[i]
+            q.receiver[used + i] = rcv[order[i]]
+        q.pos[chunks] = used
+        q.end[chunks] = used + c
+        q.sender[chunks] = s
+        q.payload[chunks] = pid
+        q.taken[chunks] = False
+        pids[j] = pid
+        pid += 1
+        seq += c
+        used += c
+        chunks += 1
+    return chunks, used, lost_n, out_n
+
+
+@kernel
+def take_copies(q: InFlight, chunks: int, t_s: float, seen: np.ndarray, rcv_out: np.ndarray,
+                pid_out: np.ndarray, at_out: np.ndarray, seq_out: np.ndarray
+                ) -> tuple[int, bool]:
+    """Every copy due by ``t_s`` and not taken by ``receive``, out of the first ``chunks``
+    chunks in sending order: its receiver, payload id, time and sequence number into the
+    outputs. Returns (how many, whether they are in delivery order already: no two of their
+    chunks from one sender, none injected). ``seen`` (members,): all False, left so."""
+    n = 0
+    ordered = True
+    for c in range(chunks):
+        pos, end = q.pos[c], q.end[c]
+        if pos >= end or q.at_s[pos] > t_s:
+            continue
+        stop = pos
+        while stop < end and q.at_s[stop] <= t_s:
+            if q.receiver[stop] >= 0:
+                rcv_out[n] = q.receiver[stop]
+                pid_out[n] = q.payload[c]
+                at_out[n] = q.at_s[stop]
+                seq_out[n] = q.seq[stop]
+                n += 1
+            stop += 1
+        q.pos[c] = stop
+        s = q.sender[c]
+        if s < 0 or seen[s]:
+            ordered = False
+        else:
+            seen[s] = True
+    for c in range(chunks):
+        if q.sender[c] >= 0:
+            seen[q.sender[c]] = False
+    return n, ordered
+
+
+@kernel
+def sweep_copies(q: InFlight, chunks: int) -> tuple[int, float]:
+    """Forget the chunks delivered in full (the others keep their order); returns (chunks
+    left, the earliest time one of their copies is due: inf without)."""
+    live = 0
+    nxt = math.inf
+    for c in range(chunks):
+        pos, end = q.pos[c], q.end[c]
+        while pos < end and q.receiver[pos] < 0:
+            pos += 1
+        if pos >= end:
+            continue
+        nxt = min(nxt, q.at_s[pos])
+        q.pos[live] = pos
+        q.end[live] = end
+        q.sender[live] = q.sender[c]
+        q.payload[live] = q.payload[c]
+        q.taken[live] = q.taken[c]
+        live += 1
+    return live, nxt
+
+
+@kernel
+def move_copies(q: InFlight, chunks: int, into: InFlight) -> int:
+    """The first ``chunks`` chunks' undelivered copies, in order, to the front of ``into``
+    (at least as large); returns how many copies it then holds."""
+    used = 0
+    for c in range(chunks):
+        into.pos[c] = used
+        for i in range(q.pos[c], q.end[c]):
+            into.at_s[used] = q.at_s[i]
+            into.seq[used] = q.seq[i]
+            into.receiver[used] = q.receiver[i]
+            used += 1
+        into.end[c] = used
+        into.sender[c] = q.sender[c]
+        into.payload[c] = q.payload[c]
+        into.taken[c] = q.taken[c]
+    return used
+
+
+#: Arguments of :func:`queue_copies` without a range or bursts.
+_NO_RANGE = np.zeros((0, 0), dtype=np.bool_)
+_NO_THRESHOLDS = np.zeros(3)
 
 
 class SimulatedLink:
@@ -170,19 +382,18 @@ class SimulatedLink:
         self.stats = LinkStats()
         self._rng = np.random.default_rng(seed)
         self._members: dict[str, int] = {}
-        # Copies in flight, one chunk per broadcast: [sender or None (injected), payload id,
-        # delivery times, sequence numbers, receiver indices, next undelivered, some taken by
-        # receive()], each sorted by (time, sequence number) — the order a heap per receiver
-        # would give.
-        self._chunks: list[list] = []
-        self._others: dict[tuple[int, int], np.ndarray] = {}  # receivers of a sender
+        #: The copies in flight (its first ``_chunks`` chunks and ``_used`` copies).
+        self._q = InFlight.empty(256, 16)
+        self._chunks = 0
+        self._used = 0
+        self._seen = np.zeros(0, dtype=np.bool_)  # take_copies' scratch, one per member
         self._payloads: dict[int, bytes] = {}
         self._copies_left: dict[int, int] = {}
         self._next_payload = 0
         self._seq = 0  # FIFO tie-break for equal delivery times
         # Burst model: the state of each pair's chain, [sender, receiver]: −1 no copy yet, 0
         # Good, 1 Bad. Capacity doubles as members join (a 1000-UAV swarm joins one by one).
-        self._state = np.full((0, 0), -1, dtype=np.int8)
+        self._state = np.full((1, 1), -1, dtype=np.int8)
         #: No copy is due before this time (a lower bound).
         self.next_due_s = math.inf
         for uav_id in members:
@@ -229,58 +440,71 @@ class SimulatedLink:
         if n == 1 or b == 0:
             return
         senders = np.array([self._members[s] for s in sender_ids], dtype=np.int64)
-        receivers = np.stack([self._receivers(n, int(s)) for s in senders.tolist()])
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order. Per
         # broadcast: n − 1 uniforms for the loss, then n − 1 for the jitter.
         draws = self._rng.random(2 * b * (n - 1)).reshape(b, 2, n - 1)
-        if self._thresholds is None:
-            lost = draws[:, 0] < self.loss
-        else:
-            chain = self._state[senders[:, None], receivers]
-            lost = draws[:, 0] < self._thresholds[chain + 1]
-        delay = self.latency_s + self.jitter_s * draws[:, 1]
-        if self.range_m is None:
-            if self._thresholds is not None:
-                self._state[senders[:, None], receivers] = lost
-            kept = ~lost
-            self.stats.dropped += int(np.count_nonzero(lost))
-        else:
-            in_range = np.stack([self._in_range(sender_id, receivers[j])
-                                 for j, sender_id in enumerate(sender_ids)])
-            if self._thresholds is not None:
-                # Out of range nothing was sent: those chains keep their state.
-                self._state[senders[:, None], receivers] = np.where(in_range, lost, chain)
-            kept = in_range & ~lost
-            self.stats.dropped_range += int(b * (n - 1) - np.count_nonzero(in_range))
-            self.stats.dropped += int(np.count_nonzero(in_range & lost))
-        counts = np.count_nonzero(kept, axis=1).tolist()
-        for j, count in enumerate(counts):
-            if count == n - 1:
-                self._queue(t_s + delay[j], receivers[j], bytes(payloads[j]), count,
-                            int(senders[j]))
-            elif count:
-                k = kept[j]
-                self._queue(t_s + delay[j][k], receivers[j][k], bytes(payloads[j]), count,
-                            int(senders[j]))
+        ranged = self.range_m is not None
+        in_range = (np.stack([self._in_range(sender_id, np.delete(np.arange(n), s))
+                              for sender_id, s in zip(sender_ids, senders.tolist(),
+                                                      strict=True)])
+                    if ranged else _NO_RANGE)
+        self._room(b * (n - 1), b)
+        pids = np.empty(b, dtype=np.int64)
+        counts = np.empty(b, dtype=np.int64)
+        burst = self._thresholds is not None
+        self._chunks, used, lost, out = queue_copies(
+            self._q, self._chunks, self._used, draws, senders, self.loss,
+            self._thresholds if self._thresholds is not None else _NO_THRESHOLDS, burst,
+            self._state, in_range, ranged, self.latency_s, self.jitter_s, float(t_s),
+            self._next_payload, self._seq, pids, counts)
+        self.stats.dropped += lost
+        self.stats.dropped_range += out
+        if used > self._used:
+            self.next_due_s = min(self.next_due_s, float(self._q.at_s[self._used:used].min()))
+        self._seq += used - self._used
+        self._used = used
+        for j, (pid, count) in enumerate(zip(pids.tolist(), counts.tolist(), strict=True)):
+            if pid >= 0:
+                self._payloads[pid] = bytes(payloads[j])
+                self._copies_left[pid] = count
+                self._next_payload = pid + 1
 
-    def _receivers(self, n: int, sender: int) -> np.ndarray:
-        """(n − 1,) every member but ``sender``, in join order."""
-        out = self._others.get((n, sender))
-        if out is None:
-            out = self._others[(n, sender)] = np.delete(np.arange(n), sender)
-        return out
+    def _room(self, copies: int, chunks: int) -> None:
+        """Room in the queue for ``copies`` more copies in ``chunks`` more chunks: the
+        undelivered ones moved to the front of arrays large enough when there is not."""
+        q = self._q
+        if (self._used + copies <= q.at_s.shape[0]
+                and self._chunks + chunks <= q.pos.shape[0]):
+            return
+        left = int(np.sum(q.end[:self._chunks] - q.pos[:self._chunks]))
+        # Four times what is needed: moved again only after a few more ticks' copies.
+        into = InFlight.empty(max(q.at_s.shape[0], 4 * (left + copies)),
+                              max(q.pos.shape[0], 4 * (self._chunks + chunks)))
+        self._used = move_copies(q, self._chunks, into)
+        self._q = into
 
     def _queue(self, at_s: np.ndarray, receivers: np.ndarray, payload: bytes, count: int,
                sender: int | None) -> None:
+        """One chunk of ``count`` copies (due at ``at_s``, to ``receivers``, in sending
+        order) of a new payload."""
+        self._room(count, 1)
         pid = self._next_payload
         self._next_payload += 1
         self._payloads[pid] = payload
         self._copies_left[pid] = count
-        seq = np.arange(self._seq, self._seq + count, dtype=np.int64)
-        self._seq += count
         order = np.argsort(at_s, kind="stable")  # equal times keep the sending order
-        self._chunks.append([sender, pid, at_s[order], seq[order], receivers[order], 0, False])
+        q, c, u = self._q, self._chunks, self._used
+        q.at_s[u:u + count] = at_s[order]
+        q.seq[u:u + count] = self._seq + order
+        q.receiver[u:u + count] = receivers[order]
+        q.pos[c], q.end[c] = u, u + count
+        q.sender[c] = -1 if sender is None else sender
+        q.payload[c] = pid
+        q.taken[c] = False
+        self._seq += count
+        self._chunks += 1
+        self._used += count
         self.next_due_s = min(self.next_due_s, float(at_s[order[0]]))
 
     def inject(self, receiver_id: str, msg_bytes: bytes, at_s: float) -> None:
@@ -297,14 +521,16 @@ class SimulatedLink:
             return []
         r = self._members[receiver_id]
         due: list[tuple[float, int, int]] = []
-        for chunk in self._chunks:
-            at, seq, rcv, pos = chunk[2], chunk[3], chunk[4], chunk[5]
-            end = int(np.searchsorted(at, t_s, side="right"))
-            mine = np.flatnonzero(rcv[pos:end] == r) + pos
+        q = self._q
+        for c in range(self._chunks):
+            pos, end = int(q.pos[c]), int(q.end[c])
+            stop = pos + int(np.searchsorted(q.at_s[pos:end], t_s, side="right"))
+            mine = np.flatnonzero(q.receiver[pos:stop] == r) + pos
             if mine.size:
-                due.extend((float(at[k]), int(seq[k]), chunk[1]) for k in mine.tolist())
-                rcv[mine] = -1  # delivered: a receiver index no one has
-                chunk[6] = True
+                pid = int(q.payload[c])
+                due.extend((float(q.at_s[k]), int(q.seq[k]), pid) for k in mine.tolist())
+                q.receiver[mine] = -1  # delivered: a receiver index no one has
+                q.taken[c] = True
         due.sort()
         self._drop_delivered()
         self.stats.delivered += len(due)
@@ -322,49 +548,36 @@ class SimulatedLink:
         copies of it are in flight or just taken; :meth:`release` drops them once read."""
         if t_s < self.next_due_s:
             return None
-        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        senders: set[int | None] = set()
-        ordered = True
-        for chunk in self._chunks:
-            at, pos = chunk[2], chunk[5]
-            if pos >= at.shape[0] or at[pos] > t_s:
-                continue
-            end = int(np.searchsorted(at, t_s, side="right"))
-            rcv = chunk[4][pos:end]
-            if chunk[6]:  # some copies were taken by receive() already
-                keep = rcv >= 0
-                parts.append((at[pos:end][keep], chunk[3][pos:end][keep], rcv[keep],
-                              np.full(int(keep.sum()), chunk[1], dtype=np.int64)))
-            else:
-                parts.append((at[pos:end], chunk[3][pos:end], rcv,
-                              np.full(end - pos, chunk[1], dtype=np.int64)))
-            chunk[5] = end
+        if self._seen.shape[0] < len(self._members):
+            self._seen = np.zeros(len(self._members), dtype=np.bool_)
+        u = self._used
+        rcv, pay = np.empty(u, dtype=np.int64), np.empty(u, dtype=np.int64)
+        at, seq = np.empty(u), np.empty(u, dtype=np.int64)
+        k, ordered = take_copies(self._q, self._chunks, float(t_s), self._seen, rcv, pay, at,
+                                 seq)
+        self._drop_delivered()
+        if not k:
+            return None
+        rcv, pay = rcv[:k], pay[:k]
+        if not ordered:
             # Two due broadcasts of one sender (or injected bytes, whose sender is unknown):
             # their copies must keep the delivery order between them.
-            if chunk[0] is None or chunk[0] in senders:
-                ordered = False
-            senders.add(chunk[0])
-        self._drop_delivered()
-        if not parts:
-            return None
-        if len(parts) == 1:
-            _, _, rcv, pay = parts[0]
-        else:
-            at, seq, rcv, pay = (np.concatenate([p[j] for p in parts]) for j in range(4))
-            if not ordered:
-                order = np.lexsort((seq, at))
-                rcv, pay = rcv[order], pay[order]
-        self.stats.delivered += int(rcv.size)
-        return (rcv, pay) if rcv.size else None
+            order = np.lexsort((seq[:k], at[:k]))
+            rcv, pay = rcv[order], pay[order]
+        self.stats.delivered += k
+        return rcv, pay
 
     def payload(self, pid: int) -> bytes:
         """The bytes of payload ``pid`` (see :meth:`take_due`)."""
         return self._payloads[int(pid)]
 
-    def release(self, payload_ids: np.ndarray) -> None:
-        """The copies of ``payload_ids`` (one entry per copy) were read: forget their bytes
-        after the last one."""
-        if payload_ids.shape[0] > 16:
+    def release(self, payload_ids: np.ndarray, copies: np.ndarray | None = None) -> None:
+        """The copies of ``payload_ids`` were read: forget their bytes after the last one.
+        ``payload_ids``: one entry per copy, or, with ``copies``, distinct ids and how many
+        copies of each."""
+        if copies is not None:
+            counts = dict(zip(payload_ids.tolist(), copies.tolist(), strict=True))
+        elif payload_ids.shape[0] > 16:
             ids, n = np.unique(payload_ids, return_counts=True)
             counts = dict(zip(ids.tolist(), n.tolist(), strict=True))
         else:
@@ -381,19 +594,7 @@ class SimulatedLink:
 
     def _drop_delivered(self) -> None:
         """Forget the chunks delivered in full; the next due time."""
-        live = []
-        nxt = math.inf
-        for chunk in self._chunks:
-            at, rcv = chunk[2], chunk[4]
-            pos = chunk[5]
-            while pos < at.shape[0] and rcv[pos] < 0:
-                pos += 1
-            chunk[5] = pos
-            if pos < at.shape[0]:
-                live.append(chunk)
-                nxt = min(nxt, float(at[pos]))
-        self._chunks = live
-        self.next_due_s = nxt
+        self._chunks, self.next_due_s = sweep_copies(self._q, self._chunks)
 
     def _in_range(self, sender_id: str, receivers: np.ndarray) -> np.ndarray:
         if self.range_m is None or self.position_of is None:

@@ -8,9 +8,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
-from uavmpc.comms.inbox import InboxTable, accept_copies
+from uavmpc.comms.inbox import InboxTable, accept_copies, accept_copies_threads
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.comms.message import InvalidMessageError, PredictionMessage
 from uavmpc.log import FlightRecorder
@@ -20,6 +21,9 @@ from uavmpc.onboard import OnboardStack
 _MAX_SENT = 4096
 #: Fewer copies than this in a tick are sorted to find their broadcasts (cheaper than a table).
 _FEW_COPIES = 64
+#: A tick's copies are taken into the inbox rows on every thread from this many on (fewer
+#: are not worth waking the threads; the rows come out the same either way).
+_THREADED_COPIES = 256
 
 
 def distinct_payloads(payloads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +132,7 @@ class WorldLink:
             except InvalidMessageError as exc:
                 slots[j] = -1
                 errors[pid] = str(exc)
-        self.link.release(payloads)
+        self.link.release(pids, np.bincount(at, minlength=pids.shape[0]))
         copy_slots = slots[at]
         good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
         if errors:
@@ -137,13 +141,15 @@ class WorldLink:
         rec = self.recorder
         if rec is not None:
             before = table.rows.accepted.copy()
+        to, into = ((receivers, copy_slots) if good.all()
+                    else (receivers[good], copy_slots[good]))
         try:
-            if good.all():
-                accept_copies(table.rows, table.store, receivers, copy_slots,
-                              now + self.offsets_s)
+            threads = numba.get_num_threads()
+            if threads > 1 and to.shape[0] >= _THREADED_COPIES:
+                accept_copies_threads(table.rows, table.store, to, into, now + self.offsets_s,
+                                      threads)
             else:
-                accept_copies(table.rows, table.store, receivers[good], copy_slots[good],
-                              now + self.offsets_s)
+                accept_copies(table.rows, table.store, to, into, now + self.offsets_s)
         finally:
             table.unpin()
         if rec is not None:
