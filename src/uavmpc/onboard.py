@@ -36,7 +36,7 @@ from uavmpc.avoidance import (
     ResolutionStrategy,
 )
 from uavmpc.avoidance.encounters import EncounterFinder, Encounters, heard_columns
-from uavmpc.avoidance.strategy import HOLD_SPEED_MPS
+from uavmpc.avoidance.strategy import CALM, HOLD_SPEED_MPS
 from uavmpc.comms.auth import Identity, Roster, seal, sign
 from uavmpc.comms.inbox import InboxRows, InboxTable, Store
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
@@ -353,6 +353,7 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     r_count = len(stacks)
     table = stacks[0].inbox.table
     finders = [s.heard_finder for s in stacks]
+    flags = [s.flag_up for s in stacks]
     # Per row: whether it lists whom it heard, and its finder's parameters.
     params = np.array([(True, f.use_received, f.timeout_s, f.silent_hold_s) if f is not None
                        else (False, False, 0.0, 0.0) for f in finders], dtype=float)
@@ -362,7 +363,7 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     trk = batch.tracker
     args = (np.array([s.row for s in stacks], dtype=np.int64),
             np.array([s.inbox.row for s in stacks], dtype=np.int64), trk.rows, trk.consts,
-            stamp, np.array([s.flag_up for s in stacks]),
+            stamp, np.array(flags),
             np.array([s.priority for s in stacks], dtype=np.int64), batch.position_sigma_m,
             params[:, 0] != 0.0, params[:, 1] != 0.0, params[:, 2].copy(), params[:, 3].copy(),
             table.rows, table.store, table.entries, batch.sent, out, length)
@@ -372,8 +373,8 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     else:
         broadcast_rows(*args)
     n = length.tolist()
-    return [s.sent(float(stamp[j]), out[j, :n[j]].tobytes() if n[j] >= 0 else None)
-            for j, s in enumerate(stacks)]
+    return [s.sent(now, out[j, :n[j]].tobytes() if n[j] >= 0 else None, up)
+            for j, (s, now, up) in enumerate(zip(stacks, stamp.tolist(), flags, strict=True))]
 
 
 class Schedule(NamedTuple):
@@ -678,6 +679,16 @@ class OnboardStack:
                                         climbed_m=climbed_m, positions=positions_m,
                                         probes=probes))
 
+    def rest(self, plan_s: float) -> bool:
+        """Its avoidance round at ``plan_s`` when nobody is near or silent: if its strategy
+        has nothing left to do (:meth:`~uavmpc.avoidance.EncounterStrategy.rest`), steered by
+        the calm decision and True; else False, nothing done (:meth:`decide` must run)."""
+        assert self._decider is not None, "rest: the stack's strategy takes encounters"
+        if not self._decider.rest(plan_s):
+            return False
+        self.apply(CALM)
+        return True
+
     def hold_probes(self, plan_s: float, times_s: np.ndarray, here_m: np.ndarray
                     ) -> np.ndarray | None:
         """While its strategy holds short: (D, m, 3) the plans it would fly going on now or
@@ -734,24 +745,25 @@ class OnboardStack:
         messages list (docs/safety.md, A2), or None: it lists nobody."""
         return self._finder
 
-    def sent(self, now_s: float, data: bytes | None) -> bytes:
-        """Its broadcast at ``now_s`` (:func:`broadcast`): ``data``, the bytes written from
-        its row of :attr:`OnboardBatch.sent`, or None to build the message the checked way
-        (raises :class:`~uavmpc.comms.message.InvalidMessageError` naming what is wrong).
-        Returns the bytes to send (signed or sealed with its key or identity)."""
+    def sent(self, now_s: float, data: bytes | None, avoiding: bool) -> bytes:
+        """Its broadcast at ``now_s`` (:func:`broadcast`) with the flag ``avoiding``
+        (:attr:`flag_up`): ``data``, the bytes written from its row of
+        :attr:`OnboardBatch.sent`, or None to build the message the checked way (raises
+        :class:`~uavmpc.comms.message.InvalidMessageError` naming what is wrong). Returns the
+        bytes to send (signed or sealed with its key or identity)."""
         sched = self.batch.schedule
         sched.next_broadcast_s[self.row] += self.broadcast_period_s
         msg: PredictionMessage | None = None
         if data is None:  # raises, naming the field the compiled checks stopped at
             msg = from_prediction(self.prediction(), uav_id=self.uav_id,
-                                  priority=self.priority, stamp_s=now_s, avoiding=self.flag_up,
+                                  priority=self.priority, stamp_s=now_s, avoiding=avoiding,
                                   heard=self.heard, position_sigma_m=self.position_sigma_m)
             data = encode(msg)
         elif self.key is None and self.identity is None:
             sent = self.batch.sent
             i = self.row
             msg = unchecked(self.uav_id, int(self.priority), now_s, sent.times_s[i].copy(),
-                            sent.plan[i, :3, :, 0].T.copy(), self.flag_up, self.heard,
+                            sent.plan[i, :3, :, 0].T.copy(), avoiding, self.heard,
                             self.position_sigma_m)
         self.last_message = msg if self.key is None and self.identity is None else None
         if self.key is not None:
@@ -931,6 +943,9 @@ def avoidance_round(batch: OnboardBatch,
         probes[j] = found[k:k + p.shape[0]]
         k += p.shape[0]
     for j, i in enumerate(which):
-        stacks[i].decide(float(plan_s[j]), times[j], found[j], float(climbed[j]), own[j],
+        f = found[j]
+        if not f.ids and not f.silent and stacks[i].rest(float(plan_s[j])):
+            continue  # nobody near, nothing to do: most UAVs, most rounds
+        stacks[i].decide(float(plan_s[j]), times[j], f, float(climbed[j]), own[j],
                          probes.get(j))
     return due

@@ -322,6 +322,12 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
         else None."""
         ...
 
+    def rest(self, now_s: float) -> bool:
+        """A round at ``now_s`` with nobody near and nobody silent, when the strategy has
+        nothing left to do: noted as :meth:`decide` would note it, and True (the decision
+        is :data:`CALM`); else False and nothing changes (:meth:`decide` must run)."""
+        ...
+
     def decide(self, now_s: float, own_id: str, own_priority: int,
                own_prediction_times: np.ndarray, known: Encounters,
                climbed_m: float | None = None, *, positions: np.ndarray | None = None,
@@ -353,6 +359,11 @@ def _standing_still(positions: np.ndarray | None) -> bool:
         return False
     d = positions[:, :2] - positions[0, :2]
     return bool(np.max(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) <= STANDING_M * STANDING_M)
+
+
+def _named(ids: tuple[str, ...], which: np.ndarray) -> tuple[str, ...]:
+    """The ids whose entry of ``which`` (k,) is set."""
+    return tuple(i for i, h in zip(ids, which.tolist(), strict=True) if h)
 
 
 def _half(enc: Encounters, half_height_m: float) -> np.ndarray:
@@ -540,24 +551,28 @@ class HeightOffsetStrategy:
         deaf, unheard = self._deaf(now_s, enc)
         must_yield = must_yield | deaf | unheard
 
-        c_start = _conflicts(enc, self.z_offset_m, half_h)  # (k, m)
+        z_start = self.z_offset_m
+        c_start = _conflicts(enc, z_start, half_h)  # (k, m)
         hit_start = c_start.any(axis=1)
+        any_start = bool(hit_start.any())
         yield_hit = hit_start & must_yield
         ceiling_hit = False
         waiting_for: tuple[str, ...] = ()
-        if yield_hit.any():
+        if any_start and yield_hit.any():
             # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
             # another climbed into its layer. A new offset must be clear of the silent ones too.
             self.z_offset_m, ceiling_hit, waiting_for = self._climb(
                 enc, must_yield, half_h, times - now_s,
                 self.z_offset_m if climbed_m is None else min(climbed_m, self.z_offset_m))
-        c_end = _conflicts(enc, self.z_offset_m, half_h)
+        c_end = c_start if self.z_offset_m == z_start else _conflicts(enc, self.z_offset_m,
+                                                                        half_h)
         unresolved = c_end.any(axis=1) & must_yield
+        any_unresolved = bool(unresolved.any())
         # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
         # in force, and none anywhere on the way down to 0 either. Climbing over a UAV removes
         # the conflict but not the reason for the offset; without this, the offset would be
         # released on top of it and re-raised as soon as the conflict reappeared.
-        if hit_start.any() or c_end.any() or _below(enc, self.z_offset_m, half_h).any():
+        if any_start or c_end.any() or _below(enc, self.z_offset_m, half_h).any():
             self._last_conflict_s = now_s
         else:
             # Found in the 24 h campaign with 30 % loss: a UAV that had not heard from another
@@ -568,7 +583,7 @@ class HeightOffsetStrategy:
         self._last_update_s = now_s
 
         deaf_ids = tuple(i for i, d in zip(enc.ids, deaf, strict=True) if d)
-        holding = self._hold_short(bool(unresolved.any()), times, positions,
+        holding = self._hold_short(any_unresolved, times, positions,
                                    probes, own_id, own_priority, deaf_ids, unheard)
         # Stuck (docs/safety.md, A6): a hold is a stop within our plan, so that the one we
         # yield to passes ahead of us. When our plan stands still and one we yield to comes
@@ -581,22 +596,27 @@ class HeightOffsetStrategy:
         # once: UAVs hovering at their starts, in each other's wide cylinders, all stuck).
         # Once stuck, until that conflict is resolved (a hold's rounds alternate between the
         # standing plan and the probes' one).
-        by_rank = (unresolved & known.avoiding & ~deaf & (not unheard)
-                   & known.outrank(own_id, own_priority))
-        coming = by_rank & ~c_end[:, 0]  # not in conflict now: it comes to us
-        self._stuck = bool(by_rank.any()) and (
-            self._stuck or (bool(coming.any()) and _standing_still(positions)))
+        if any_unresolved:
+            by_rank = (unresolved & known.avoiding & ~deaf & (not unheard)
+                       & known.outrank(own_id, own_priority))
+            coming = by_rank & ~c_end[:, 0]  # not in conflict now: it comes to us
+            self._stuck = bool(by_rank.any()) and (
+                self._stuck or (bool(coming.any()) and _standing_still(positions)))
+        else:
+            self._stuck = False
         recent = (self._last_conflict_s is not None
                   and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-        limits_tight = bool(hit_start.any() or c_end.any() or recent or holding)
-        first = np.flatnonzero(c_start.any(axis=0))
+        limits_tight = bool(any_start or c_end.any() or recent or holding)
+        first_s = None
+        if any_start:
+            first_s = float(times[np.flatnonzero(c_start.any(axis=0))[0]] - now_s)
         return AvoidanceDecision(
             z_offset_m=self.z_offset_m,
             avoiding=limits_tight or self.z_offset_m > 0.0,
-            conflicts=tuple(i for i, h in zip(enc.ids, hit_start, strict=True) if h),
-            yielding_to=tuple(i for i, h in zip(enc.ids, yield_hit, strict=True) if h),
-            unresolved=tuple(i for i, h in zip(enc.ids, unresolved, strict=True) if h),
-            first_conflict_s=float(times[first[0]] - now_s) if first.size else None,
+            conflicts=_named(enc.ids, hit_start) if any_start else (),
+            yielding_to=_named(enc.ids, yield_hit) if any_start else (),
+            unresolved=_named(enc.ids, unresolved) if any_unresolved else (),
+            first_conflict_s=first_s,
             horizontal_scale=prm.horizontal_scale if limits_tight else 1.0,
             climb_speed_mps=prm.climb_speed_mps if limits_tight else None,
             climb_accel_mps2=prm.climb_accel_mps2 if limits_tight else None,
@@ -614,6 +634,8 @@ class HeightOffsetStrategy:
                      own_id: str, own_priority: int) -> AvoidanceDecision:
         """Nobody near: no conflict now, none on the way down; only the release runs (and a
         hold goes on until its probes clear)."""
+        if not known.silent and self.rest(now_s):
+            return CALM  # most UAVs, most rounds (a decision costs µs to build)
         prm = self.params
         self._unlisted_since = {}
         self._release(now_s)
@@ -623,14 +645,25 @@ class HeightOffsetStrategy:
         self._stuck = False  # nobody near: no conflict
         recent = holding or (self._last_conflict_s is not None
                              and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-        if not recent and self.z_offset_m == 0.0 and not known.silent:
-            return CALM  # most UAVs, most rounds (a decision costs µs to build)
         return AvoidanceDecision(
             z_offset_m=self.z_offset_m, avoiding=recent or self.z_offset_m > 0.0,
             horizontal_scale=prm.horizontal_scale if recent else 1.0,
             climb_speed_mps=prm.climb_speed_mps if recent else None,
             climb_accel_mps2=prm.climb_accel_mps2 if recent else None,
             silent=known.silent, holding=holding)
+
+    def rest(self, now_s: float) -> bool:
+        """(The contract's :meth:`EncounterStrategy.rest`.) At rest: no offset, no hold,
+        no conflict within ``release_hysteresis_s``. A round with nobody near then releases
+        nothing and starts no hold: it forgets who had not listed us and is noted."""
+        if (self.z_offset_m != 0.0 or self._hold_plan is not None
+                or (self._last_conflict_s is not None
+                    and now_s - self._last_conflict_s < self.params.release_hysteresis_s)):
+            return False
+        self._unlisted_since = {}
+        self._stuck = False
+        self._last_update_s = now_s
+        return True
 
     def _hold_short(self, start: bool, times: np.ndarray, positions: np.ndarray | None,
                     probes: list[Encounters] | None, own_id: str, own_priority: int,

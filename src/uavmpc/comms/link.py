@@ -117,10 +117,12 @@ class InFlight(NamedTuple):
 
     @classmethod
     def empty(cls, copies: int, chunks: int) -> InFlight:
-        return cls(np.zeros(copies), np.zeros(copies, dtype=np.int64),
-                   np.zeros(copies, dtype=np.int64), np.zeros(chunks, dtype=np.int64),
-                   np.zeros(chunks, dtype=np.int64), np.zeros(chunks, dtype=np.int64),
-                   np.zeros(chunks, dtype=np.int64), np.zeros(chunks, dtype=np.bool_))
+        """Room for ``copies`` copies in ``chunks`` chunks (only the queue's used part is
+        ever read: nothing is initialised)."""
+        return cls(np.empty(copies), np.empty(copies, dtype=np.int64),
+                   np.empty(copies, dtype=np.int64), np.empty(chunks, dtype=np.int64),
+                   np.empty(chunks, dtype=np.int64), np.empty(chunks, dtype=np.int64),
+                   np.empty(chunks, dtype=np.int64), np.empty(chunks, dtype=np.bool_))
 
 
 @kernel
@@ -282,11 +284,13 @@ def sweep_copies(q: InFlight, chunks: int) -> tuple[int, float]:
 @kernel
 def move_copies(q: InFlight, chunks: int, into: InFlight) -> int:
     """The first ``chunks`` chunks' undelivered copies, in order, to the front of ``into``
-    (at least as large); returns how many copies it then holds."""
+    (at least as large, or ``q`` itself: a copy only ever moves towards the front); returns
+    how many copies it then holds."""
     used = 0
     for c in range(chunks):
+        pos, end = q.pos[c], q.end[c]
         into.pos[c] = used
-        for i in range(q.pos[c], q.end[c]):
+        for i in range(pos, end):
             into.at_s[used] = q.at_s[i]
             into.seq[used] = q.seq[i]
             into.receiver[used] = q.receiver[i]
@@ -478,7 +482,10 @@ class SimulatedLink:
                 and self._chunks + chunks <= q.pos.shape[0]):
             return
         left = int(np.sum(q.end[:self._chunks] - q.pos[:self._chunks]))
-        # Four times what is needed: moved again only after a few more ticks' copies.
+        if 2 * (left + copies) <= q.at_s.shape[0] and self._chunks + chunks <= q.pos.shape[0]:
+            self._used = move_copies(q, self._chunks, q)  # in place: half of it is free
+            return
+        # Four times what is needed: moved again only after several more ticks' copies.
         into = InFlight.empty(max(q.at_s.shape[0], 4 * (left + copies)),
                               max(q.pos.shape[0], 4 * (self._chunks + chunks)))
         self._used = move_copies(q, self._chunks, into)
