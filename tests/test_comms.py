@@ -305,8 +305,11 @@ def test_a_ticks_broadcasts_at_once_draw_and_deliver_as_one_by_one(loss: float, 
         for name, link in (("one", one), ("many", many)):
             due = link.take_due(t)
             if due is not None:
-                got[name].append((k, due[0].tolist(), [link.payload(p) for p in due[1]]))
-                link.release(due[1])
+                pids = due.payloads[due.which]  # each copy's payload id, in delivery order
+                assert np.array_equal(due.payloads, np.unique(pids))
+                assert np.array_equal(due.copies, np.bincount(due.which))
+                got[name].append((k, due.receivers.tolist(), [link.payload(p) for p in pids]))
+                link.release(due.payloads, due.copies)
     assert got["one"] == got["many"] and len(got["one"]) > 100
     assert vars(one.stats) == vars(many.stats)
     assert (one.stats.dropped > 0) == (loss > 0.0)

@@ -10,7 +10,6 @@ from hypothesis import strategies as st
 
 from uavmpc import scenarios
 from uavmpc.avoidance.proximity import align_batch, near_and_dz
-from uavmpc.drivers.delivery import distinct_payloads
 from uavmpc.drivers.world import World
 from uavmpc.log import FlightRecorder
 from uavmpc.scenarios import LinkSettings
@@ -148,19 +147,3 @@ def test_compiled_proximity_equals_the_numpy_oracle(seed: int, n: int, k: int,
         assert np.array_equal(near, near_ref[i])
         assert np.array_equal(dz, -d[i, :, 2])
         assert np.array_equal(dxy, np.sqrt(d[i, :, 0] ** 2 + d[i, :, 1] ** 2))
-
-
-@settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.integers(0, 40), st.integers(1, 300)), min_size=1, max_size=12),
-       st.booleans(), st.integers(0, 2**32 - 1))
-def test_a_ticks_copies_find_their_broadcasts_as_sorting_finds_them(
-        runs: list[tuple[int, int]], straggler: bool, seed: int) -> None:
-    """The tick's copies (runs of one broadcast's id, in any order, a straggler id far from
-    the rest or not): the distinct ids ascending, each copy pointing at its own."""
-    payloads = np.concatenate([np.full(count, 1000 + pid) for pid, count in runs])
-    if straggler:
-        payloads = np.append(payloads, 10**9)
-    payloads = np.random.default_rng(seed).permutation(payloads)
-    ids, at = distinct_payloads(payloads)
-    assert np.array_equal(ids, np.unique(payloads))
-    assert np.array_equal(ids[at], payloads)

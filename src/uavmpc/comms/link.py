@@ -226,28 +226,37 @@ def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders
 
 @kernel
 def take_copies(q: InFlight, chunks: int, t_s: float, seen: np.ndarray, rcv_out: np.ndarray,
-                pid_out: np.ndarray, at_out: np.ndarray, seq_out: np.ndarray
-                ) -> tuple[int, bool]:
+                which_out: np.ndarray, at_out: np.ndarray, seq_out: np.ndarray,
+                pid_out: np.ndarray, count_out: np.ndarray) -> tuple[int, int, bool]:
     """Every copy due by ``t_s`` and not taken by ``receive``, out of the first ``chunks``
-    chunks in sending order: its receiver, payload id, time and sequence number into the
-    outputs. Returns (how many, whether they are in delivery order already: no two of their
-    chunks from one sender, none injected). ``seen`` (members,): all False, left so."""
+    chunks in sending order: its receiver, its payload's index among the payloads taken,
+    its time and sequence number into the outputs (K,); each payload taken (ascending ids:
+    one chunk each, in sending order) and its number of copies into ``pid_out`` and
+    ``count_out`` (P,). Returns (K, P, whether the copies are in delivery order already: no
+    two of their chunks from one sender, none injected). ``seen`` (members,): all False,
+    left so."""
     n = 0
+    g = 0
     ordered = True
     for c in range(chunks):
         pos, end = q.pos[c], q.end[c]
         if pos >= end or q.at_s[pos] > t_s:
             continue
         stop = pos
+        first = n
         while stop < end and q.at_s[stop] <= t_s:
             if q.receiver[stop] >= 0:
                 rcv_out[n] = q.receiver[stop]
-                pid_out[n] = q.payload[c]
+                which_out[n] = g
                 at_out[n] = q.at_s[stop]
                 seq_out[n] = q.seq[stop]
                 n += 1
             stop += 1
         q.pos[c] = stop
+        if n > first:
+            pid_out[g] = q.payload[c]
+            count_out[g] = n - first
+            g += 1
         s = q.sender[c]
         if s < 0 or seen[s]:
             ordered = False
@@ -256,7 +265,7 @@ def take_copies(q: InFlight, chunks: int, t_s: float, seen: np.ndarray, rcv_out:
     for c in range(chunks):
         if q.sender[c] >= 0:
             seen[q.sender[c]] = False
-    return n, ordered
+    return n, g, ordered
 
 
 @kernel
@@ -300,6 +309,22 @@ def move_copies(q: InFlight, chunks: int, into: InFlight) -> int:
         into.payload[c] = q.payload[c]
         into.taken[c] = q.taken[c]
     return used
+
+
+class Due(NamedTuple):
+    """The copies a :meth:`SimulatedLink.take_due` hands over, in delivery order.
+
+    Attributes:
+        receivers: (K,) int64 each copy's receiver (its index in the link's members).
+        which: (K,) int64 each copy's payload, as an index into ``payloads``.
+        payloads: (P,) int64 the payload ids of these copies, ascending (sending order).
+        copies: (P,) int64 how many of the copies are of each.
+    """
+
+    receivers: np.ndarray
+    which: np.ndarray
+    payloads: np.ndarray
+    copies: np.ndarray
 
 
 #: Arguments of :func:`queue_copies` without a range or bursts.
@@ -547,32 +572,33 @@ class SimulatedLink:
             self.release(np.array([pid]))
         return out
 
-    def take_due(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """Every copy due by ``t_s``, for all receivers at once: (receiver indices in
-        :attr:`members` order, payload ids), or None if nothing is due. Each receiver gets
-        its copies of one sender in delivery order (by time, then sending order); copies of
-        different senders are independent. :meth:`payload` gives the bytes of an id while
-        copies of it are in flight or just taken; :meth:`release` drops them once read."""
+    def take_due(self, t_s: float) -> Due | None:
+        """Every copy due by ``t_s``, for all receivers at once (:class:`Due`), or None if
+        nothing is due. Each receiver gets its copies of one sender in delivery order (by
+        time, then sending order); copies of different senders are independent.
+        :meth:`payload` gives the bytes of an id while copies of it are in flight or just
+        taken; :meth:`release` drops them once read."""
         if t_s < self.next_due_s:
             return None
         if self._seen.shape[0] < len(self._members):
             self._seen = np.zeros(len(self._members), dtype=np.bool_)
-        u = self._used
-        rcv, pay = np.empty(u, dtype=np.int64), np.empty(u, dtype=np.int64)
+        u, c = self._used, self._chunks
+        rcv, which = np.empty(u, dtype=np.int64), np.empty(u, dtype=np.int64)
         at, seq = np.empty(u), np.empty(u, dtype=np.int64)
-        k, ordered = take_copies(self._q, self._chunks, float(t_s), self._seen, rcv, pay, at,
-                                 seq)
+        pids, copies = np.empty(c, dtype=np.int64), np.empty(c, dtype=np.int64)
+        k, g, ordered = take_copies(self._q, c, float(t_s), self._seen, rcv, which, at, seq,
+                                    pids, copies)
         self._drop_delivered()
         if not k:
             return None
-        rcv, pay = rcv[:k], pay[:k]
+        rcv, which = rcv[:k], which[:k]
         if not ordered:
             # Two due broadcasts of one sender (or injected bytes, whose sender is unknown):
             # their copies must keep the delivery order between them.
             order = np.lexsort((seq[:k], at[:k]))
-            rcv, pay = rcv[order], pay[order]
+            rcv, which = rcv[order], which[order]
         self.stats.delivered += k
-        return rcv, pay
+        return Due(rcv, which, pids[:g], copies[:g])
 
     def payload(self, pid: int) -> bytes:
         """The bytes of payload ``pid`` (see :meth:`take_due`)."""

@@ -19,32 +19,9 @@ from uavmpc.onboard import OnboardStack
 
 #: At most this many broadcasts' messages are kept for their receivers.
 _MAX_SENT = 4096
-#: Fewer copies than this in a tick are sorted to find their broadcasts (cheaper than a table).
-_FEW_COPIES = 64
 #: A tick's copies are taken into the inbox rows on every thread from this many on (fewer
 #: are not worth waking the threads; the rows come out the same either way).
 _THREADED_COPIES = 256
-
-
-def distinct_payloads(payloads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct payload ids of a tick's copies ``payloads`` (K,), ascending (as
-    ``np.unique`` gives them), and for each copy the index of its id among them (K,): ``ids[at]
-    == payloads``. Ids are numbered in sending order, so the copies due together lie close:
-    over a small range a table does it in two passes instead of sorting them (a 1 000-UAV
-    tick: 20 000 copies of 20 broadcasts; docs/scale.md). A few copies (a small world), or a
-    straggler far from the rest (bytes injected for a distant time), are sorted."""
-    k = payloads.shape[0]
-    low, high = (int(payloads.min()), int(payloads.max())) if k >= _FEW_COPIES else (0, 0)
-    span = high - low + 1
-    if k < _FEW_COPIES or span > 4 * k:
-        ids = np.unique(payloads)
-        return ids, np.searchsorted(ids, payloads)
-    seen = np.zeros(span, dtype=np.bool_)
-    seen[payloads - low] = True
-    ids = np.flatnonzero(seen)
-    rank = np.empty(span, dtype=np.int64)
-    rank[ids] = np.arange(ids.shape[0])
-    return ids + low, rank[payloads - low]
 
 
 class WorldLink:
@@ -118,26 +95,25 @@ class WorldLink:
         due = self.link.take_due(now)
         if due is None:
             return
-        receivers, payloads = due
+        receivers = due.receivers
         table = self.inboxes
         n = len(self.stacks)
         # A tick's copies come from a few broadcasts: each is decoded (or found) once.
-        pids, at = distinct_payloads(payloads)
-        slots = np.empty(pids.shape[0], dtype=np.int64)
+        slots = np.empty(due.payloads.shape[0], dtype=np.int64)
         errors: dict[int, str] = {}
-        for j, pid in enumerate(pids.tolist()):
+        for j, pid in enumerate(due.payloads.tolist()):
             try:
                 data = self.link.payload(pid)
                 slots[j] = table.slot_for(data, self._sent.pop(data, None))
             except InvalidMessageError as exc:
                 slots[j] = -1
-                errors[pid] = str(exc)
-        self.link.release(pids, np.bincount(at, minlength=pids.shape[0]))
-        copy_slots = slots[at]
+                errors[j] = str(exc)
+        self.link.release(due.payloads, due.copies)
+        copy_slots = slots[due.which]
         good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
         if errors:
             for k in np.flatnonzero((receivers < n) & (copy_slots < 0)).tolist():
-                self.stacks[receivers[k]].inbox.count_rejected(errors[int(payloads[k])])
+                self.stacks[receivers[k]].inbox.count_rejected(errors[int(due.which[k])])
         rec = self.recorder
         if rec is not None:
             before = table.rows.accepted.copy()
