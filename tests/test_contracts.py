@@ -186,6 +186,31 @@ def test_decide_on_the_found_encounters_is_update(make) -> None:
 
 
 @pytest.mark.parametrize("make", STRATEGIES)
+def test_rest_is_a_calm_decision_with_nobody_near_or_nothing(make) -> None:
+    """rest(now) at rest: True, and what decide on nobody near would decide (the calm
+    decision) and leave behind; after a climb, False and nothing changed, until the offset
+    is released."""
+    prm = AvoidanceParams()
+    times, own, msg = _head_on(10.0)
+    nobody = Encounters((), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool),
+                        np.zeros(0, dtype=bool), np.zeros((0, times.size), dtype=bool),
+                        np.zeros((0, times.size)))
+    resting, deciding = make(prm), make(prm)
+    assert resting.rest(10.0) is True
+    assert deciding.decide(10.0, "own", 2, times, nobody) == AvoidanceDecision()
+    for s in (resting, deciding):
+        assert s.update(10.1, "own", 2, times, own, {"other": msg}).z_offset_m == prm.dz_m
+    assert resting.rest(10.2) is False  # an offset to release: decide must run
+    assert resting.update(10.2, "own", 2, times, own, {}) == deciding.update(
+        10.2, "own", 2, times, own, {})
+    later = 10.2 + prm.release_hysteresis_s + prm.dz_m / prm.release_rate_mps + 1.0
+    for s in (resting, deciding):
+        s.update(later, "own", 2, times, own, {})
+    assert resting.rest(later + 1.0) is True  # released: at rest again
+    assert deciding.decide(later + 1.0, "own", 2, times, nobody) == AvoidanceDecision()
+
+
+@pytest.mark.parametrize("make", STRATEGIES)
 def test_limit_offset_caps_the_climb(make) -> None:
     prm = AvoidanceParams()
     now = 10.0
@@ -531,7 +556,7 @@ def test_a_contract_change_is_noticed_here() -> None:
 
     assert members(ResolutionStrategy) == {"params", "update"}
     assert members(EncounterStrategy) == {"pair_radius_m", "limit_offset", "finder",
-                                          "overrides", "decide", "hold_probes"}
+                                          "overrides", "decide", "hold_probes", "rest"}
     assert members(AxisQpSolver) == {"name", "solve"}
     assert members(Mission) == {"period_s", "step", "summary"}
     assert members(CommandedMission) == {"command"}
