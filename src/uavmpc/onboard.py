@@ -12,10 +12,11 @@ schedule (10 Hz) and strategy, its tracker and controller, its broadcast phase a
 are a clock, a transport and a plant around N stacks.
 
 A driver that ticks many UAVs in one compiled call (the simulated world) splits :meth:`tick`
-into its three phases: :meth:`OnboardStack.receive` and :meth:`OnboardStack.plan` per UAV,
-then the numerical part of every UAV at once (:func:`onboard_row` on the rows of an
-:class:`OnboardBatch`, the same function :meth:`tick` runs on its own row), then
-:meth:`OnboardStack.emit` per UAV.
+into its three phases: :meth:`OnboardStack.receive` and :meth:`OnboardStack.plan` per UAV
+(the avoidance of every UAV due at once: :func:`avoidance_round`), then the numerical part of
+every UAV at once (:func:`onboard_row` on the rows of an :class:`OnboardBatch`, the same
+function :meth:`tick` runs on its own row), then the broadcasts of every UAV due at once
+(:func:`broadcast`, what :meth:`OnboardStack.emit` runs for its own row).
 """
 
 from __future__ import annotations
@@ -372,9 +373,23 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
         broadcast_rows_threads(*args, threads)
     else:
         broadcast_rows(*args)
+    # The messages the receivers take, field for field what the bytes decode to (each
+    # array a row of one fresh array: nothing here is written again).
+    idx = args[0]
+    sent = batch.sent
+    times = sent.times_s[idx]
+    pos = np.ascontiguousarray(sent.plan[idx, :3, :, 0].transpose(0, 2, 1))
+    heard = sent.heard[idx].tolist()
+    count = sent.heard_count[idx].tolist()
+    sigma = batch.position_sigma_m[idx].tolist()
+    ids = table.ids.__getitem__
     n = length.tolist()
-    return [s.sent(now, out[j, :n[j]].tobytes() if n[j] >= 0 else None, up)
-            for j, (s, now, up) in enumerate(zip(stacks, stamp.tolist(), flags, strict=True))]
+    now = stamp.tolist()
+    return [s.sent(now[j], out[j, :n[j]].tobytes() if n[j] >= 0 else None, flags[j],
+                   unchecked(s.uav_id, int(s.priority), now[j], times[j], pos[j], flags[j],
+                             tuple(map(ids, heard[j][:count[j]])), (sigma[j][0], sigma[j][1]))
+                   if n[j] >= 0 and s.key is None and s.identity is None else None)
+            for j, s in enumerate(stacks)]
 
 
 class Schedule(NamedTuple):
@@ -745,27 +760,24 @@ class OnboardStack:
         messages list (docs/safety.md, A2), or None: it lists nobody."""
         return self._finder
 
-    def sent(self, now_s: float, data: bytes | None, avoiding: bool) -> bytes:
+    def sent(self, now_s: float, data: bytes | None, avoiding: bool,
+             message: PredictionMessage | None) -> bytes:
         """Its broadcast at ``now_s`` (:func:`broadcast`) with the flag ``avoiding``
         (:attr:`flag_up`): ``data``, the bytes written from its row of
-        :attr:`OnboardBatch.sent`, or None to build the message the checked way (raises
-        :class:`~uavmpc.comms.message.InvalidMessageError` naming what is wrong). Returns the
-        bytes to send (signed or sealed with its key or identity)."""
-        sched = self.batch.schedule
-        sched.next_broadcast_s[self.row] += self.broadcast_period_s
-        msg: PredictionMessage | None = None
+        :attr:`OnboardBatch.sent`, and ``message``, what they decode to when they are sent
+        as they are (None with a key or an identity); or ``data`` None to build the message
+        the checked way (raises :class:`~uavmpc.comms.message.InvalidMessageError` naming
+        what is wrong). Returns the bytes to send (signed or sealed with its key or
+        identity)."""
+        self.batch.schedule.next_broadcast_s[self.row] += self.broadcast_period_s
+        plain = self.key is None and self.identity is None
         if data is None:  # raises, naming the field the compiled checks stopped at
-            msg = from_prediction(self.prediction(), uav_id=self.uav_id,
-                                  priority=self.priority, stamp_s=now_s, avoiding=avoiding,
-                                  heard=self.heard, position_sigma_m=self.position_sigma_m)
-            data = encode(msg)
-        elif self.key is None and self.identity is None:
-            sent = self.batch.sent
-            i = self.row
-            msg = unchecked(self.uav_id, int(self.priority), now_s, sent.times_s[i].copy(),
-                            sent.plan[i, :3, :, 0].T.copy(), avoiding, self.heard,
-                            self.position_sigma_m)
-        self.last_message = msg if self.key is None and self.identity is None else None
+            checked = from_prediction(self.prediction(), uav_id=self.uav_id,
+                                      priority=self.priority, stamp_s=now_s, avoiding=avoiding,
+                                      heard=self.heard, position_sigma_m=self.position_sigma_m)
+            data = encode(checked)
+            message = checked if plain else None
+        self.last_message = message
         if self.key is not None:
             data = sign(data, self.key)
         elif self.identity is not None:

@@ -367,7 +367,9 @@ class SimulatedLink:
     Determinism: all randomness comes from ``numpy.random.default_rng(seed)``; draws happen in
     ``publish`` in member-join order, so the same seed and the same call order give the same
     deliveries. Each publish draws one uniform per other member for the loss (the i.i.d. test,
-    or the step of the pair's chain) and one for the jitter, whatever ``burst_len`` is.
+    or the step of the pair's chain) and one for the jitter, whatever ``burst_len`` is;
+    :meth:`publish_many` (a tick's broadcasts at once) draws exactly what its broadcasts
+    published one by one would.
 
     Args:
         members: ids of the UAVs on the link (more can :meth:`join` later; a member only gets

@@ -179,12 +179,11 @@ def unchecked(uav_id: str, priority: int, stamp_s: float, times_s: np.ndarray,
     msg = object.__new__(PredictionMessage)
     times_s.flags.writeable = False
     positions_m.flags.writeable = False
-    for name, value in (("version", SCHEMA_VERSION), ("uav_id", uav_id),
-                        ("priority", priority), ("stamp_s", stamp_s), ("times_s", times_s),
-                        ("positions_m", positions_m), ("avoiding", avoiding),
-                        ("received_s", None), ("heard", heard),
-                        ("position_sigma_m", position_sigma_m)):
-        object.__setattr__(msg, name, value)
+    # Frozen: its fields are set as its own constructor sets them, past __setattr__.
+    vars(msg).update(version=SCHEMA_VERSION, uav_id=uav_id, priority=priority,
+                     stamp_s=stamp_s, times_s=times_s, positions_m=positions_m,
+                     avoiding=avoiding, received_s=None, heard=heard,
+                     position_sigma_m=position_sigma_m)
     return msg
 
 
