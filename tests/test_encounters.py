@@ -222,6 +222,46 @@ def test_a_broadcast_is_decoded_once_and_its_slot_reused_after_the_last_holder()
         table.slot_for(data[:30])
 
 
+@pytest.mark.parametrize("receive", [False, True], ids=["stamp", "receive time"])
+@pytest.mark.parametrize("blocks", [1, 2, 3, 7])
+def test_the_inbox_rule_in_blocks_of_receivers_is_the_rule(receive: bool, blocks: int) -> None:
+    """accept_copies_threads (receivers in blocks, holder counts per block added up after)
+    leaves the rows, counters and holder counts exactly as accept_copies does, for copies
+    in any order: several per receiver, a sender twice (older after newer), echoes, stale
+    and future stamps."""
+    from uavmpc.comms.inbox import accept_copies_threads
+
+    n = 9
+    ids = [f"u{i}" for i in range(n)]
+    tables = [InboxTable(ids, time_reference="receive" if receive else "stamp")
+              for _ in range(2)]
+    rng = np.random.default_rng(blocks)
+    for tick in range(12):
+        slots = []
+        for t in tables:
+            slots.append([])
+            for i in range(n):  # every sender twice a tick, the later message first
+                for stamp in (10.0 + tick + 0.4, 10.0 + tick):
+                    msg = PredictionMessage(SCHEMA_VERSION, ids[i], i, stamp, stamp + HORIZON,
+                                            np.full((40, 3), float(i)), True)
+                    slots[-1].append(t.slot_for(encode(msg)))
+        k = 60
+        receivers = rng.integers(0, n, k)
+        which = rng.integers(0, 2 * n, k)
+        clock = 10.0 + tick + rng.choice([0.1, 0.3, 2.5, -1.0], n)  # some stale, some future
+        accept_copies(tables[0].rows, tables[0].store, receivers,
+                      np.array(slots[0])[which], clock)
+        accept_copies_threads(tables[1].rows, tables[1].store, receivers,
+                              np.array(slots[1])[which], clock, blocks)
+        for t in tables:
+            t.unpin()
+        for a, b in zip(tables[0].rows, tables[1].rows, strict=True):
+            assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+        assert np.array_equal(tables[0].store.holders, tables[1].store.holders)
+    assert tables[0].rows.accepted.sum() > 0 and tables[0].rows.superseded.sum() > 0
+    assert tables[0].rows.stale.sum() + tables[0].rows.future.sum() > 0 or receive
+
+
 def test_a_table_grows_for_new_senders_and_longer_messages() -> None:
     table = InboxTable(["a"], points=40)
     for j in range(20):

@@ -41,6 +41,29 @@ def test_flight_is_bit_identical_for_any_thread_count(world, restore_threads) ->
         assert np.array_equal(a, b)
 
 
+@needs_two
+def test_a_large_world_on_threads_takes_its_copies_and_broadcasts_bit_identically(
+        restore_threads) -> None:
+    """120 UAVs: several broadcasts in a tick (written on the threads) and hundreds of copies
+    (taken into the inbox rows on the threads): the same flight, the same inbox rows, the
+    same holder counts, the same link as on one thread."""
+    from uavmpc.comms.inbox import accept_copies_threads
+    from uavmpc.onboard import broadcast_rows_threads
+
+    out = []
+    for threads in (1, 2):
+        set_threads(threads)
+        w = World(random_walk(120, area_m=490.0, duration_s=3.0, seed=6), seed=6)
+        r = w.run(3.0)
+        out.append((r.positions_m, r.z_offset_m, w.inboxes.rows.held_slot,
+                    w.inboxes.rows.accepted, w.inboxes.store.holders,
+                    np.array(list(vars(w.link.stats).values()))))
+    for a, b in zip(*out, strict=True):
+        assert np.array_equal(a, b)
+    assert accept_copies_threads.signatures and broadcast_rows_threads.signatures  # they ran
+    assert out[0][3].sum() > 120 * 119  # every UAV took copies of every other
+
+
 @pytest.mark.parametrize("n", [0, -1, 10_000, 1.5, True])
 def test_set_threads_names_the_bad_count(n, restore_threads) -> None:
     with pytest.raises(ValueError, match="threads must be an integer from 1 to"):

@@ -349,8 +349,10 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
               now_s: np.ndarray) -> list[bytes]:
     """The broadcasts of ``stacks`` (rows of ``batch`` with one inbox table, each due),
     stamped ``now_s`` (R,) each on its own clock: one compiled call
-    (:func:`broadcast_rows`), then each stack's bookkeeping (:meth:`OnboardStack.sent`).
-    Returns each one's bytes, signed or sealed when the stack has a key or an identity."""
+    (:func:`broadcast_rows`, on the threads when there are several), the messages their
+    receivers take built from the same rows, then each stack's bookkeeping
+    (:meth:`OnboardStack.sent`). Returns each one's bytes, signed or sealed when the stack
+    has a key or an identity."""
     r_count = len(stacks)
     table = stacks[0].inbox.table
     finders = [s.heard_finder for s in stacks]
@@ -385,11 +387,15 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     ids = table.ids.__getitem__
     n = length.tolist()
     now = stamp.tolist()
-    return [s.sent(now[j], out[j, :n[j]].tobytes() if n[j] >= 0 else None, flags[j],
-                   unchecked(s.uav_id, int(s.priority), now[j], times[j], pos[j], flags[j],
-                             tuple(map(ids, heard[j][:count[j]])), (sigma[j][0], sigma[j][1]))
-                   if n[j] >= 0 and s.key is None and s.identity is None else None)
-            for j, s in enumerate(stacks)]
+    sent_bytes = []
+    for j, s in enumerate(stacks):
+        data = out[j, :n[j]].tobytes() if n[j] >= 0 else None
+        msg = None
+        if data is not None and s.key is None and s.identity is None:
+            msg = unchecked(s.uav_id, int(s.priority), now[j], times[j], pos[j], flags[j],
+                            tuple(map(ids, heard[j][:count[j]])), (sigma[j][0], sigma[j][1]))
+        sent_bytes.append(s.sent(now[j], data, flags[j], msg))
+    return sent_bytes
 
 
 class Schedule(NamedTuple):
