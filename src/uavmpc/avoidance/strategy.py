@@ -566,13 +566,15 @@ class HeightOffsetStrategy:
                 self.z_offset_m if climbed_m is None else min(climbed_m, self.z_offset_m))
         c_end = c_start if self.z_offset_m == z_start else _conflicts(enc, self.z_offset_m,
                                                                         half_h)
-        unresolved = c_end.any(axis=1) & must_yield
+        hit_end = c_end.any(axis=1)
+        any_end = bool(hit_end.any())
+        unresolved = hit_end & must_yield
         any_unresolved = bool(unresolved.any())
         # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
         # in force, and none anywhere on the way down to 0 either. Climbing over a UAV removes
         # the conflict but not the reason for the offset; without this, the offset would be
         # released on top of it and re-raised as soon as the conflict reappeared.
-        if any_start or c_end.any() or _below(enc, self.z_offset_m, half_h).any():
+        if any_start or any_end or _below(enc, self.z_offset_m, half_h).any():
             self._last_conflict_s = now_s
         else:
             # Found in the 24 h campaign with 30 % loss: a UAV that had not heard from another
@@ -606,7 +608,7 @@ class HeightOffsetStrategy:
             self._stuck = False
         recent = (self._last_conflict_s is not None
                   and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-        limits_tight = bool(any_start or c_end.any() or recent or holding)
+        limits_tight = bool(any_start or any_end or recent or holding)
         first_s = None
         if any_start:
             first_s = float(times[np.flatnonzero(c_start.any(axis=0))[0]] - now_s)
