@@ -330,6 +330,42 @@ def test_the_links_delivery_order_is_a_stable_sort(keys: list[float], spread: bo
     assert order.tolist() == np.argsort(k, kind="stable").tolist()
 
 
+@settings(max_examples=400, deadline=None)
+@given(st.sampled_from(["uav7", "A" * 32, "A" * 33, "bad id", ""]),
+       st.integers(-(2**31) - 2, 2**31 + 1),
+       st.sampled_from([0.0, 1.7e9, float("nan"), float("inf")]),
+       st.sampled_from([0.0, 2.5, 100.0, 100.000001, -0.1, float("nan"), float("inf")]),
+       st.sampled_from([0.0, 100.0, 101.0, float("nan")]),
+       st.sampled_from([1, 2, 40, 200, 201]),
+       st.sampled_from(["good", "repeat", "nan time", "nan position", "absurd"]))
+def test_the_compiled_writers_gate_is_the_messages_own_checks(
+        uav_id: str, priority: int, stamp: float, sigma_h: float, sigma_v: float, m: int,
+        case: str) -> None:
+    """fields_valid (the gate before a compiled broadcast writes a message without building
+    it) accepts exactly the values PredictionMessage accepts: a gate looser than the
+    constructor would send bytes receivers refuse."""
+    from uavmpc.comms.message import fields_valid, valid_id
+
+    times = 1.0 + np.arange(m, dtype=float)
+    pos = np.zeros((m, 3))
+    if case == "repeat" and m > 1:
+        times[-1] = times[-2]
+    elif case == "nan time":
+        times[0] = np.nan
+    elif case == "nan position":
+        pos[-1, 2] = np.nan
+    elif case == "absurd":
+        pos[0, 0] = 2.0e5
+    try:
+        PredictionMessage(SCHEMA_VERSION, uav_id, priority, stamp, times, pos, True,
+                          position_sigma_m=(sigma_h, sigma_v))
+        accepted = True
+    except InvalidMessageError:
+        accepted = False
+    id_len = len(uav_id) if valid_id(uav_id) else 0
+    assert fields_valid(id_len, priority, stamp, sigma_h, sigma_v, times, pos) == accepted
+
+
 def test_link_rejects_bad_parameters() -> None:
     for kwargs, match in (({"loss": 1.5}, "loss"), ({"latency_s": -0.1}, "latency_s"),
                           ({"jitter_s": float("nan")}, "jitter_s")):

@@ -22,7 +22,6 @@ function :meth:`tick` runs on its own row), then the broadcasts of every UAV due
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -42,17 +41,12 @@ from uavmpc.comms.auth import Identity, Roster, seal, sign
 from uavmpc.comms.inbox import InboxRows, InboxTable, Store
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
 from uavmpc.comms.message import (
-    MAX_ABS_POSITION_M,
     MAX_HEARD,
     MAX_MESSAGE_BYTES,
-    MAX_POINTS,
-    MIN_POINTS,
-    PRIORITY_RANGE,
     PredictionMessage,
     encode,
-    first_problem,
+    fields_valid,
     from_prediction,
-    sigma_in_range,
     unchecked,
     write_message,
 )
@@ -285,11 +279,11 @@ def broadcast_rows(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
     ``use_received``, ``timeout_s``, ``silent_hold_s`` (R,)), and its message's bytes into
     ``out[j]`` (:func:`~uavmpc.comms.message.write_message`, stamped ``stamp_s[j]``, flag
     ``avoiding[j]``, ``priority[j]``, the row's ``sigma_m``), their number into
-    ``length[j]``. A message the laws of :class:`~uavmpc.comms.PredictionMessage` would
-    refuse (a plan not finite or out of bounds, an uncertainty out of range, an id no message
-    may carry: an all-zero entry of ``entries``, the table's
-    :attr:`~uavmpc.comms.inbox.InboxTable.entries`) is not written: ``length[j] = -1``, and
-    the caller builds it the checked way, which names the problem."""
+    ``length[j]``. A message :func:`~uavmpc.comms.message.fields_valid` refuses (a plan not
+    finite or out of bounds, an uncertainty out of range, an id no message may carry: an
+    all-zero entry of ``entries``, the table's :attr:`~uavmpc.comms.inbox.InboxTable.entries`)
+    is not written: ``length[j] = -1``, and the caller builds it the checked way, which names
+    the problem."""
     h = consts.horizon_s
     m = h.shape[0]
     pos = np.empty((m, 3))
@@ -307,10 +301,8 @@ def broadcast_rows(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
                 pos[k, ax] = p[ax, k, 0]
         sent.heard_count[i] = 0
         own = entries[rows.own_col[r]]
-        if (own[0] == 0 or not MIN_POINTS <= m <= MAX_POINTS or not math.isfinite(stamp_s[j])
-                or not PRIORITY_RANGE[0] <= priority[j] <= PRIORITY_RANGE[1]
-                or not sigma_in_range(sigma_m[i, 0], sigma_m[i, 1])
-                or first_problem(times, pos, MAX_ABS_POSITION_M)[0] != 0):
+        if not fields_valid(own[0], priority[j], stamp_s[j], sigma_m[i, 0], sigma_m[i, 1],
+                            times, pos):
             length[j] = -1
             continue
         n = 0
@@ -345,6 +337,15 @@ def broadcast_rows_threads(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerR
                        entries, sent, out[lo:hi], length[lo:hi])
 
 
+def _as_int64(priority: object) -> int:
+    """A stack's priority as the compiled gate takes it: anything but an integer that int64
+    holds as one the gate refuses, so the checked path names it."""
+    if (isinstance(priority, bool) or not isinstance(priority, int | np.integer)
+            or not -(2**63) <= int(priority) < 2**63):
+        return 2**62  # outside int32: fields_valid refuses it
+    return int(priority)
+
+
 def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
               now_s: np.ndarray) -> list[bytes]:
     """The broadcasts of ``stacks`` (rows of ``batch`` with one inbox table, each due),
@@ -367,7 +368,8 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     args = (np.array([s.row for s in stacks], dtype=np.int64),
             np.array([s.inbox.row for s in stacks], dtype=np.int64), trk.rows, trk.consts,
             stamp, np.array(flags),
-            np.array([s.priority for s in stacks], dtype=np.int64), batch.position_sigma_m,
+            np.array([_as_int64(s.priority) for s in stacks], dtype=np.int64),
+            batch.position_sigma_m,
             params[:, 0] != 0.0, params[:, 1] != 0.0, params[:, 2].copy(), params[:, 3].copy(),
             table.rows, table.store, table.entries, batch.sent, out, length)
     threads = numba.get_num_threads()

@@ -445,6 +445,23 @@ def sigma_in_range(horizontal_m: float, vertical_m: float) -> bool:
     return 0.0 <= horizontal_m <= MAX_SIGMA_M and 0.0 <= vertical_m <= MAX_SIGMA_M
 
 
+@kernel
+def fields_valid(id_len: int, priority: int, stamp_s: float, sigma_h_m: float,
+                 sigma_v_m: float, times: np.ndarray, pos: np.ndarray) -> bool:
+    """Whether a message of these values passes every check of :class:`PredictionMessage`
+    on them (an id of ``id_len`` valid characters: 0 for an invalid id; a heard list of
+    distinct valid ids other than the sender's, which the caller guarantees): the gate a
+    compiled writer of messages (:func:`~uavmpc.onboard.broadcast_rows`) passes before it
+    writes one without building it, else it builds it the checked way, which names the
+    problem. ``times`` (m,), ``pos`` (m, 3)."""
+    m = times.shape[0]
+    return (1 <= id_len <= MAX_ID_LEN and PRIORITY_RANGE[0] <= priority <= PRIORITY_RANGE[1]
+            and math.isfinite(stamp_s) and math.isfinite(sigma_h_m)
+            and math.isfinite(sigma_v_m) and sigma_in_range(sigma_h_m, sigma_v_m)
+            and MIN_POINTS <= m <= MAX_POINTS and pos.shape[0] == m
+            and first_problem(times, pos, MAX_ABS_POSITION_M)[0] == 0)
+
+
 _NON_FINITE_TIME, _NON_FINITE_POSITION, _NOT_INCREASING, _ABSURD_POSITION = 1, 2, 3, 4
 
 
