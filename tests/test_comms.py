@@ -314,6 +314,8 @@ def test_a_ticks_broadcasts_at_once_draw_and_deliver_as_one_by_one(loss: float, 
     assert vars(one.stats) == vars(many.stats)
     assert (one.stats.dropped > 0) == (loss > 0.0)
     assert (one.stats.dropped_range > 0) == ranged
+    with pytest.raises(ValueError, match="2 payloads but 1 senders"):
+        many.publish_many([b"x", b"y"], ["u0"], 3.0)
 
 
 @settings(max_examples=300, deadline=None)

@@ -456,6 +456,8 @@ class SimulatedLink:
             if not isinstance(data, bytes | bytearray):
                 raise TypeError(f"msg_bytes: expected bytes, got {type(data).__name__}")
         b = len(payloads)
+        if len(sender_ids) != b:
+            raise ValueError(f"publish_many: {b} payloads but {len(sender_ids)} senders")
         if b > 1 and (any(s not in self._members for s in sender_ids)
                       or (self._thresholds is not None and len(set(sender_ids)) < b)):
             # A sender joining changes how many draws the next broadcast takes, and a sender
