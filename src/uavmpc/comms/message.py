@@ -171,9 +171,9 @@ def from_prediction(prediction: Any, *, uav_id: str, priority: int, stamp_s: flo
 def unchecked(uav_id: str, priority: int, stamp_s: float, times_s: np.ndarray,
               positions_m: np.ndarray, avoiding: bool, heard: tuple[str, ...],
               position_sigma_m: tuple[float, float]) -> PredictionMessage:
-    """The message of fields the same laws have checked already (a compiled broadcast checks
-    them before it writes the bytes: :func:`~uavmpc.onboard.broadcast_rows`), built without
-    checking them again: field for field what :func:`decode` makes of those bytes.
+    """The message of fields :func:`fields_valid` has passed already (a compiled broadcast
+    passes them before it writes the bytes: :func:`~uavmpc.onboard.broadcast_rows`), built
+    without checking them again: field for field what :func:`decode` makes of those bytes.
     ``times_s`` (m,) and ``positions_m`` (m, 3): fresh float64 arrays, taken and made
     read-only."""
     msg = object.__new__(PredictionMessage)
