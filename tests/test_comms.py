@@ -318,6 +318,55 @@ def test_a_ticks_broadcasts_at_once_draw_and_deliver_as_one_by_one(loss: float, 
         many.publish_many([b"x", b"y"], ["u0"], 3.0)
 
 
+def _tick_by_tick(link: SimulatedLink, ids: list[str], seed: int, ticks: int = 150) -> list:
+    """What ``link`` delivers, tick by tick, when a random third of ``ids`` broadcast at
+    each tick (several at once: ``publish_many``) and a receiver takes its copies by hand
+    now and then (``receive``, which marks them taken in the queue)."""
+    rng = np.random.default_rng(seed)
+    got = []
+    for k in range(ticks):
+        t = 0.01 * k
+        senders = [u for u in ids if rng.random() < 0.3]
+        link.publish_many([f"{s}-{k}".encode() for s in senders], senders, t)
+        if k % 7 == 3:
+            got.append(("receive", k, link.receive(ids[k % len(ids)], t)))
+        due = link.take_due(t)
+        if due is not None:
+            got.append((k, due.receivers.tolist(), due.which.tolist(),
+                        [link.payload(p) for p in due.payloads], due.copies.tolist()))
+            link.release(due.payloads, due.copies)
+    return got
+
+
+@pytest.mark.parametrize("blocks", [1, 2, 3, 7])
+@pytest.mark.parametrize("loss, burst_len, ranged", [
+    (0.0, 0.0, False), (0.3, 3.0, False), (0.2, 2.0, True)])
+def test_a_ticks_copies_on_threads_are_queued_as_on_one(
+        monkeypatch: pytest.MonkeyPatch, loss: float, burst_len: float, ranged: bool,
+        blocks: int) -> None:
+    """The link's threaded queue (a tick's broadcasts drawn and sorted in blocks) gives the
+    deliveries (their order, the chains' losses) and the statistics of the
+    serial ones, for any number of blocks (run here with the blocks given, on any machine)."""
+    import uavmpc.comms.link as link_module
+
+    ids = [f"u{i}" for i in range(12)]
+    rng = np.random.default_rng(1)
+    where = {u: rng.normal(size=3) * 40.0 for u in ids}
+    kw = dict(latency_s=0.03, jitter_s=0.04, loss=loss, burst_len=burst_len, seed=9,
+              range_m=60.0 if ranged else None, position_of=where.get if ranged else None)
+    serial = SimulatedLink(ids, **kw)
+    want = _tick_by_tick(serial, ids, 5)
+    def queue(*args: object) -> tuple[int, int, int, int]:
+        b, _, n1 = args[3].shape  # the draws
+        return link_module.queue_copies_threads(*args, np.empty((b, n1)),
+                                                np.empty((b, n1), dtype=np.int64), blocks)
+
+    monkeypatch.setattr(link_module, "queue_copies", queue)
+    threaded = SimulatedLink(ids, **kw)
+    assert _tick_by_tick(threaded, ids, 5) == want and len(want) > 100
+    assert vars(threaded.stats) == vars(serial.stats)
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.lists(st.one_of(st.floats(0.0, 1.0), st.sampled_from([0.25, 0.5, 2.0e9 + 0.07])),
                 max_size=300), st.booleans())

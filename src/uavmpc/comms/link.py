@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal, NamedTuple, Protocol, runtime_checkable
 
+import numba
 import numpy as np
 
 from uavmpc.comms.auth import Roster, check_key, unseal, verify
@@ -161,6 +162,58 @@ def stable_order(keys: np.ndarray, n: int, order: np.ndarray, bucket: np.ndarray
         order[j + 1] = cur
 
 
+@kernel
+def _draw_copies(j: int, s: int, draws: np.ndarray, loss: float, thresholds: np.ndarray,
+                 burst: bool, state: np.ndarray, in_range: np.ndarray, ranged: bool,
+                 latency_s: float, jitter_s: float, t_s: float, at: np.ndarray,
+                 rcv: np.ndarray) -> tuple[int, int, int]:
+    """Broadcast ``j`` from member ``s``, as :func:`queue_copies` draws it: its copies' times
+    and receivers, in receiver order, into ``at`` and ``rcv`` (n − 1,); returns (copies,
+    lost, out of range). Steps the sender's row of ``state`` only."""
+    n1 = draws.shape[2]
+    c = 0
+    lost_n = 0
+    out_n = 0
+    for k in range(n1):
+        r = k if k < s else k + 1
+        lost = draws[j, 0, k] < (thresholds[state[s, r] + 1] if burst else loss)
+        near = in_range[j, k] if ranged else True
+        if burst and near:  # out of range nothing was sent: the chain keeps its state
+            state[s, r] = 1 if lost else 0
+        if not near:
+            out_n += 1
+        elif lost:
+            lost_n += 1
+        else:
+            at[c] = t_s + (latency_s + jitter_s * draws[j, 1, k])
+            rcv[c] = r
+            c += 1
+    return c, lost_n, out_n
+
+
+@kernel
+def _place_copies(q: InFlight, used: int, c: int, seq: int, at: np.ndarray, rcv: np.ndarray,
+                  order: np.ndarray, bucket: np.ndarray) -> None:
+    """``c`` copies (``at``, ``rcv``, in receiver order) into the queue from ``used`` on,
+    sorted by time, equal times in receiver order, numbered from ``seq`` in receiver order.
+    ``order`` (≥ c,), ``bucket`` (≥ c + 1,): work."""
+    stable_order(at, c, order, bucket)
+    for i in range(c):
+        q.at_s[used + i] = at[order[i]]
+        q.seq[used + i] = seq + order[i]
+        q.receiver[used + i] = rcv[order[i]]
+
+
+@kernel
+def _open_chunk(q: InFlight, chunk: int, used: int, c: int, sender: int, pid: int) -> None:
+    """Chunk ``chunk``: the ``c`` copies from ``used`` on of payload ``pid`` from ``sender``."""
+    q.pos[chunk] = used
+    q.end[chunk] = used + c
+    q.sender[chunk] = sender
+    q.payload[chunk] = pid
+    q.taken[chunk] = False
+
+
 @kernel(allocates=True)
 def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders: np.ndarray,
                  loss: float, thresholds: np.ndarray, burst: bool, state: np.ndarray,
@@ -186,42 +239,72 @@ def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders
     lost_n = 0
     out_n = 0
     for j in range(senders.shape[0]):
-        s = senders[j]
-        c = 0
-        for k in range(n1):
-            r = k if k < s else k + 1
-            lost = draws[j, 0, k] < (thresholds[state[s, r] + 1] if burst else loss)
-            near = in_range[j, k] if ranged else True
-            if burst and near:  # out of range nothing was sent: the chain keeps its state
-                state[s, r] = 1 if lost else 0
-            if not near:
-                out_n += 1
-            elif lost:
-                lost_n += 1
-            else:
-                at[c] = t_s + (latency_s + jitter_s * draws[j, 1, k])
-                rcv[c] = r
-                c += 1
+        c, lost, out = _draw_copies(j, senders[j], draws, loss, thresholds, burst, state,
+                                    in_range, ranged, latency_s, jitter_s, t_s, at, rcv)
+        lost_n += lost
+        out_n += out
         counts[j] = c
         if c == 0:
             pids[j] = -1
             continue
-        stable_order(at, c, order, bucket)  # equal times in sending order
-        for i in range(c):
-            q.at_s[used + i] = at[order[i]]
-            q.seq[used + i] = seq + order[i]
-            q.receiver[used + i] = rcv[order[i]]
-        q.pos[chunks] = used
-        q.end[chunks] = used + c
-        q.sender[chunks] = s
-        q.payload[chunks] = pid
-        q.taken[chunks] = False
+        _place_copies(q, used, c, seq, at, rcv, order, bucket)  # equal times: sending order
+        _open_chunk(q, chunks, used, c, senders[j], pid)
         pids[j] = pid
         pid += 1
         seq += c
         used += c
         chunks += 1
     return chunks, used, lost_n, out_n
+
+
+@kernel(parallel=True)
+def queue_copies_threads(q: InFlight, chunks: int, used: int, draws: np.ndarray,
+                         senders: np.ndarray, loss: float, thresholds: np.ndarray, burst: bool,
+                         state: np.ndarray, in_range: np.ndarray, ranged: bool,
+                         latency_s: float, jitter_s: float, t_s: float, first_pid: int,
+                         first_seq: int, pids: np.ndarray, counts: np.ndarray,
+                         at: np.ndarray, rcv: np.ndarray, blocks: int
+                         ) -> tuple[int, int, int, int]:
+    """:func:`queue_copies` with the broadcasts on threads: each drawn into a row of its own,
+    then their places in the queue counted in sending order, then each sorted into its
+    place, ``blocks`` contiguous blocks of broadcasts per pass. The same queue, ids, counts
+    and chains for any number of blocks. With ``burst``, ``senders`` must be distinct (each
+    broadcast steps its sender's chains only). ``at`` (≥ B, n − 1), ``rcv`` (≥ B, n − 1)
+    int64: work."""
+    b = senders.shape[0]
+    n1 = draws.shape[2]
+    nb = max(1, min(b, blocks))
+    lost = np.empty(b, dtype=np.int64)
+    out = np.empty(b, dtype=np.int64)
+    for blk in numba.prange(nb):
+        for j in range(blk * b // nb, (blk + 1) * b // nb):
+            counts[j], lost[j], out[j] = _draw_copies(
+                j, senders[j], draws, loss, thresholds, burst, state, in_range, ranged,
+                latency_s, jitter_s, t_s, at[j], rcv[j])
+    start = np.empty(b, dtype=np.int64)
+    first = np.empty(b, dtype=np.int64)
+    seq = first_seq
+    pid = first_pid
+    for j in range(b):
+        c = counts[j]
+        start[j] = used
+        first[j] = seq
+        if c == 0:
+            pids[j] = -1
+            continue
+        _open_chunk(q, chunks, used, c, senders[j], pid)
+        pids[j] = pid
+        pid += 1
+        seq += c
+        used += c
+        chunks += 1
+    for blk in numba.prange(nb):
+        order = np.empty(n1, dtype=np.int64)
+        bucket = np.empty(n1 + 1, dtype=np.int64)
+        for j in range(blk * b // nb, (blk + 1) * b // nb):
+            if counts[j]:
+                _place_copies(q, start[j], counts[j], first[j], at[j], rcv[j], order, bucket)
+    return chunks, used, int(lost.sum()), int(out.sum())
 
 
 @kernel
@@ -309,6 +392,12 @@ def move_copies(q: InFlight, chunks: int, into: InFlight) -> int:
         into.payload[c] = q.payload[c]
         into.taken[c] = q.taken[c]
     return used
+
+
+#: From this many copies on, :class:`SimulatedLink` queues a tick's broadcasts on threads
+#: (:func:`queue_copies_threads`) when it has several: below, starting them costs more than
+#: they save.
+THREADED_COPIES = 2048
 
 
 class Due(NamedTuple):
@@ -418,6 +507,13 @@ class SimulatedLink:
         self._chunks = 0
         self._used = 0
         self._seen = np.zeros(0, dtype=np.bool_)  # take_copies' scratch, one per member
+        #: Work arrays kept from call to call (their pages stay mapped): the draws of
+        #: publish_many, queue_copies_threads' copies, and take_copies' outputs (receivers,
+        #: payload indices, times as their bits, sequence numbers).
+        self._draws = np.empty(0)
+        self._work_at = np.empty(0)
+        self._work_rcv = np.empty(0, dtype=np.int64)
+        self._taken = np.empty((4, 0), dtype=np.int64)
         self._payloads: dict[int, bytes] = {}
         self._copies_left: dict[int, int] = {}
         self._next_payload = 0
@@ -476,7 +572,10 @@ class SimulatedLink:
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order. Per
         # broadcast: n − 1 uniforms for the loss, then n − 1 for the jitter.
-        draws = self._rng.random(2 * b * (n - 1)).reshape(b, 2, n - 1)
+        size = 2 * b * (n - 1)
+        if self._draws.shape[0] < size:  # grown, never shrunk: fresh pages cost more
+            self._draws = np.empty(max(size, 2 * self._draws.shape[0]))
+        draws = self._rng.random(out=self._draws[:size]).reshape(b, 2, n - 1)
         ranged = self.range_m is not None
         in_range = (np.stack([self._in_range(sender_id, np.delete(np.arange(n), s))
                               for sender_id, s in zip(sender_ids, senders.tolist(),
@@ -486,11 +585,20 @@ class SimulatedLink:
         pids = np.empty(b, dtype=np.int64)
         counts = np.empty(b, dtype=np.int64)
         burst = self._thresholds is not None
-        self._chunks, used, lost, out = queue_copies(
-            self._q, self._chunks, self._used, draws, senders, self.loss,
-            self._thresholds if self._thresholds is not None else _NO_THRESHOLDS, burst,
-            self._state, in_range, ranged, self.latency_s, self.jitter_s, float(t_s),
-            self._next_payload, self._seq, pids, counts)
+        args = (self._q, self._chunks, self._used, draws, senders, self.loss,
+                self._thresholds if self._thresholds is not None else _NO_THRESHOLDS, burst,
+                self._state, in_range, ranged, self.latency_s, self.jitter_s, float(t_s),
+                self._next_payload, self._seq, pids, counts)
+        threads = numba.get_num_threads()
+        if threads > 1 and b > 1 and b * (n - 1) >= THREADED_COPIES:
+            if self._work_at.size < b * (n - 1):
+                self._work_at = np.empty(2 * b * (n - 1))
+                self._work_rcv = np.empty(2 * b * (n - 1), dtype=np.int64)
+            self._chunks, used, lost, out = queue_copies_threads(
+                *args, self._work_at[:b * (n - 1)].reshape(b, n - 1),
+                self._work_rcv[:b * (n - 1)].reshape(b, n - 1), threads)
+        else:
+            self._chunks, used, lost, out = queue_copies(*args)
         self.stats.dropped += lost
         self.stats.dropped_range += out
         if used > self._used:
@@ -587,15 +695,17 @@ class SimulatedLink:
         if self._seen.shape[0] < len(self._members):
             self._seen = np.zeros(len(self._members), dtype=np.bool_)
         u, c = self._used, self._chunks
-        rcv, which = np.empty(u, dtype=np.int64), np.empty(u, dtype=np.int64)
-        at, seq = np.empty(u), np.empty(u, dtype=np.int64)
+        if self._taken.shape[1] < u:
+            self._taken = np.empty((4, max(u, 2 * self._taken.shape[1])), dtype=np.int64)
+        rcv, which, at_bits, seq = self._taken
+        at = at_bits.view(np.float64)
         pids, copies = np.empty(c, dtype=np.int64), np.empty(c, dtype=np.int64)
         k, g, ordered = take_copies(self._q, c, float(t_s), self._seen, rcv, which, at, seq,
                                     pids, copies)
         self._drop_delivered()
         if not k:
             return None
-        rcv, which = rcv[:k], which[:k]
+        rcv, which = rcv[:k].copy(), which[:k].copy()
         if not ordered:
             # Two due broadcasts of one sender (or injected bytes, whose sender is unknown):
             # their copies must keep the delivery order between them.
