@@ -147,3 +147,37 @@ def test_compiled_proximity_equals_the_numpy_oracle(seed: int, n: int, k: int,
         assert np.array_equal(near, near_ref[i])
         assert np.array_equal(dz, -d[i, :, 2])
         assert np.array_equal(dxy, np.sqrt(d[i, :, 0] ** 2 + d[i, :, 1] ** 2))
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_every_ticks_closest_distance_and_contacts_are_the_pairs_own(threads: int) -> None:
+    """The tick writes only the closest distance (the smallest root of the pairs' squared
+    distances, found over the threads with two); the contacts compute every pair's distance
+    while one goes on. Both must be what the pairs of the traced positions give: the
+    closest bit for bit, each contact a pair that came within the collision distance, at
+    its smallest distance."""
+    from scipy.spatial.distance import pdist
+
+    from uavmpc.drivers.world_report import COLLISION_DISTANCE_M
+    from uavmpc.drivers.world_tick import pair_distances
+    from uavmpc.jit import available_threads, using_threads
+
+    if threads > available_threads():
+        pytest.skip("one core")
+    with using_threads(threads):
+        r = World(scenarios.load("antipodal_8"), avoidance=False).run()
+    n = len(r.uav_ids)
+    a, b = np.triu_indices(n, 1)
+    d = np.empty((r.t_s.shape[0], a.shape[0]))
+    for k in range(r.t_s.shape[0]):
+        pair_distances(r.positions_m[k], d[k])
+    assert np.array_equal(r.min_distance_m, d.min(axis=1))
+    np.testing.assert_allclose(d, [pdist(p) for p in r.positions_m], rtol=1e-15)
+    close = d < COLLISION_DISTANCE_M
+    assert close.any()  # the test needs contacts
+    pairs = {(r.uav_ids[a[j]], r.uav_ids[b[j]]) for j in np.flatnonzero(close.any(axis=0))}
+    assert {(c.a, c.b) for c in r.collisions} == pairs
+    for j in np.flatnonzero(close.any(axis=0)):
+        got = [c.distance_m for c in r.collisions if (c.a, c.b) == (r.uav_ids[a[j]],
+                                                                    r.uav_ids[b[j]])]
+        assert min(got) == d[close[:, j], j].min()

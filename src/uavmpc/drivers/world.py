@@ -648,7 +648,7 @@ class World:
                 self._positions[u.uav_id] = tr.pos[k, i]
         n = len(self.uavs)
         if n > 1:
-            contacts.update(self.t_s, float(tr.dmin[k]), tr.pair_d)
+            contacts.update(self.t_s, float(tr.dmin[k]), tr.pos[k])
         if (self.recorder is not None or on_log is not None) and self.t_s >= next_log - 1e-9:
             next_log = self.t_s + POSE_LOG_PERIOD_S
             if self.recorder is not None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uavmpc.drivers.summary import Formation, Landing
-from uavmpc.drivers.world_tick import STAGES
+from uavmpc.drivers.world_tick import STAGES, pair_distances
 from uavmpc.missions.formation import formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 
@@ -45,14 +45,18 @@ class Contacts:
     def __init__(self, ids: Sequence[str]) -> None:
         self.ids = list(ids)
         self._pairs = np.triu_indices(len(ids), 1)
+        self._pair_d = np.empty(self._pairs[0].shape[0])
         self._open: dict[tuple[int, int], Collision] = {}
         self.collisions: list[Collision] = []
 
-    def update(self, t_s: float, closest_m: float, pair_d: np.ndarray) -> None:
-        """The pair distances ``pair_d`` (N (N − 1) / 2,) at ``t_s``, ``closest_m`` their
-        minimum [m]."""
+    def update(self, t_s: float, closest_m: float, positions_m: np.ndarray) -> None:
+        """The UAVs at ``positions_m`` (N, 3) at ``t_s``, ``closest_m`` the smallest distance
+        between two of them [m]: the distance of every pair is only computed while a contact
+        begins, goes on or ends."""
         if not closest_m < COLLISION_DISTANCE_M and not self._open:
             return
+        pair_d = self._pair_d
+        pair_distances(positions_m, pair_d)
         close = pair_d < COLLISION_DISTANCE_M
         if not close.any() and not self._open:
             return
@@ -180,14 +184,13 @@ def _formation(result: WorldResult, spec: FormationSpec) -> None:
 @dataclasses.dataclass
 class Traces:
     """A run's traces, written tick by tick: times (K,), true positions (K, N, 3), z offsets
-    (K, N), closest distance (K,), the pair distances of the last tick (N (N − 1) / 2,), and
-    whether any formation member (rows ``members``) avoids (K,)."""
+    (K, N), closest distance (K,), and whether any formation member (rows ``members``)
+    avoids (K,)."""
 
     t_s: np.ndarray
     pos: np.ndarray
     zoff: np.ndarray
     dmin: np.ndarray
-    pair_d: np.ndarray
     members: np.ndarray
     members_avoiding: np.ndarray
 
@@ -197,12 +200,11 @@ class Traces:
         members = (np.array([ids.index(m) for m in formation.members])
                    if formation is not None else np.zeros(0, dtype=np.int64))
         return cls(np.empty(ticks), np.empty((ticks, n, 3)), np.empty((ticks, n)),
-                   np.full(ticks, np.inf), np.empty(max(1, n * (n - 1) // 2)), members,
-                   np.zeros(ticks, dtype=bool))
+                   np.full(ticks, np.inf), members, np.zeros(ticks, dtype=bool))
 
     def kernel_args(self, k: int) -> tuple[Any, ...]:
         """Row ``k``'s traces as :func:`~uavmpc.drivers.world_tick.world_tick` writes them."""
-        return (k, self.pos, self.zoff, self.dmin, self.pair_d)
+        return (k, self.pos, self.zoff, self.dmin)
 
 
 def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,

@@ -29,12 +29,13 @@ N_CYCLES = len(STAGES) + 1
 
 @kernel(allocates=True)
 def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d, cycles, est):
+               cycles, est):
     """One 10 ms tick of every UAV on the calling thread, the compiled solver inline: each
     UAV's stack (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true
     state, then the plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row
-    ``k`` of the traces (positions (K, N, 3), z offsets (K, N), closest distance (K,)) and the
-    pair distances ``pair_d`` (N (N − 1) / 2,) are written. Returns −1, or the lowest index of
+    ``k`` of the traces (positions (K, N, 3), z offsets (K, N), closest distance (K,)) is
+    written (the pair distances only when asked for: :func:`pair_distances`). Returns −1, or
+    the lowest index of
     a UAV whose attitude target could not be flown (that row is not flown; the caller stops
     the run).
 
@@ -55,7 +56,7 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     if bad >= 0:
         return bad
     c0 = cycle_count() if timed else 0
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out)
     if timed:
         for j in range(N_CYCLES):
             cycles[j] += spent[j]
@@ -65,13 +66,13 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
 
 @kernel(parallel=True)
 def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out,
-                       dmin_out, pair_d, cycles, est, blocks):
+                       dmin_out, cycles, est, blocks):
     """:func:`world_tick` with its rows in ``blocks`` ≥ 1 contiguous blocks, one per thread
     (the caller passes ``numba.get_num_threads()``, see :func:`uavmpc.jit.set_threads`: a
-    compiled function that asks numba itself cannot be cached), the traces' pair distances
-    split by row likewise. A row reads and writes only its own rows of the records, with work
-    arrays of its block's own, so the flight is bit-identical to :func:`world_tick`'s for any
-    thread count. ``cycles`` sums the CPU cycles over the threads."""
+    compiled function that asks numba itself cannot be cached), the traces' closest distance
+    found over the threads likewise. A row reads and writes only its own rows of the records,
+    with work arrays of its block's own, so the flight is bit-identical to
+    :func:`world_tick`'s for any thread count. ``cycles`` sums the CPU cycles over the threads."""
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     nb = max(1, min(n, blocks))
@@ -84,7 +85,7 @@ def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_o
         if bad[b] >= 0:
             return bad[b]
     c0 = cycle_count() if timed else 0
-    _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out)
     if timed:
         for b in range(nb):
             for j in range(N_CYCLES):
@@ -101,8 +102,7 @@ def world_pre(trk, stats, plant):
 
 
 @kernel(allocates=True)
-def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               pair_d):
+def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out):
     """:func:`world_tick` after the trackers ticked (Python solvers): control and plants."""
     qd = np.empty(4)
     ff = np.empty(3)
@@ -113,7 +113,7 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
                               cmd)
         if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d)
+    _trace(trk, plant, k, pos_out, zoff_out, dmin_out)
     return -1
 
 
@@ -146,20 +146,38 @@ def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, est,
 
 
 @kernel
-def _pair_row(a, n, k, pos_out, pair_d):
-    """Row ``a`` of the pair distances (pairs (a, b > a), from index a (2n − a − 1) / 2);
-    returns its minimum (inf for the last row)."""
-    p = a * (2 * n - a - 1) // 2
+def _pair_d(pos: np.ndarray, a: int, b: int) -> float:
+    """The distance between the points ``a`` and ``b`` of ``pos`` (N, 3) [m]."""
+    d0 = pos[a, 0] - pos[b, 0]
+    d1 = pos[a, 1] - pos[b, 1]
+    d2 = pos[a, 2] - pos[b, 2]
+    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@kernel
+def _row_closest(pos: np.ndarray, a: int) -> float:
+    """The distance from point ``a`` of ``pos`` (N, 3) to its nearest point b > a [m] (inf
+    for the last). The minimum of the squares, then its root: the root rounds correctly
+    and never decreases, so this is the smallest :func:`_pair_d`, bit for bit."""
     best = math.inf
-    for b in range(a + 1, n):
-        d0 = pos_out[k, a, 0] - pos_out[k, b, 0]
-        d1 = pos_out[k, a, 1] - pos_out[k, b, 1]
-        d2 = pos_out[k, a, 2] - pos_out[k, b, 2]
-        d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        pair_d[p] = d
-        best = min(best, d)
-        p += 1
-    return best
+    for b in range(a + 1, pos.shape[0]):
+        d0 = pos[a, 0] - pos[b, 0]
+        d1 = pos[a, 1] - pos[b, 1]
+        d2 = pos[a, 2] - pos[b, 2]
+        best = min(best, d0 * d0 + d1 * d1 + d2 * d2)
+    return math.sqrt(best)
+
+
+@kernel
+def pair_distances(pos: np.ndarray, out: np.ndarray) -> None:
+    """The distance of every pair (a, b > a) of the points ``pos`` (N, 3) [m] into ``out``
+    (N (N − 1) / 2,), row by row (``np.triu_indices(N, 1)``'s order)."""
+    n = pos.shape[0]
+    p = 0
+    for a in range(n):
+        for b in range(a + 1, n):
+            out[p] = _pair_d(pos, a, b)
+            p += 1
 
 
 @kernel
@@ -172,25 +190,25 @@ def _positions(trk, plant, k, pos_out, zoff_out):
 
 
 @kernel
-def _trace(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
-    """Row ``k`` of the traces and the pair distances (see :func:`world_tick`)."""
+def _trace(trk, plant, k, pos_out, zoff_out, dmin_out):
+    """Row ``k`` of the traces (see :func:`world_tick`)."""
     _positions(trk, plant, k, pos_out, zoff_out)
-    n = plant.x.shape[0]
     best = math.inf
-    for a in range(n):
-        best = min(best, _pair_row(a, n, k, pos_out, pair_d))
+    for a in range(plant.x.shape[0]):
+        best = min(best, _row_closest(pos_out[k], a))
     dmin_out[k] = best
 
 
 @kernel(parallel=True)
-def _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out, pair_d):
-    """:func:`_trace` with the pair distances' rows over the threads, each with its own
-    minimum."""
+def _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out):
+    """:func:`_trace` with the closest distance found over the threads: rows a and
+    N − 1 − a together (the pairs' triangle in equal shares), each row's minimum its own."""
     _positions(trk, plant, k, pos_out, zoff_out)
     n = plant.x.shape[0]
     row_min = np.full(max(n, 1), math.inf)
-    for a in numba.prange(n):
-        row_min[a] = _pair_row(a, n, k, pos_out, pair_d)
+    for a in numba.prange((n + 1) // 2):
+        row_min[a] = _row_closest(pos_out[k], a)
+        row_min[n - 1 - a] = _row_closest(pos_out[k], n - 1 - a)
     dmin_out[k] = row_min.min()
 
 
