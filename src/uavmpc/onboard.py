@@ -441,6 +441,10 @@ class OnboardBatch:
         #: What each row broadcast last (:func:`broadcast`).
         self.sent = SentRows.empty(n, self.tracker.config.steps)
         self.position_sigma_m = np.zeros((n, 2))
+        #: The rows whose last avoidance decision holds short
+        #: (:attr:`~uavmpc.avoidance.AvoidanceDecision.holding`): only their strategies have
+        #: :meth:`~uavmpc.avoidance.EncounterStrategy.hold_probes` to find.
+        self.holding: set[int] = set()
         self.n = n
         self._one: tuple[ReferenceTable, object] | None = None
 
@@ -649,6 +653,7 @@ class OnboardStack:
         self.cooperative = False
         self.batch.schedule.planning[self.row] = False
         self.decision = None
+        self.batch.holding.discard(self.row)
         self.batch.stats.avoiding[self.row] = False
         if self._limits_key != (1.0, None, None):
             self._limits_key = (1.0, None, None)
@@ -861,7 +866,13 @@ class OnboardStack:
     # ------------------------------------------------------------------ internals
     def apply(self, decision: AvoidanceDecision) -> None:
         """Steer by an avoidance decision: its z offset and limits from the next tick on."""
+        if decision is self.decision:
+            return  # steering by it already (only this and follow() change what it sets)
         self.decision = decision
+        if decision.holding:
+            self.batch.holding.add(self.row)
+        else:
+            self.batch.holding.discard(self.row)
         if decision.z_offset_m != self.tracker.z_offset_m:
             self.tracker.set_z_offset(decision.z_offset_m)
         key = (decision.horizontal_scale, decision.climb_speed_mps, decision.climb_accel_mps2,
@@ -943,10 +954,12 @@ def avoidance_round(batch: OnboardBatch,
     # A UAV holding short also has its probes found (docs/safety.md, A6): the same receiver
     # row again, once per probe, after the plans of this round.
     held = []
-    for j, i in enumerate(which):
-        p = stacks[i].hold_probes(float(plan_s[j]), times[j], own[j, 0])
-        if p is not None:
-            held.append((j, p))
+    if batch.holding:
+        for j, i in enumerate(which):
+            if i in batch.holding:
+                p = stacks[i].hold_probes(float(plan_s[j]), times[j], own[j, 0])
+                if p is not None:
+                    held.append((j, p))
     ov = [overrides[i] if overrides is not None else stacks[i].encounter_overrides()
           for i in which]
     radius = np.array([stacks[i].params.radius_m for i in which])

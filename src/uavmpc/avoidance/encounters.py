@@ -93,14 +93,16 @@ class Encounters:
     def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
         """(k,) we yield to them: their flag is down (docs/safety.md, A7), or
         :meth:`outrank` us. The strategy adds those that have not heard us (A2)."""
-        return ~self.avoiding.astype(bool) | self.outrank(own_id, own_priority)
+        return np.logical_not(self.avoiding) | self.outrank(own_id, own_priority)
 
     def outrank(self, own_id: str, own_priority: int) -> np.ndarray:
         """(k,) a higher priority than ours (lower number; equal numbers, which a valid
         set-up never has, are broken by id), whatever their flags."""
-        return np.array([p < own_priority or (p == own_priority and i < own_id)
-                         for i, p in zip(self.ids, self.priority.tolist(), strict=True)],
-                        dtype=bool)
+        out = self.priority < own_priority
+        tie = self.priority == own_priority
+        if tie.any():
+            out |= tie & np.array([i < own_id for i in self.ids], dtype=bool)
+        return out
 
 
 @kernel

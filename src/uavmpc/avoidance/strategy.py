@@ -372,20 +372,69 @@ def _half(enc: Encounters, half_height_m: float) -> np.ndarray:
     return half_height_m + enc.widen_v_m[:, None]
 
 
+@kernel
+def conflict_points(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
+                    half_height_m: float, offsets_m: np.ndarray, out: np.ndarray) -> None:
+    """The cylinder (SPEC §5.2): whether each of k encounters' m points (horizontally near:
+    ``near_xy`` (k, m); the other's height minus ours: ``dz_m`` (k, m)) conflicts with our
+    plan raised by each of ``offsets_m`` (c,): within the pair's half height, the cylinder's
+    ``half_height_m`` widened by ``widen_v_m`` (k,) (docs/safety.md, A3). Into ``out``
+    (c, k, m)."""
+    for c in range(offsets_m.shape[0]):
+        for j in range(near_xy.shape[0]):
+            h = half_height_m + widen_v_m[j]
+            for p in range(near_xy.shape[1]):
+                out[c, j, p] = near_xy[j, p] and abs(dz_m[j, p] + offsets_m[c]) <= h
+
+
+@kernel
+def conflict_rows(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
+                  half_height_m: float, offset_m: float, hit: np.ndarray) -> int:
+    """:func:`conflict_points` at one offset, summed up: whether each encounter conflicts
+    somewhere into ``hit`` (k,); returns the first point any of them conflicts at (−1: none
+    does)."""
+    m = near_xy.shape[1]
+    first = m
+    for j in range(near_xy.shape[0]):
+        h = half_height_m + widen_v_m[j]
+        hit[j] = False
+        for p in range(min(first + 1, m)):  # a row's points after the first found: no news
+            if near_xy[j, p] and abs(dz_m[j, p] + offset_m) <= h:
+                hit[j] = True
+                first = p
+                break
+        if not hit[j]:
+            for p in range(first + 1, m):
+                if near_xy[j, p] and abs(dz_m[j, p] + offset_m) <= h:
+                    hit[j] = True
+                    break
+    return first if first < m else -1
+
+
+@kernel
+def conflict_below(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
+                   half_height_m: float, offset_m: float) -> bool:
+    """Whether some point conflicts at SOME offset in [0, ``offset_m``]: the way down
+    (arguments as :func:`conflict_points`). |dz + o| ≤ h for some o ∈ [0, z]  ⇔
+    −h − z ≤ dz ≤ h (an exact interval test)."""
+    for j in range(near_xy.shape[0]):
+        h = half_height_m + widen_v_m[j]
+        for p in range(near_xy.shape[1]):
+            if near_xy[j, p] and dz_m[j, p] >= -h - offset_m and dz_m[j, p] <= h:
+                return True
+    return False
+
+
 def _conflicts(enc: Encounters, offset_m: float | np.ndarray, half_height_m: float
                ) -> np.ndarray:
-    """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets."""
-    off = np.asarray(offset_m, dtype=float)[..., None, None]
-    return enc.near_xy & (np.abs(enc.dz_m + off) <= _half(enc, half_height_m))
-
-
-def _below(enc: Encounters, offset_m: float, half_height_m: float) -> np.ndarray:
-    """(k, m) points in conflict at SOME offset in [0, offset_m]: the way down.
-
-    |dz + o| ≤ h for some o ∈ [0, z]  ⇔  −h − z ≤ dz ≤ h (an exact interval test).
-    """
-    h = _half(enc, half_height_m)
-    return enc.near_xy & (enc.dz_m >= -h - offset_m) & (enc.dz_m <= h)
+    """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets
+    (:func:`conflict_points`)."""
+    offsets = np.asarray(offset_m, dtype=float)
+    k, m = enc.near_xy.shape
+    out = np.empty((offsets.size, k, m), dtype=bool)
+    conflict_points(enc.near_xy, enc.dz_m, enc.widen_v_m, half_height_m,
+                    offsets.reshape(-1), out)
+    return out if offsets.ndim else out[0]
 
 
 def _subset(enc: Encounters, keep: np.ndarray) -> Encounters:
@@ -548,13 +597,14 @@ class HeightOffsetStrategy:
         # a pair that cannot hear each other still resolves its conflict.
         enc = known
         must_yield = known.must_yield(own_id, own_priority)
-        deaf, unheard = self._deaf(now_s, enc)
-        must_yield = must_yield | deaf | unheard
+        deaf, unheard, deaf_ids = self._deaf(now_s, enc)
+        if deaf_ids:
+            must_yield = must_yield | deaf | unheard
 
         z_start = self.z_offset_m
-        c_start = _conflicts(enc, z_start, half_h)  # (k, m)
-        hit_start = c_start.any(axis=1)
-        any_start = bool(hit_start.any())
+        hit_start = np.empty(len(enc.ids), dtype=bool)
+        first = conflict_rows(enc.near_xy, enc.dz_m, enc.widen_v_m, half_h, z_start, hit_start)
+        any_start = first >= 0
         yield_hit = hit_start & must_yield
         ceiling_hit = False
         waiting_for: tuple[str, ...] = ()
@@ -564,17 +614,20 @@ class HeightOffsetStrategy:
             self.z_offset_m, ceiling_hit, waiting_for = self._climb(
                 enc, must_yield, half_h, times - now_s,
                 self.z_offset_m if climbed_m is None else min(climbed_m, self.z_offset_m))
-        c_end = c_start if self.z_offset_m == z_start else _conflicts(enc, self.z_offset_m,
-                                                                        half_h)
-        hit_end = c_end.any(axis=1)
-        any_end = bool(hit_end.any())
+        if self.z_offset_m == z_start:
+            hit_end, any_end = hit_start, any_start
+        else:
+            hit_end = np.empty(len(enc.ids), dtype=bool)
+            any_end = conflict_rows(enc.near_xy, enc.dz_m, enc.widen_v_m, half_h,
+                                    self.z_offset_m, hit_end) >= 0
         unresolved = hit_end & must_yield
-        any_unresolved = bool(unresolved.any())
+        any_unresolved = any_end and bool(unresolved.any())
         # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
         # in force, and none anywhere on the way down to 0 either. Climbing over a UAV removes
         # the conflict but not the reason for the offset; without this, the offset would be
         # released on top of it and re-raised as soon as the conflict reappeared.
-        if any_start or any_end or _below(enc, self.z_offset_m, half_h).any():
+        if any_start or any_end or conflict_below(enc.near_xy, enc.dz_m, enc.widen_v_m, half_h,
+                                                  self.z_offset_m):
             self._last_conflict_s = now_s
         else:
             # Found in the 24 h campaign with 30 % loss: a UAV that had not heard from another
@@ -584,7 +637,6 @@ class HeightOffsetStrategy:
             self._release(now_s)
         self._last_update_s = now_s
 
-        deaf_ids = tuple(i for i, d in zip(enc.ids, deaf, strict=True) if d)
         holding = self._hold_short(any_unresolved, times, positions,
                                    probes, own_id, own_priority, deaf_ids, unheard)
         # Stuck (docs/safety.md, A6): a hold is a stop within our plan, so that the one we
@@ -601,7 +653,7 @@ class HeightOffsetStrategy:
         if any_unresolved:
             by_rank = (unresolved & known.avoiding & ~deaf & (not unheard)
                        & known.outrank(own_id, own_priority))
-            coming = by_rank & ~c_end[:, 0]  # not in conflict now: it comes to us
+            coming = by_rank & ~_conflicts(enc, self.z_offset_m, half_h)[:, 0]  # it comes to us
             self._stuck = bool(by_rank.any()) and (
                 self._stuck or (bool(coming.any()) and _standing_still(positions)))
         else:
@@ -609,9 +661,7 @@ class HeightOffsetStrategy:
         recent = (self._last_conflict_s is not None
                   and now_s - self._last_conflict_s < prm.release_hysteresis_s)
         limits_tight = bool(any_start or any_end or recent or holding)
-        first_s = None
-        if any_start:
-            first_s = float(times[np.flatnonzero(c_start.any(axis=0))[0]] - now_s)
+        first_s = float(times[first] - now_s) if any_start else None
         return AvoidanceDecision(
             z_offset_m=self.z_offset_m,
             avoiding=limits_tight or self.z_offset_m > 0.0,
@@ -717,34 +767,40 @@ class HeightOffsetStrategy:
             blocked |= (c & ~left).any(axis=(1, 2))
         return not bool(blocked.all())
 
-    def _deaf(self, now_s: float, enc: Encounters) -> tuple[np.ndarray, bool]:
+    def _deaf(self, now_s: float, enc: Encounters
+              ) -> tuple[np.ndarray, bool, tuple[str, ...]]:
         """The acknowledgement (docs/safety.md, A2): (k,) the UAVs near that have not listed
-        us for ``ack_grace_s``, and whether nobody near has (then we yield to all of them).
+        us for ``ack_grace_s``, whether nobody near has (then we yield to all of them), and
+        the ids of the first.
 
         Only a UAV whose flag is up is judged (we yield to the others anyway), and only on a
         fresh message: a silent UAV's last list is old news, and a silent spell neither starts
         nor restarts the count (on a lossy link a UAV flickers between fresh and silent)."""
         grace = self.params.ack_grace_s
         k = len(enc.ids)
-        if grace <= 0.0:
-            return np.zeros(k, dtype=bool), False
-        since: dict[str, float] = {}
         deaf = np.zeros(k, dtype=bool)
-        for j, other in enumerate(enc.ids):
-            if not enc.avoiding[j]:
+        if grace <= 0.0:
+            return deaf, False, ()
+        since: dict[str, float] = {}
+        named: list[str] = []
+        for j, (other, up, silent, hears) in enumerate(zip(
+                enc.ids, enc.avoiding.tolist(), enc.silent_row.tolist(), enc.hears_us.tolist(),
+                strict=True)):
+            if not up:
                 continue
-            if not enc.silent_row[j] and enc.hears_us[j]:
+            if not silent and hears:
                 self._listed_s = now_s
                 continue
             start = self._unlisted_since.get(other)
-            if start is None and enc.silent_row[j]:
+            if start is None and silent:
                 continue
             since[other] = now_s if start is None else start
-            deaf[j] = now_s - since[other] >= grace
+            if now_s - since[other] >= grace:
+                deaf[j] = True
+                named.append(other)
         self._unlisted_since = since
-        unheard = bool(deaf.any()) and (self._listed_s is None
-                                        or now_s - self._listed_s >= grace)
-        return deaf, unheard
+        unheard = bool(named) and (self._listed_s is None or now_s - self._listed_s >= grace)
+        return deaf, unheard, tuple(named)
 
     def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
                ahead_s: np.ndarray, climbed: float) -> tuple[float, bool, tuple[str, ...]]:
