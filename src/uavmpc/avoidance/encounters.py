@@ -658,7 +658,6 @@ class EncounterFinder:
         self.blocks: int | None = None
         self._cap_e = 16
         self._cap_s = 16
-        self._out: tuple[np.ndarray, ...] | None = None
 
     def find(self, due: np.ndarray, own_times: np.ndarray, own_pos: np.ndarray,
              now_s: np.ndarray, radius_m: np.ndarray,
@@ -705,7 +704,6 @@ class EncounterFinder:
                 break
             self._cap_e = max(self._cap_e, 2 * ne)
             self._cap_s = max(self._cap_s, 2 * ns)
-            self._out = None
         e_start, e_col, e_silent, e_near, e_announced, e_dz, e_dxy, s_start, s_col = out
         ids, st, rows = t.ids, t.store, t.rows
         result = []
@@ -724,12 +722,13 @@ class EncounterFinder:
             me = ids[int(rows.own_col[r])]
             widen_v = np.array([pair_widening_m(float(sig[j, 1]), s, self.sigma_k)
                                 for s in st.sigma_m[slots, 1].tolist()])
+            # Views of this call's outputs (a call writes arrays of its own).
             result.append(Encounters(
-                tuple(ids[c] for c in cols_j.tolist()), st.priority[slots].copy(),
-                st.avoiding[slots].copy(), e_silent[a:b].copy(), e_near[a:b].copy(),
-                e_dz[a:b].copy(), silent, e_announced[a:b].copy(),
+                tuple(map(ids.__getitem__, cols_j.tolist())), st.priority[slots],
+                st.avoiding[slots], e_silent[a:b], e_near[a:b], e_dz[a:b], silent,
+                e_announced[a:b],
                 np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v,
-                e_dxy[a:b].copy()))
+                e_dxy[a:b]))
         return result
 
     def heard(self, row: int, now_s: float, own_xy_m: np.ndarray,
@@ -746,14 +745,9 @@ class EncounterFinder:
         return tuple(map(t.ids.__getitem__, out[:n].tolist()))
 
     def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:
-        out = self._out
-        if out is None or out[0].shape[0] < r_count + 1 or out[3].shape[1] != m:
-            ce, cs = self._cap_e, self._cap_s
-            out = (np.zeros(r_count + 1, dtype=np.int64), np.zeros(ce, dtype=np.int64),
-                   np.zeros(ce, dtype=np.bool_), np.zeros((ce, m), dtype=np.bool_),
-                   np.zeros((ce, m), dtype=np.bool_), np.zeros((ce, m)), np.zeros((ce, m)),
-                   np.zeros(r_count + 1, dtype=np.int64), np.zeros(cs, dtype=np.int64))
-            self._out = out
-        if out[0].shape[0] != r_count + 1:
-            return (out[0][:r_count + 1], *out[1:7], out[7][:r_count + 1], out[8])
-        return out
+        """The outputs of one call, fresh: the encounters it returns are views of them."""
+        ce, cs = self._cap_e, self._cap_s
+        return (np.empty(r_count + 1, dtype=np.int64), np.empty(ce, dtype=np.int64),
+                np.empty(ce, dtype=np.bool_), np.empty((ce, m), dtype=np.bool_),
+                np.empty((ce, m), dtype=np.bool_), np.empty((ce, m)), np.empty((ce, m)),
+                np.empty(r_count + 1, dtype=np.int64), np.empty(cs, dtype=np.int64))
