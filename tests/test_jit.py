@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -107,3 +108,33 @@ def test_flights_free_every_array_their_kernels_make(threads) -> None:
             assert allocated > 1000, name  # the count is live: the kernels allocate
             # Arrays the world holds between ticks are replaced, not added: a few either way.
             assert abs(allocated - freed) < 50, (name, allocated, freed)
+
+
+class _Pair(NamedTuple):
+    a: np.ndarray
+    b: np.ndarray
+
+
+def test_a_bound_kernel_binds_again_whenever_its_arguments_types_change() -> None:
+    """:class:`~uavmpc.jit.Bound` skips numba's typing of records from call to call, and
+    still gives what the kernel gives when a record is replaced or an argument's dtype,
+    layout or writability changes (each bound again: a stale binding would refuse the
+    argument or misread its memory)."""
+    from uavmpc.jit import Bound, bound
+
+    @numba.njit
+    def total(rec: _Pair, x: np.ndarray, k: int) -> float:
+        return float(rec.a.sum() + rec.b[0] + x[0] * k)
+
+    b = Bound(total)
+    one = _Pair(np.arange(3.0), np.ones(2))
+    two = _Pair(np.arange(4, dtype=np.int64), np.full(1, 7.0))
+    ints = np.array([5, 6], dtype=np.int64)
+    frozen = np.array([1.5, 9.0])
+    frozen.flags.writeable = False
+    cases = [(one, ints, 2), (one, ints, 3), (two, ints, 2), (one, np.array([0.25]), 2),
+             (one, np.arange(6.0)[::2], 2), (one, frozen, 2), (two, frozen, True)]
+    for rec, x, k in cases:
+        assert b(rec, x, k) == total(rec, x, k)
+    assert bound(total) is bound(total) and isinstance(bound(total), Bound)
+    assert bound(len) is len  # not a kernel: as it is (a test's or a profiler's stand-in)

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numba
+import numpy as np
 from llvmlite import ir
 from numba.core import cgutils, types
 from numba.core import event as numba_event
@@ -200,6 +201,62 @@ def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
     signature = tuple(numba.typeof(a) for a in args)
     compiled: Callable[..., Any] = dispatcher.compile(signature)
     return compiled
+
+
+def _type_key(a: Any) -> Any:
+    """What decides how numba types ``a``, cheaply: a record (a tuple) by identity (its
+    arrays are fixed), an array by dtype, dimensions, layout, alignment and writability, any
+    other value by its Python type."""
+    if type(a) is np.ndarray:
+        f = a.flags
+        return (a.dtype.num, a.ndim, f.c_contiguous, f.f_contiguous, f.aligned, f.writeable)
+    if isinstance(a, tuple):
+        return id(a)
+    return type(a)
+
+
+class Bound:
+    """A kernel called through :func:`bind`, bound again whenever the types of its
+    arguments change (a record replaced by a grown one, say).
+
+    A driver that calls a kernel with records at every tick pays numba's type inference of
+    each record on every call (several µs each, more with cold caches after a world's tick:
+    about 20 µs per call of the broadcast writer, docs/scale.md); through this it pays a
+    Python check of the arguments instead. The records passed must be the driver's own,
+    never modified in place (a NamedTuple's arrays are fixed; their flags must not change).
+
+    Attributes:
+        dispatcher: the kernel (its name labels it in profiles).
+    """
+
+    def __init__(self, dispatcher: Any) -> None:
+        self.dispatcher = dispatcher
+        self._key: tuple[Any, ...] | None = None
+        self._held: tuple[Any, ...] = ()  # the records keyed by id stay alive
+        self._fn: Callable[..., Any] | None = None
+
+    def __call__(self, *args: Any) -> Any:
+        key = tuple(map(_type_key, args))
+        if key != self._key or self._fn is None:
+            self._fn = bind(self.dispatcher, *args)
+            self._key = key
+            self._held = tuple(a for a in args if isinstance(a, tuple))
+        return self._fn(*args)
+
+
+_BOUND: dict[Any, Bound] = {}
+
+
+def bound(kernel_or_function: Any) -> Callable[..., Any]:
+    """The process's :class:`Bound` of a kernel (one per kernel); anything else as it is
+    (a function standing in for a kernel: a test's, a profiler's wrapper)."""
+    if not isinstance(kernel_or_function, numba.core.dispatcher.Dispatcher):
+        f: Callable[..., Any] = kernel_or_function
+        return f
+    b = _BOUND.get(kernel_or_function)
+    if b is None:
+        b = _BOUND[kernel_or_function] = Bound(kernel_or_function)
+    return b
 
 
 #: Whether :func:`cycle_count` reads a hardware counter here: x86's time-stamp counter, which

@@ -51,7 +51,7 @@ from uavmpc.comms.message import (
     write_message,
 )
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
-from uavmpc.jit import bind, cycle_count, kernel
+from uavmpc.jit import bind, bound, cycle_count, kernel
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
 from uavmpc.reference import Reference, sample_reference
@@ -374,9 +374,9 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
             table.rows, table.store, table.entries, batch.sent, out, length)
     threads = numba.get_num_threads()
     if threads > 1 and r_count > 1:
-        broadcast_rows_threads(*args, threads)
+        bound(broadcast_rows_threads)(*args, threads)
     else:
-        broadcast_rows(*args)
+        bound(broadcast_rows)(*args)
     # The messages the receivers take, field for field what the bytes decode to (each
     # array a row of one fresh array: nothing here is written again).
     idx = args[0]
@@ -946,10 +946,10 @@ def avoidance_round(batch: OnboardBatch,
     climbed = np.empty(due.size)
     threads = numba.get_num_threads()
     if threads > 1 and due.size > 1:
-        avoidance_plans_threads(due, trk.rows, trk.table(), trk.consts, times, own, climbed,
+        bound(avoidance_plans_threads)(due, trk.rows, trk.table(), trk.consts, times, own, climbed,
                                 threads)
     else:
-        avoidance_plans(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
+        bound(avoidance_plans)(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
     which = due.tolist()
     # A UAV holding short also has its probes found (docs/safety.md, A6): the same receiver
     # row again, once per probe, after the plans of this round.

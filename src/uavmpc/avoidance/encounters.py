@@ -34,7 +34,7 @@ import numpy as np
 from uavmpc.avoidance.proximity import near_and_dz
 from uavmpc.comms.inbox import InboxRows, InboxTable, Store
 from uavmpc.comms.message import MAX_HEARD
-from uavmpc.jit import kernel
+from uavmpc.jit import bound, kernel
 
 #: Boxes are widened by this much more than the radius: the aligned points are computed with
 #: a rounding the box bounds do not share, and a pair must never be pruned by round-off.
@@ -697,9 +697,9 @@ class EncounterFinder:
             # The receivers on threads when there are several of each.
             blocks = numba.get_num_threads() if self.blocks is None else self.blocks
             if blocks > 1 and r_count > 1:
-                ne, ns = encounter_rows_threads(*args, blocks)
+                ne, ns = bound(encounter_rows_threads)(*args, blocks)
             else:
-                ne, ns = encounter_rows(*args)
+                ne, ns = bound(encounter_rows)(*args)
             if ne <= self._cap_e and ns <= self._cap_s:
                 break
             self._cap_e = max(self._cap_e, 2 * ne)

@@ -30,7 +30,7 @@ from uavmpc.comms.inbox import (
     accept_copy,
 )
 from uavmpc.comms.message import InvalidMessageError, PredictionMessage
-from uavmpc.jit import kernel
+from uavmpc.jit import bound, kernel
 
 
 @runtime_checkable
@@ -594,11 +594,11 @@ class SimulatedLink:
             if self._work_at.size < b * (n - 1):
                 self._work_at = np.empty(2 * b * (n - 1))
                 self._work_rcv = np.empty(2 * b * (n - 1), dtype=np.int64)
-            self._chunks, used, lost, out = queue_copies_threads(
+            self._chunks, used, lost, out = bound(queue_copies_threads)(
                 *args, self._work_at[:b * (n - 1)].reshape(b, n - 1),
                 self._work_rcv[:b * (n - 1)].reshape(b, n - 1), threads)
         else:
-            self._chunks, used, lost, out = queue_copies(*args)
+            self._chunks, used, lost, out = bound(queue_copies)(*args)
         self.stats.dropped += lost
         self.stats.dropped_range += out
         if used > self._used:
@@ -700,7 +700,7 @@ class SimulatedLink:
         rcv, which, at_bits, seq = self._taken
         at = at_bits.view(np.float64)
         pids, copies = np.empty(c, dtype=np.int64), np.empty(c, dtype=np.int64)
-        k, g, ordered = take_copies(self._q, c, float(t_s), self._seen, rcv, which, at, seq,
+        k, g, ordered = bound(take_copies)(self._q, c, float(t_s), self._seen, rcv, which, at, seq,
                                     pids, copies)
         self._drop_delivered()
         if not k:
@@ -741,7 +741,7 @@ class SimulatedLink:
 
     def _drop_delivered(self) -> None:
         """Forget the chunks delivered in full; the next due time."""
-        self._chunks, self.next_due_s = sweep_copies(self._q, self._chunks)
+        self._chunks, self.next_due_s = bound(sweep_copies)(self._q, self._chunks)
 
     def _in_range(self, sender_id: str, receivers: np.ndarray) -> np.ndarray:
         if self.range_m is None or self.position_of is None:

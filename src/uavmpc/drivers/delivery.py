@@ -14,6 +14,7 @@ import numpy as np
 from uavmpc.comms.inbox import InboxTable, accept_copies, accept_copies_threads
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.comms.message import InvalidMessageError, PredictionMessage
+from uavmpc.jit import bound
 from uavmpc.log import FlightRecorder
 from uavmpc.onboard import OnboardStack
 
@@ -122,10 +123,10 @@ class WorldLink:
         try:
             threads = numba.get_num_threads()
             if threads > 1 and to.shape[0] >= _THREADED_COPIES:
-                accept_copies_threads(table.rows, table.store, to, into, now + self.offsets_s,
-                                      threads)
+                bound(accept_copies_threads)(table.rows, table.store, to, into,
+                                             now + self.offsets_s, threads)
             else:
-                accept_copies(table.rows, table.store, to, into, now + self.offsets_s)
+                bound(accept_copies)(table.rows, table.store, to, into, now + self.offsets_s)
         finally:
             table.unpin()
         if rec is not None:
