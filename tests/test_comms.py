@@ -357,9 +357,7 @@ def test_a_ticks_copies_on_threads_are_queued_as_on_one(
     serial = SimulatedLink(ids, **kw)
     want = _tick_by_tick(serial, ids, 5)
     def queue(*args: object) -> tuple[int, int, int, int]:
-        b, _, n1 = args[3].shape  # the draws
-        return link_module.queue_copies_threads(*args, np.empty((b, n1)),
-                                                np.empty((b, n1), dtype=np.int64), blocks)
+        return link_module.queue_copies_threads(*args, blocks)
 
     monkeypatch.setattr(link_module, "queue_copies", queue)
     threaded = SimulatedLink(ids, **kw)

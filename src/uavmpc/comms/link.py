@@ -214,78 +214,15 @@ def _open_chunk(q: InFlight, chunk: int, used: int, c: int, sender: int, pid: in
     q.taken[chunk] = False
 
 
-@kernel(allocates=True)
-def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders: np.ndarray,
-                 loss: float, thresholds: np.ndarray, burst: bool, state: np.ndarray,
-                 in_range: np.ndarray, ranged: bool, latency_s: float, jitter_s: float,
-                 t_s: float, first_pid: int, first_seq: int, pids: np.ndarray,
-                 counts: np.ndarray) -> tuple[int, int, int, int]:
-    """The copies of broadcasts from ``senders`` (B,) at ``t_s`` onto the queue, a chunk
-    each after its ``chunks`` chunks and ``used`` copies (room for B × (n − 1) more): for
-    broadcast j and the k-th other member r in join order, the draws ``draws[j, 0, k]`` (lost
-    below ``loss``, or with ``burst`` below ``thresholds[state[s, r] + 1]``, the pair's
-    chain then stepping if r is in range) and ``draws[j, 1, k]`` (the delay ``latency_s +
-    jitter_s`` × draw); with ``ranged``, ``in_range[j, k]`` says whether r is in range. A
-    broadcast with copies gets the next payload id from ``first_pid`` on in ``pids[j]`` (−1
-    without), its copies' count in ``counts[j]``, and sequence numbers from ``first_seq`` on
-    in receiver order. Returns (chunks, used, copies lost, copies out of range)."""
-    n1 = draws.shape[2]
-    at = np.empty(n1)
-    rcv = np.empty(n1, dtype=np.int64)
-    order = np.empty(n1, dtype=np.int64)
-    bucket = np.empty(n1 + 1, dtype=np.int64)
-    seq = first_seq
-    pid = first_pid
-    lost_n = 0
-    out_n = 0
+@kernel
+def _number_chunks(q: InFlight, chunks: int, used: int, seq: int, pid: int,
+                   senders: np.ndarray, counts: np.ndarray, pids: np.ndarray,
+                   start: np.ndarray, first: np.ndarray) -> tuple[int, int]:
+    """The broadcasts' chunks, in sending order, after ``chunks`` chunks and ``used`` copies:
+    broadcast j's ``counts[j]`` copies start at ``start[j]`` and are numbered from
+    ``first[j]`` (sequence numbers from ``seq`` on); a broadcast with copies gets the next
+    payload id from ``pid`` on in ``pids[j]`` (−1 without). Returns (chunks, used)."""
     for j in range(senders.shape[0]):
-        c, lost, out = _draw_copies(j, senders[j], draws, loss, thresholds, burst, state,
-                                    in_range, ranged, latency_s, jitter_s, t_s, at, rcv)
-        lost_n += lost
-        out_n += out
-        counts[j] = c
-        if c == 0:
-            pids[j] = -1
-            continue
-        _place_copies(q, used, c, seq, at, rcv, order, bucket)  # equal times: sending order
-        _open_chunk(q, chunks, used, c, senders[j], pid)
-        pids[j] = pid
-        pid += 1
-        seq += c
-        used += c
-        chunks += 1
-    return chunks, used, lost_n, out_n
-
-
-@kernel(parallel=True)
-def queue_copies_threads(q: InFlight, chunks: int, used: int, draws: np.ndarray,
-                         senders: np.ndarray, loss: float, thresholds: np.ndarray, burst: bool,
-                         state: np.ndarray, in_range: np.ndarray, ranged: bool,
-                         latency_s: float, jitter_s: float, t_s: float, first_pid: int,
-                         first_seq: int, pids: np.ndarray, counts: np.ndarray,
-                         at: np.ndarray, rcv: np.ndarray, blocks: int
-                         ) -> tuple[int, int, int, int]:
-    """:func:`queue_copies` with the broadcasts on threads: each drawn into a row of its own,
-    then their places in the queue counted in sending order, then each sorted into its
-    place, ``blocks`` contiguous blocks of broadcasts per pass. The same queue, ids, counts
-    and chains for any number of blocks. With ``burst``, ``senders`` must be distinct (each
-    broadcast steps its sender's chains only). ``at`` (≥ B, n − 1), ``rcv`` (≥ B, n − 1)
-    int64: work."""
-    b = senders.shape[0]
-    n1 = draws.shape[2]
-    nb = max(1, min(b, blocks))
-    lost = np.empty(b, dtype=np.int64)
-    out = np.empty(b, dtype=np.int64)
-    for blk in numba.prange(nb):
-        for j in range(blk * b // nb, (blk + 1) * b // nb):
-            counts[j], lost[j], out[j] = _draw_copies(
-                j, senders[j], draws, loss, thresholds, burst, state, in_range, ranged,
-                latency_s, jitter_s, t_s, at[j], rcv[j])
-    start = np.empty(b, dtype=np.int64)
-    first = np.empty(b, dtype=np.int64)
-    seq = first_seq
-    pid = first_pid
-    for j in range(b):
         c = counts[j]
         start[j] = used
         first[j] = seq
@@ -298,6 +235,78 @@ def queue_copies_threads(q: InFlight, chunks: int, used: int, draws: np.ndarray,
         seq += c
         used += c
         chunks += 1
+    return chunks, used
+
+
+@kernel(allocates=True)
+def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders: np.ndarray,
+                 loss: float, thresholds: np.ndarray, burst: bool, state: np.ndarray,
+                 in_range: np.ndarray, ranged: bool, latency_s: float, jitter_s: float,
+                 t_s: float, first_pid: int, first_seq: int, pids: np.ndarray,
+                 counts: np.ndarray, at: np.ndarray, rcv: np.ndarray
+                 ) -> tuple[int, int, int, int]:
+    """The copies of broadcasts from ``senders`` (B,) at ``t_s`` onto the queue, a chunk
+    each after its ``chunks`` chunks and ``used`` copies (room for B × (n − 1) more): for
+    broadcast j and the k-th other member r in join order, the draws ``draws[j, 0, k]`` (lost
+    below ``loss``, or with ``burst`` below ``thresholds[state[s, r] + 1]``, the pair's
+    chain then stepping if r is in range) and ``draws[j, 1, k]`` (the delay ``latency_s +
+    jitter_s`` × draw); with ``ranged``, ``in_range[j, k]`` says whether r is in range. A
+    broadcast with copies gets the next payload id from ``first_pid`` on in ``pids[j]`` (−1
+    without), its copies' count in ``counts[j]``, and sequence numbers from ``first_seq`` on
+    in receiver order. ``at`` (≥ B, n − 1), ``rcv`` (≥ B, n − 1) int64: work. Returns
+    (chunks, used, copies lost, copies out of range).
+
+    Three passes: each broadcast drawn into its row of the work arrays, the chunks numbered
+    in sending order, each broadcast's copies sorted into its place (what
+    :func:`queue_copies_threads` does with the first and the last on threads)."""
+    b = senders.shape[0]
+    n1 = draws.shape[2]
+    lost_n = 0
+    out_n = 0
+    for j in range(b):
+        counts[j], lost, out = _draw_copies(j, senders[j], draws, loss, thresholds, burst,
+                                            state, in_range, ranged, latency_s, jitter_s, t_s,
+                                            at[j], rcv[j])
+        lost_n += lost
+        out_n += out
+    start = np.empty(b, dtype=np.int64)
+    first = np.empty(b, dtype=np.int64)
+    chunks, used = _number_chunks(q, chunks, used, first_seq, first_pid, senders, counts, pids,
+                                  start, first)
+    order = np.empty(n1, dtype=np.int64)
+    bucket = np.empty(n1 + 1, dtype=np.int64)
+    for j in range(b):
+        if counts[j]:  # equal times in sending order
+            _place_copies(q, start[j], counts[j], first[j], at[j], rcv[j], order, bucket)
+    return chunks, used, lost_n, out_n
+
+
+@kernel(parallel=True)
+def queue_copies_threads(q: InFlight, chunks: int, used: int, draws: np.ndarray,
+                         senders: np.ndarray, loss: float, thresholds: np.ndarray, burst: bool,
+                         state: np.ndarray, in_range: np.ndarray, ranged: bool,
+                         latency_s: float, jitter_s: float, t_s: float, first_pid: int,
+                         first_seq: int, pids: np.ndarray, counts: np.ndarray,
+                         at: np.ndarray, rcv: np.ndarray, blocks: int
+                         ) -> tuple[int, int, int, int]:
+    """:func:`queue_copies` with its first and last passes on threads, ``blocks`` contiguous
+    blocks of broadcasts each. The same queue, ids, counts and chains for any number of
+    blocks. With ``burst``, ``senders`` must be distinct (each broadcast steps its sender's
+    chains only)."""
+    b = senders.shape[0]
+    n1 = draws.shape[2]
+    nb = max(1, min(b, blocks))
+    lost = np.empty(b, dtype=np.int64)
+    out = np.empty(b, dtype=np.int64)
+    for blk in numba.prange(nb):
+        for j in range(blk * b // nb, (blk + 1) * b // nb):
+            counts[j], lost[j], out[j] = _draw_copies(
+                j, senders[j], draws, loss, thresholds, burst, state, in_range, ranged,
+                latency_s, jitter_s, t_s, at[j], rcv[j])
+    start = np.empty(b, dtype=np.int64)
+    first = np.empty(b, dtype=np.int64)
+    chunks, used = _number_chunks(q, chunks, used, first_seq, first_pid, senders, counts, pids,
+                                  start, first)
     for blk in numba.prange(nb):
         order = np.empty(n1, dtype=np.int64)
         bucket = np.empty(n1 + 1, dtype=np.int64)
@@ -508,7 +517,7 @@ class SimulatedLink:
         self._used = 0
         self._seen = np.zeros(0, dtype=np.bool_)  # take_copies' scratch, one per member
         #: Work arrays kept from call to call (their pages stay mapped): the draws of
-        #: publish_many, queue_copies_threads' copies, and take_copies' outputs (receivers,
+        #: publish_many, queue_copies' copies, and take_copies' outputs (receivers,
         #: payload indices, times as their bits, sequence numbers).
         self._draws = np.empty(0)
         self._work_at = np.empty(0)
@@ -589,14 +598,14 @@ class SimulatedLink:
                 self._thresholds if self._thresholds is not None else _NO_THRESHOLDS, burst,
                 self._state, in_range, ranged, self.latency_s, self.jitter_s, float(t_s),
                 self._next_payload, self._seq, pids, counts)
+        if self._work_at.size < b * (n - 1):
+            self._work_at = np.empty(2 * b * (n - 1))
+            self._work_rcv = np.empty(2 * b * (n - 1), dtype=np.int64)
+        args = (*args, self._work_at[:b * (n - 1)].reshape(b, n - 1),
+                self._work_rcv[:b * (n - 1)].reshape(b, n - 1))
         threads = numba.get_num_threads()
         if threads > 1 and b > 1 and b * (n - 1) >= THREADED_COPIES:
-            if self._work_at.size < b * (n - 1):
-                self._work_at = np.empty(2 * b * (n - 1))
-                self._work_rcv = np.empty(2 * b * (n - 1), dtype=np.int64)
-            self._chunks, used, lost, out = bound(queue_copies_threads)(
-                *args, self._work_at[:b * (n - 1)].reshape(b, n - 1),
-                self._work_rcv[:b * (n - 1)].reshape(b, n - 1), threads)
+            self._chunks, used, lost, out = bound(queue_copies_threads)(*args, threads)
         else:
             self._chunks, used, lost, out = bound(queue_copies)(*args)
         self.stats.dropped += lost
