@@ -67,26 +67,46 @@ def test_batched_equals_per_object_with_a_python_solver() -> None:
 
 
 def test_every_broadcast_decodes_to_the_message_its_receivers_take() -> None:
-    """A tick's broadcasts are written in one compiled call and the message a receiver takes
-    instead of decoding them is built from the same rows: field for field, the bytes decode
-    to it (heard lists included), and a sender's heard list names only UAVs it holds."""
+    """A tick's broadcasts are written in one compiled call, and the store slot their
+    receivers take instead of decoding them is written from the same rows: field for field,
+    the bytes decode to it (heard lists included), a sender's heard list names only UAVs it
+    holds, and each slot is let go once its copies are delivered (the store does not grow
+    with the broadcasts)."""
     from uavmpc.comms.message import decode
 
-    world = World(random_walk(6, duration_s=10.0, seed=2), avoidance=True, seed=2)
+    world = World(random_walk(6, duration_s=40.0, seed=2), avoidance=True, seed=2)
+    table = world.inboxes
     sent = []
-    world.wire.publish = lambda stacks, data, now, send=world.wire.publish: (
-        sent.extend((s.last_message, d, s.heard) for s, d in zip(stacks, data, strict=True)),
-        send(stacks, data, now))
+
+    def publish(stacks, data, now, send=world.wire.publish):
+        send(stacks, data, now)
+        sent.extend((d, table.slot_for(d)) for d in data)  # found, not decoded: no error
+
+    world.wire.publish = publish
     world.run(6.0)
     assert len(sent) > 50
-    for msg, data, heard in sent:
-        got = decode(data)
-        for f in dataclasses.fields(got):
-            a, b = getattr(got, f.name), getattr(msg, f.name)
-            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), f.name
-        assert not msg.times_s.flags.writeable and not msg.positions_m.flags.writeable
-        assert heard == msg.heard and msg.uav_id not in heard
-    assert max(len(h) for _, _, h in sent) == 5  # everyone heard everyone
+    st = table.store
+    for data, slot in sent[-12:]:  # the newest: their slots are not reused yet
+        msg = decode(data)
+        m = msg.points
+        assert int(st.points[slot]) == m and table.ids[int(st.col[slot])] == msg.uav_id
+        assert np.array_equal(st.times_s[slot, :m], msg.times_s)
+        assert np.array_equal(st.positions_m[slot, :m], msg.positions_m)
+        assert (float(st.stamp_s[slot]), int(st.priority[slot]), bool(st.avoiding[slot]),
+                tuple(st.sigma_m[slot].tolist())) == (msg.stamp_s, msg.priority, msg.avoiding,
+                                                      msg.position_sigma_m)
+        assert table.heard[slot] == msg.heard and msg.uav_id not in msg.heard
+    assert max(len(decode(d).heard) for d, _ in sent) == 5  # everyone heard everyone
+    table.unpin()
+    world.run(30.0)  # 360 more broadcasts
+    n = len(world.uavs)
+    holders = table.store.holders  # (the store as it is now: grown, if it grew)
+    assert int(holders.sum()) <= n * (n - 1) + 2 * n  # the receivers' and those in flight
+    # UAV by UAV, each takes its copies from the link itself: its slots are let go too.
+    one_by_one = World(random_walk(6, duration_s=30.0, seed=2), avoidance=True, seed=2,
+                       batched=False)
+    one_by_one.run(30.0)
+    assert int(one_by_one.inboxes.store.holders.sum()) <= n * (n - 1) + 2 * n
 
 
 def test_a_broadcast_the_message_laws_refuse_is_named_not_sent() -> None:

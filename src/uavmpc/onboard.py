@@ -38,7 +38,7 @@ from uavmpc.avoidance import (
 from uavmpc.avoidance.encounters import EncounterFinder, Encounters, heard_columns
 from uavmpc.avoidance.strategy import CALM, HOLD_SPEED_MPS
 from uavmpc.comms.auth import Identity, Roster, seal, sign
-from uavmpc.comms.inbox import InboxRows, InboxTable, Store
+from uavmpc.comms.inbox import InboxRows, InboxTable, Store, fill_slot
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
 from uavmpc.comms.message import (
     MAX_HEARD,
@@ -47,7 +47,6 @@ from uavmpc.comms.message import (
     encode,
     fields_valid,
     from_prediction,
-    unchecked,
     write_message,
 )
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
@@ -252,17 +251,26 @@ class SentRows(NamedTuple):
             stack's clock].
         heard: (N, :data:`~uavmpc.comms.message.MAX_HEARD`) int64 the inbox columns its heard
             list named, the first ``heard_count`` (N,) of them.
+        stamp_s: (N,) its stamp [s, the stack's clock]; avoiding: (N,) bool its flag;
+            priority: (N,) int64; sigma_m: (N, 2) its position uncertainty, horizontal and
+            vertical 1σ [m].
     """
 
     plan: np.ndarray
     times_s: np.ndarray
     heard: np.ndarray
     heard_count: np.ndarray
+    stamp_s: np.ndarray
+    avoiding: np.ndarray
+    priority: np.ndarray
+    sigma_m: np.ndarray
 
     @classmethod
     def empty(cls, n: int, m: int) -> SentRows:
         return cls(np.zeros((n, 4, m, 3)), np.zeros((n, m)),
-                   np.zeros((n, MAX_HEARD), dtype=np.int64), np.zeros(n, dtype=np.int64))
+                   np.zeros((n, MAX_HEARD), dtype=np.int64), np.zeros(n, dtype=np.int64),
+                   np.zeros(n), np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
+                   np.zeros((n, 2)))
 
 
 @kernel(allocates=True)
@@ -300,6 +308,11 @@ def broadcast_rows(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
             for ax in range(3):
                 pos[k, ax] = p[ax, k, 0]
         sent.heard_count[i] = 0
+        sent.stamp_s[i] = stamp_s[j]
+        sent.avoiding[i] = avoiding[j]
+        sent.priority[i] = priority[j]
+        sent.sigma_m[i, 0] = sigma_m[i, 0]
+        sent.sigma_m[i, 1] = sigma_m[i, 1]
         own = entries[rows.own_col[r]]
         if not fields_valid(own[0], priority[j], stamp_s[j], sigma_m[i, 0], sigma_m[i, 1],
                             times, pos):
@@ -337,6 +350,25 @@ def broadcast_rows_threads(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerR
                        entries, sent, out[lo:hi], length[lo:hi])
 
 
+@kernel
+def store_sent(store: Store, slots: np.ndarray, cols: np.ndarray, sent: SentRows,
+               rows: np.ndarray) -> None:
+    """The messages rows ``rows`` (R,) broadcast last (``sent``), into store ``slots`` (R,)
+    (reserved: :meth:`~uavmpc.comms.inbox.InboxTable.reserve`) with their senders' columns
+    ``cols`` (R,): field for field what their bytes decode to (the heard list apart: the
+    table keeps its names)."""
+    m = sent.times_s.shape[1]
+    for j in range(rows.shape[0]):
+        i = rows[j]
+        slot = slots[j]
+        for k in range(m):
+            store.times_s[slot, k] = sent.times_s[i, k]
+            for ax in range(3):
+                store.positions_m[slot, k, ax] = sent.plan[i, ax, k, 0]
+        fill_slot(store, slot, cols[j], m, sent.stamp_s[i], sent.priority[i], sent.avoiding[i],
+                  sent.sigma_m[i, 0], sent.sigma_m[i, 1])
+
+
 def _as_int64(priority: object) -> int:
     """A stack's priority as the compiled gate takes it: anything but an integer that int64
     holds as one the gate refuses, so the checked path names it."""
@@ -350,8 +382,8 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
               now_s: np.ndarray) -> list[bytes]:
     """The broadcasts of ``stacks`` (rows of ``batch`` with one inbox table, each due),
     stamped ``now_s`` (R,) each on its own clock: one compiled call
-    (:func:`broadcast_rows`, on the threads when there are several), the messages their
-    receivers take built from the same rows, then each stack's bookkeeping
+    (:func:`broadcast_rows`, on the threads when there are several), then each stack's
+    bookkeeping
     (:meth:`OnboardStack.sent`). Returns each one's bytes, signed or sealed when the stack
     has a key or an identity."""
     r_count = len(stacks)
@@ -377,27 +409,10 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
         bound(broadcast_rows_threads)(*args, threads)
     else:
         bound(broadcast_rows)(*args)
-    # The messages the receivers take, field for field what the bytes decode to (each
-    # array a row of one fresh array: nothing here is written again).
-    idx = args[0]
-    sent = batch.sent
-    times = sent.times_s[idx]
-    pos = np.ascontiguousarray(sent.plan[idx, :3, :, 0].transpose(0, 2, 1))
-    heard = sent.heard[idx].tolist()
-    count = sent.heard_count[idx].tolist()
-    sigma = batch.position_sigma_m[idx].tolist()
-    ids = table.ids.__getitem__
     n = length.tolist()
     now = stamp.tolist()
-    sent_bytes = []
-    for j, s in enumerate(stacks):
-        data = out[j, :n[j]].tobytes() if n[j] >= 0 else None
-        msg = None
-        if data is not None and s.key is None and s.identity is None:
-            msg = unchecked(s.uav_id, int(s.priority), now[j], times[j], pos[j], flags[j],
-                            tuple(map(ids, heard[j][:count[j]])), (sigma[j][0], sigma[j][1]))
-        sent_bytes.append(s.sent(now[j], data, flags[j], msg))
-    return sent_bytes
+    return [s.sent(now[j], out[j, :n[j]].tobytes() if n[j] >= 0 else None, flags[j])
+            for j, s in enumerate(stacks)]
 
 
 class Schedule(NamedTuple):
@@ -608,7 +623,6 @@ class OnboardStack:
         #: The message of the last broadcast when its bytes are exactly its encoding (no
         #: signature or seal): what a receiver decodes them to (a simulated world's receivers
         #: take it rather than decode the same bytes again).
-        self.last_message: PredictionMessage | None = None
         #: How many predictions it has broadcast.
         self.predictions_sent = 0
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
@@ -773,24 +787,17 @@ class OnboardStack:
         messages list (docs/safety.md, A2), or None: it lists nobody."""
         return self._finder
 
-    def sent(self, now_s: float, data: bytes | None, avoiding: bool,
-             message: PredictionMessage | None) -> bytes:
+    def sent(self, now_s: float, data: bytes | None, avoiding: bool) -> bytes:
         """Its broadcast at ``now_s`` (:func:`broadcast`) with the flag ``avoiding``
         (:attr:`flag_up`): ``data``, the bytes written from its row of
-        :attr:`OnboardBatch.sent`, and ``message``, what they decode to when they are sent
-        as they are (None with a key or an identity); or ``data`` None to build the message
-        the checked way (raises :class:`~uavmpc.comms.message.InvalidMessageError` naming
-        what is wrong). Returns the bytes to send (signed or sealed with its key or
-        identity)."""
+        :attr:`OnboardBatch.sent`; or ``data`` None to build the message the checked way
+        (raises :class:`~uavmpc.comms.message.InvalidMessageError` naming what is wrong).
+        Returns the bytes to send (signed or sealed with its key or identity)."""
         self.batch.schedule.next_broadcast_s[self.row] += self.broadcast_period_s
-        plain = self.key is None and self.identity is None
         if data is None:  # raises, naming the field the compiled checks stopped at
-            checked = from_prediction(self.prediction(), uav_id=self.uav_id,
-                                      priority=self.priority, stamp_s=now_s, avoiding=avoiding,
-                                      heard=self.heard, position_sigma_m=self.position_sigma_m)
-            data = encode(checked)
-            message = checked if plain else None
-        self.last_message = message
+            data = encode(from_prediction(
+                self.prediction(), uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
+                avoiding=avoiding, heard=self.heard, position_sigma_m=self.position_sigma_m))
         if self.key is not None:
             data = sign(data, self.key)
         elif self.identity is not None:

@@ -33,7 +33,7 @@ from uavmpc.comms.message import (
     id_entry,
     valid_id,
 )
-from uavmpc.jit import kernel
+from uavmpc.jit import bound, kernel
 
 #: Outcomes of :func:`accept_copies`.
 KEPT, SUPERSEDED, FUTURE, STALE, OWN = 0, 1, 2, 3, 4
@@ -212,6 +212,23 @@ def _bbox(times: np.ndarray, pos: np.ndarray, n: int, box: np.ndarray, vend: np.
     vend[1] = (pos[n - 1, 1] - pos[n - 2, 1]) / dt
 
 
+@kernel
+def fill_slot(store: Store, slot: int, col: int, m: int, stamp_s: float, priority: int,
+              avoiding: bool, sigma_h_m: float, sigma_v_m: float) -> None:
+    """A message into store ``slot``, its ``m`` times and positions written there already:
+    its sender's column ``col``, its fields, and what the search derives from its plan (the
+    box of its points, its end's velocity)."""
+    store.points[slot] = m
+    store.stamp_s[slot] = stamp_s
+    store.col[slot] = col
+    store.priority[slot] = priority
+    store.avoiding[slot] = avoiding
+    store.sigma_m[slot, 0] = sigma_h_m
+    store.sigma_m[slot, 1] = sigma_v_m
+    _bbox(store.times_s[slot], store.positions_m[slot], m, store.bbox_m[slot],
+          store.end_velocity_mps[slot])
+
+
 class InboxTable:
     """The store and the rows of N receivers (ids ``receivers``, in row order).
 
@@ -308,34 +325,54 @@ class InboxTable:
             self._failures += 1
             raise
         slot = self.put(msg)
+        self._remember(data, slot)
+        return slot
+
+    def _remember(self, data: bytes, slot: int) -> None:
+        """``data`` decodes to the message in ``slot`` (while the slot is not reused)."""
         if len(self._decoded) > 4 * self.store.holders.shape[0]:
             gen = self.store.generation
             self._decoded = {k: v for k, v in self._decoded.items()
                              if isinstance(v, str) or gen[v[0]] == v[1]}
         self._decoded[bytes(data)] = (slot, int(self.store.generation[slot]))
-        return slot
 
     def put(self, msg: PredictionMessage) -> int:
         """Write a valid message into a free slot (pinned until :meth:`unpin`)."""
-        col = self.col_of(msg.uav_id)
-        if msg.points > self.store.times_s.shape[1]:
-            self._grow_store(self.store.holders.shape[0], msg.points)
-        slot = self._allocate()
+        slot = self.reserve(msg.points)
         st = self.store
         m = msg.points
         st.times_s[slot, :m] = msg.times_s
         st.positions_m[slot, :m] = msg.positions_m
-        st.points[slot] = m
-        st.stamp_s[slot] = msg.stamp_s
-        st.col[slot] = col
-        st.priority[slot] = msg.priority
-        st.avoiding[slot] = msg.avoiding
-        st.sigma_m[slot] = msg.position_sigma_m
+        bound(fill_slot)(st, slot, self.col_of(msg.uav_id), m, msg.stamp_s, msg.priority,
+                         msg.avoiding, *msg.position_sigma_m)
         self.heard[slot] = msg.heard
-        _bbox(st.times_s[slot], st.positions_m[slot], m, st.bbox_m[slot],
-              st.end_velocity_mps[slot])
-        st.pinned[slot] = 1
         return slot
+
+    def reserve(self, points: int) -> int:
+        """A free slot for a message of ``points`` points, pinned until :meth:`unpin`: the
+        caller writes its times and positions, then :func:`fill_slot`, and sets
+        :attr:`heard`."""
+        if points > self.store.times_s.shape[1]:
+            self._grow_store(self.store.holders.shape[0], points)
+        slot = self._allocate()
+        self.store.pinned[slot] = 1
+        return slot
+
+    def hold(self, slots: np.ndarray, data: Sequence[bytes]) -> None:
+        """Keep each of ``slots`` (R,) (the message ``data[j]`` decodes to, written by the
+        caller) while copies of it are in flight: :meth:`slot_for` finds it without
+        decoding, and no other message takes the slot until :meth:`let_go`."""
+        st = self.store
+        st.holders[slots] += 1
+        if len(self._decoded) > 4 * st.holders.shape[0]:
+            self._remember(data[0], int(slots[0]))  # prunes
+        for d, slot, gen in zip(data, slots.tolist(), st.generation[slots].tolist(),
+                                strict=True):
+            self._decoded[d] = (slot, gen)
+
+    def let_go(self, slot: int) -> None:
+        """The copies of a slot :meth:`hold` kept are all delivered."""
+        self.store.holders[slot] -= 1
 
     def unpin(self) -> None:
         """End of a delivery: slots nobody holds may be reused."""

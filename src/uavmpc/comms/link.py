@@ -553,10 +553,11 @@ class SimulatedLink:
         self.publish_many((msg_bytes,), (sender_id,), t_s)
 
     def publish_many(self, payloads: Sequence[bytes], sender_ids: Sequence[str],
-                     t_s: float) -> None:
+                     t_s: float) -> np.ndarray:
         """Broadcasts at ``t_s``: ``payloads[b]`` from ``sender_ids[b]``, exactly as
         :meth:`publish` one after the other (the same draws, the same copies), in one pass
-        over all of them (a world's broadcasts of a tick)."""
+        over all of them (a world's broadcasts of a tick). Returns (B,) int64 each one's
+        payload id (:meth:`holds`), −1 for one with no copy in flight (all lost)."""
         for data in payloads:
             if not isinstance(data, bytes | bytearray):
                 raise TypeError(f"msg_bytes: expected bytes, got {type(data).__name__}")
@@ -567,16 +568,16 @@ class SimulatedLink:
                       or (self._thresholds is not None and len(set(sender_ids)) < b)):
             # A sender joining changes how many draws the next broadcast takes, and a sender
             # twice steps its chains between its two broadcasts: one by one.
-            for data, sender_id in zip(payloads, sender_ids, strict=True):
-                self.publish_many((data,), (sender_id,), t_s)
-            return
+            return np.concatenate([self.publish_many((data,), (sender_id,), t_s)
+                                   for data, sender_id in zip(payloads, sender_ids,
+                                                              strict=True)])
         for sender_id in sender_ids:
             self.join(sender_id)
         n = len(self._members)
         self.stats.published += b
         self.stats.sent += b * (n - 1)
         if n == 1 or b == 0:
-            return
+            return np.full(b, -1, dtype=np.int64)
         senders = np.array([self._members[s] for s in sender_ids], dtype=np.int64)
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order. Per
@@ -619,6 +620,7 @@ class SimulatedLink:
                 self._payloads[pid] = bytes(payloads[j])
                 self._copies_left[pid] = count
                 self._next_payload = pid + 1
+        return pids
 
     def _room(self, copies: int, chunks: int) -> None:
         """Room in the queue for ``copies`` more copies in ``chunks`` more chunks: the
@@ -722,6 +724,10 @@ class SimulatedLink:
             rcv, which = rcv[order], which[order]
         self.stats.delivered += k
         return Due(rcv, which, pids[:g], copies[:g])
+
+    def holds(self, pid: int) -> bool:
+        """Copies of payload ``pid`` are still in flight or just taken (not released)."""
+        return pid in self._payloads
 
     def payload(self, pid: int) -> bytes:
         """The bytes of payload ``pid`` (see :meth:`take_due`)."""

@@ -168,25 +168,6 @@ def from_prediction(prediction: Any, *, uav_id: str, priority: int, stamp_s: flo
                              position_sigma_m=position_sigma_m)
 
 
-def unchecked(uav_id: str, priority: int, stamp_s: float, times_s: np.ndarray,
-              positions_m: np.ndarray, avoiding: bool, heard: tuple[str, ...],
-              position_sigma_m: tuple[float, float]) -> PredictionMessage:
-    """The message of fields :func:`fields_valid` has passed already (a compiled broadcast
-    passes them before it writes the bytes: :func:`~uavmpc.onboard.broadcast_rows`), built
-    without checking them again: field for field what :func:`decode` makes of those bytes.
-    ``times_s`` (m,) and ``positions_m`` (m, 3): fresh float64 arrays, taken and made
-    read-only."""
-    msg = object.__new__(PredictionMessage)
-    times_s.flags.writeable = False
-    positions_m.flags.writeable = False
-    # Frozen: its fields are set as its own constructor sets them, past __setattr__.
-    vars(msg).update(version=SCHEMA_VERSION, uav_id=uav_id, priority=priority,
-                     stamp_s=stamp_s, times_s=times_s, positions_m=positions_m,
-                     avoiding=avoiding, received_s=None, heard=heard,
-                     position_sigma_m=position_sigma_m)
-    return msg
-
-
 def encode(msg: PredictionMessage) -> bytes:
     """The wire bytes of ``msg`` (see the module docstring). ``received_s`` is not sent."""
     entries = np.frombuffer(b"".join(map(id_entry, (msg.uav_id, *msg.heard))),

@@ -13,13 +13,11 @@ import numpy as np
 
 from uavmpc.comms.inbox import InboxTable, accept_copies, accept_copies_threads
 from uavmpc.comms.link import SimulatedLink
-from uavmpc.comms.message import InvalidMessageError, PredictionMessage
+from uavmpc.comms.message import InvalidMessageError
 from uavmpc.jit import bound
 from uavmpc.log import FlightRecorder
-from uavmpc.onboard import OnboardStack
+from uavmpc.onboard import OnboardStack, store_sent
 
-#: At most this many broadcasts' messages are kept for their receivers.
-_MAX_SENT = 4096
 #: A tick's copies are taken into the inbox rows on every thread from this many on (fewer
 #: are not worth waking the threads; the rows come out the same either way).
 _THREADED_COPIES = 256
@@ -48,10 +46,9 @@ class WorldLink:
         self.recorder = recorder
         #: Broadcasts swallowed by dead radios.
         self.silenced = 0
-        #: The messages of the broadcasts in flight, by their bytes (:meth:`deliver` takes
-        #: them rather than decoding the bytes again); bounded: a broadcast lost to every
-        #: receiver is never taken.
-        self._sent: dict[bytes, PredictionMessage] = {}
+        #: The store slot of each broadcast in flight whose message the table holds for its
+        #: receivers (by the link's payload id; :meth:`publish`).
+        self._held: dict[int, int] = {}
 
     def publish(self, stacks: Sequence[OnboardStack], data: Sequence[bytes],
                 now: float) -> None:
@@ -63,19 +60,46 @@ class WorldLink:
             self.silenced += len(stacks) - len(on)  # dead radios: the UAVs do not know it
             stacks = [stacks[j] for j in on]
             data = [data[j] for j in on]
-        self.link.publish_many(data, [s.uav_id for s in stacks], now)
-        sent = self._sent
-        for stack, payload in zip(stacks, data, strict=True):
-            if stack.last_message is not None:
-                if len(sent) >= _MAX_SENT:
-                    sent.clear()  # only costs decoding those again
-                sent[payload] = stack.last_message
+        pids = self.link.publish_many(data, [s.uav_id for s in stacks], now).tolist()
+        self._store_sent(stacks, data, pids)
         if self.recorder is not None:
             for stack in stacks:
                 pred = stack.last_broadcast
                 assert pred is not None  # it has just broadcast
                 self.recorder.prediction(stack.uav_id, now, pred.position_m, pred.heading_rad)
                 self.recorder.link(now, "sent", stack.uav_id, stamp_s=now)
+
+    def _store_sent(self, stacks: Sequence[OnboardStack], data: Sequence[bytes],
+                    pids: list[int]) -> None:
+        """The message of each broadcast in flight sent as it was written (no key, no
+        identity) into a store slot of the receivers' table, from the rows the broadcast was
+        written from (:func:`~uavmpc.onboard.store_sent`: field for field what its bytes
+        decode to), held while its copies are in flight: the receivers take it without
+        decoding the bytes. Other bytes are decoded on arrival, as a node's are."""
+        plain = [j for j, s in enumerate(stacks)
+                 if pids[j] >= 0 and s.key is None and s.identity is None]
+        if not plain:
+            return
+        table = self.inboxes
+        sent = stacks[plain[0]].batch.sent
+        m = sent.times_s.shape[1]
+        rows = np.array([stacks[j].row for j in plain], dtype=np.int64)
+        slots = np.array([table.reserve(m) for _ in plain], dtype=np.int64)
+        cols = table.rows.own_col[[stacks[j].inbox.row for j in plain]]  # who sent it
+        bound(store_sent)(table.store, slots, cols, sent, rows)
+        ids = table.ids.__getitem__
+        heard, count = sent.heard[rows].tolist(), sent.heard_count[rows].tolist()
+        names = table.heard
+        for k, slot in enumerate(slots.tolist()):
+            names[slot] = tuple(map(ids, heard[k][:count[k]]))
+        table.hold(slots, [data[j] for j in plain])
+        self._held.update(zip([pids[j] for j in plain], slots.tolist(), strict=True))
+
+    def _let_go(self) -> None:
+        """Let go of the slots of the broadcasts whose copies are all delivered."""
+        gone = [pid for pid in self._held if not self.link.holds(pid)]
+        for pid in gone:
+            self.inboxes.let_go(self._held.pop(pid))
 
     def receive_one(self, i: int, now: float) -> None:
         """Row ``i``'s due datagrams into its stack's inbox (the per-object path)."""
@@ -84,6 +108,8 @@ class WorldLink:
         data = self.link.receive(stack.uav_id, now)
         rejected = stack.inbox.rejected_total
         kept = stack.receive(now + float(self.offsets_s[i]), data)
+        if self._held:
+            self._let_go()
         if rec is not None:
             for msg in kept:
                 if msg is not None:
@@ -105,11 +131,13 @@ class WorldLink:
         for j, pid in enumerate(due.payloads.tolist()):
             try:
                 data = self.link.payload(pid)
-                slots[j] = table.slot_for(data, self._sent.pop(data, None))
+                slots[j] = table.slot_for(data)
             except InvalidMessageError as exc:
                 slots[j] = -1
                 errors[j] = str(exc)
         self.link.release(due.payloads, due.copies)
+        if self._held:
+            self._let_go()
         copy_slots = slots[due.which]
         good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
         if errors:
