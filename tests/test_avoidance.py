@@ -827,3 +827,34 @@ def test_a_stuck_uav_broadcasts_its_flag_down_and_the_others_yield_to_it() -> No
     r = world.run(60.0)
     assert not r.collisions and float(np.min(r.min_distance_m)) > 2.0
     assert ("uav3", True) in flags  # it said so
+
+
+def test_the_cylinders_kernels_are_its_law_point_by_point() -> None:
+    """The compiled cylinder (``conflict_points``) and its summaries for a decision
+    (``conflict_rows``: who conflicts, from which point; ``conflict_below``: the way down)
+    against the law written with numpy, over random encounters with heights on and near the
+    cylinder's edge, widened pairs and several offsets."""
+    from uavmpc.avoidance.strategy import conflict_below, conflict_points, conflict_rows
+
+    rng = np.random.default_rng(7)
+    half = 2.995
+    for _ in range(300):
+        k, m = int(rng.integers(0, 5)), int(rng.integers(1, 13))
+        near = rng.random((k, m)) < 0.6
+        dz = rng.choice([-6.0, -3.0, -2.995, 0.0, 2.995, 3.0, 9.0], size=(k, m))
+        dz = dz + rng.normal(size=(k, m)) * rng.choice([0.0, 0.01, 2.0])
+        widen = rng.random(k) * rng.choice([0.0, 1.0])
+        offsets = rng.choice([0.0, 3.0, 6.0, 0.005], size=3)
+        h = half + widen[:, None]
+        pts = np.empty((3, k, m), dtype=bool)
+        conflict_points(near, dz, widen, half, offsets, pts)
+        for c, off in enumerate(offsets):
+            law = near & (np.abs(dz + off) <= h)
+            assert np.array_equal(pts[c], law)
+            hit = np.empty(k, dtype=bool)
+            first = conflict_rows(near, dz, widen, half, float(off), hit)
+            assert np.array_equal(hit, law.any(axis=1))
+            cols = np.flatnonzero(law.any(axis=0))
+            assert first == (cols[0] if cols.size else -1)
+            way_down = near & (dz >= -h - off) & (dz <= h)
+            assert conflict_below(near, dz, widen, half, float(off)) == bool(way_down.any())

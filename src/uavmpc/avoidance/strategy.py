@@ -373,18 +373,24 @@ def _half(enc: Encounters, half_height_m: float) -> np.ndarray:
 
 
 @kernel
+def _in_cylinder(near_xy: bool, dz_m: float, offset_m: float, half_m: float) -> bool:
+    """The cylinder (SPEC §5.2) at one point: horizontally near, and our height raised by
+    ``offset_m`` within ``half_m`` of theirs (``dz_m``: ours minus theirs)."""
+    return near_xy and abs(dz_m + offset_m) <= half_m
+
+
+@kernel
 def conflict_points(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
                     half_height_m: float, offsets_m: np.ndarray, out: np.ndarray) -> None:
-    """The cylinder (SPEC §5.2): whether each of k encounters' m points (horizontally near:
-    ``near_xy`` (k, m); the other's height minus ours: ``dz_m`` (k, m)) conflicts with our
-    plan raised by each of ``offsets_m`` (c,): within the pair's half height, the cylinder's
-    ``half_height_m`` widened by ``widen_v_m`` (k,) (docs/safety.md, A3). Into ``out``
-    (c, k, m)."""
+    """Whether each of k encounters' m points (horizontally near: ``near_xy`` (k, m); our
+    height minus theirs: ``dz_m`` (k, m)) is in the cylinder (:func:`_in_cylinder`) with our
+    plan raised by each of ``offsets_m`` (c,), its half height ``half_height_m`` widened by
+    the pair's ``widen_v_m`` (k,) (docs/safety.md, A3). Into ``out`` (c, k, m)."""
     for c in range(offsets_m.shape[0]):
         for j in range(near_xy.shape[0]):
             h = half_height_m + widen_v_m[j]
             for p in range(near_xy.shape[1]):
-                out[c, j, p] = near_xy[j, p] and abs(dz_m[j, p] + offsets_m[c]) <= h
+                out[c, j, p] = _in_cylinder(near_xy[j, p], dz_m[j, p], offsets_m[c], h)
 
 
 @kernel
@@ -398,16 +404,11 @@ def conflict_rows(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
     for j in range(near_xy.shape[0]):
         h = half_height_m + widen_v_m[j]
         hit[j] = False
-        for p in range(min(first + 1, m)):  # a row's points after the first found: no news
-            if near_xy[j, p] and abs(dz_m[j, p] + offset_m) <= h:
+        for p in range(m):
+            if _in_cylinder(near_xy[j, p], dz_m[j, p], offset_m, h):
                 hit[j] = True
-                first = p
+                first = min(first, p)
                 break
-        if not hit[j]:
-            for p in range(first + 1, m):
-                if near_xy[j, p] and abs(dz_m[j, p] + offset_m) <= h:
-                    hit[j] = True
-                    break
     return first if first < m else -1
 
 

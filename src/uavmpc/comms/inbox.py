@@ -303,12 +303,11 @@ class InboxTable:
         self.entries = entries
 
     # ------------------------------------------------------------------ messages
-    def slot_for(self, data: bytes, decoded: PredictionMessage | None = None) -> int:
+    def slot_for(self, data: bytes) -> int:
         """The store slot holding the message ``data`` decodes to (decoded once per distinct
-        byte string while its slot lives), pinned until :meth:`unpin`; raises
-        :class:`~uavmpc.comms.message.InvalidMessageError` naming the problem. ``decoded``:
-        what ``data`` decodes to, when the caller knows (the message whose encoding ``data``
-        is: the round trip is exact, field for field), taken instead of decoding."""
+        byte string while its slot lives, or written by the sender's side and kept with
+        :meth:`hold`), pinned until :meth:`unpin`; raises
+        :class:`~uavmpc.comms.message.InvalidMessageError` naming the problem."""
         hit = self._decoded.get(data)
         if isinstance(hit, str):
             raise InvalidMessageError(hit)
@@ -316,7 +315,7 @@ class InboxTable:
             self.store.pinned[hit[0]] = 1
             return hit[0]
         try:
-            msg = decode(data) if decoded is None else decoded
+            msg = decode(data)
         except InvalidMessageError as exc:
             if self._failures >= _MAX_FAILURES_CACHED:
                 self._decoded = {k: v for k, v in self._decoded.items() if not isinstance(v, str)}
@@ -362,13 +361,9 @@ class InboxTable:
         """Keep each of ``slots`` (R,) (the message ``data[j]`` decodes to, written by the
         caller) while copies of it are in flight: :meth:`slot_for` finds it without
         decoding, and no other message takes the slot until :meth:`let_go`."""
-        st = self.store
-        st.holders[slots] += 1
-        if len(self._decoded) > 4 * st.holders.shape[0]:
-            self._remember(data[0], int(slots[0]))  # prunes
-        for d, slot, gen in zip(data, slots.tolist(), st.generation[slots].tolist(),
-                                strict=True):
-            self._decoded[d] = (slot, gen)
+        self.store.holders[slots] += 1
+        for d, slot in zip(data, slots.tolist(), strict=True):
+            self._remember(d, slot)
 
     def let_go(self, slot: int) -> None:
         """The copies of a slot :meth:`hold` kept are all delivered."""
