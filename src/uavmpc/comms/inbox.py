@@ -52,8 +52,9 @@ class Store(NamedTuple):
         stamp_s: (C,); col: (C,) int64 sender column; priority: (C,) int64; avoiding: (C,).
         bbox_m: (C, 4) [x_min, x_max, y_min, y_max] of the points; end_velocity_mps: (C, 2)
             the last segment's horizontal velocity (its extrapolation past the end).
-        holders: (C,) int64 receivers holding the slot; pinned: (C,) int8 in use by a delivery
-            in progress; generation: (C,) int64 bumped when a slot is reused.
+        holders: (C,) int64 receivers holding the slot, and one while a sender's side keeps
+            it for copies in flight (:meth:`InboxTable.hold`); pinned: (C,) int8 in use by a
+            delivery in progress; generation: (C,) int64 bumped when a slot is reused.
         sigma_m: (C, 2) the sender's position uncertainty, horizontal and vertical 1σ [m].
     """
 
