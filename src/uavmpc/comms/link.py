@@ -409,6 +409,14 @@ def move_copies(q: InFlight, chunks: int, into: InFlight) -> int:
 THREADED_COPIES = 2048
 
 
+def _at_least(work: np.ndarray, n: int) -> np.ndarray:
+    """``work`` if it holds ``n`` elements, else a larger one of its type (at least twice
+    as large: grown now and then, never shrunk; its pages stay mapped from call to call)."""
+    if work.shape[0] >= n:
+        return work
+    return np.empty(max(n, 2 * work.shape[0]), dtype=work.dtype)
+
+
 class Due(NamedTuple):
     """The copies a :meth:`SimulatedLink.take_due` hands over, in delivery order.
 
@@ -522,7 +530,7 @@ class SimulatedLink:
         self._draws = np.empty(0)
         self._work_at = np.empty(0)
         self._work_rcv = np.empty(0, dtype=np.int64)
-        self._taken = np.empty((4, 0), dtype=np.int64)
+        self._taken = np.empty(0, dtype=np.int64)
         self._payloads: dict[int, bytes] = {}
         self._copies_left: dict[int, int] = {}
         self._next_payload = 0
@@ -582,10 +590,9 @@ class SimulatedLink:
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order. Per
         # broadcast: n − 1 uniforms for the loss, then n − 1 for the jitter.
-        size = 2 * b * (n - 1)
-        if self._draws.shape[0] < size:  # grown, never shrunk: fresh pages cost more
-            self._draws = np.empty(max(size, 2 * self._draws.shape[0]))
-        draws = self._rng.random(out=self._draws[:size]).reshape(b, 2, n - 1)
+        copies = b * (n - 1)
+        self._draws = _at_least(self._draws, 2 * copies)
+        draws = self._rng.random(out=self._draws[:2 * copies]).reshape(b, 2, n - 1)
         ranged = self.range_m is not None
         in_range = (np.stack([self._in_range(sender_id, np.delete(np.arange(n), s))
                               for sender_id, s in zip(sender_ids, senders.tolist(),
@@ -595,17 +602,16 @@ class SimulatedLink:
         pids = np.empty(b, dtype=np.int64)
         counts = np.empty(b, dtype=np.int64)
         burst = self._thresholds is not None
+        self._work_at = _at_least(self._work_at, copies)
+        self._work_rcv = _at_least(self._work_rcv, copies)
         args = (self._q, self._chunks, self._used, draws, senders, self.loss,
                 self._thresholds if self._thresholds is not None else _NO_THRESHOLDS, burst,
                 self._state, in_range, ranged, self.latency_s, self.jitter_s, float(t_s),
-                self._next_payload, self._seq, pids, counts)
-        if self._work_at.size < b * (n - 1):
-            self._work_at = np.empty(2 * b * (n - 1))
-            self._work_rcv = np.empty(2 * b * (n - 1), dtype=np.int64)
-        args = (*args, self._work_at[:b * (n - 1)].reshape(b, n - 1),
-                self._work_rcv[:b * (n - 1)].reshape(b, n - 1))
+                self._next_payload, self._seq, pids, counts,
+                self._work_at[:copies].reshape(b, n - 1),
+                self._work_rcv[:copies].reshape(b, n - 1))
         threads = numba.get_num_threads()
-        if threads > 1 and b > 1 and b * (n - 1) >= THREADED_COPIES:
+        if threads > 1 and b > 1 and copies >= THREADED_COPIES:
             self._chunks, used, lost, out = bound(queue_copies_threads)(*args, threads)
         else:
             self._chunks, used, lost, out = bound(queue_copies)(*args)
@@ -706,9 +712,8 @@ class SimulatedLink:
         if self._seen.shape[0] < len(self._members):
             self._seen = np.zeros(len(self._members), dtype=np.bool_)
         u, c = self._used, self._chunks
-        if self._taken.shape[1] < u:
-            self._taken = np.empty((4, max(u, 2 * self._taken.shape[1])), dtype=np.int64)
-        rcv, which, at_bits, seq = self._taken
+        self._taken = _at_least(self._taken, 4 * u)
+        rcv, which, at_bits, seq = self._taken[:4 * u].reshape(4, u)
         at = at_bits.view(np.float64)
         pids, copies = np.empty(c, dtype=np.int64), np.empty(c, dtype=np.int64)
         k, g, ordered = bound(take_copies)(self._q, c, float(t_s), self._seen, rcv, which, at, seq,
