@@ -32,7 +32,7 @@ TIMED: list[tuple[Any, str, str]] = [
     (world.World, "_plan_round", "  avoidance round"),
     (onboard, "avoidance_plans", "    plans"),
     (onboard, "avoidance_plans_threads", "    plans"),
-    (encounters.EncounterFinder, "find", "    encounter search"),
+    (encounters.EncounterFinder, "find_rows", "    encounter search"),
     (onboard.OnboardStack, "decide", "    decisions"),
     (delivery.WorldLink, "deliver", "  delivery"),
     (link.SimulatedLink, "take_due", "    copies due"),

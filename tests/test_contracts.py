@@ -211,6 +211,23 @@ def test_rest_is_a_calm_decision_with_nobody_near_or_nothing(make) -> None:
 
 
 @pytest.mark.parametrize("make", STRATEGIES)
+def test_rest_is_idempotent_until_the_next_decision(make) -> None:
+    """Once rest has said True, asking again later changes nothing and says True again (a
+    driver skips asking: OnboardBatch.resting); after a climb it is False until released."""
+    prm = AvoidanceParams()
+    times, own, msg = _head_on(10.0)
+    s = make(prm)
+    assert s.update(10.0, "own", 2, times, own, {"other": msg}).z_offset_m == prm.dz_m
+    later = 10.0 + prm.release_hysteresis_s + prm.dz_m / prm.release_rate_mps + 1.0
+    s.update(later, "own", 2, times, own, {})
+    assert s.rest(later + 0.1) is True
+    before = dict(vars(s))
+    for t in (later + 0.2, later + 60.0):
+        assert s.rest(t) is True
+        assert vars(s) == before
+
+
+@pytest.mark.parametrize("make", STRATEGIES)
 def test_limit_offset_caps_the_climb(make) -> None:
     prm = AvoidanceParams()
     now = 10.0

@@ -40,6 +40,42 @@ def test_batched_equals_per_object_in_a_random_walk_with_avoidance() -> None:
     assert a.messages["delivered"] > 0
 
 
+def test_a_resting_uav_is_not_asked_again_and_flies_the_same(monkeypatch) -> None:
+    """A round skips the UAVs at rest with nobody near or silent (OnboardBatch.resting): far
+    fewer rests asked, the same decisions at the same times and the same flight as asking
+    every UAV every round."""
+    import uavmpc.onboard as onboard
+
+    def fly(skip: bool):
+        rests, decisions = [0], []
+        rest, apply = onboard.OnboardStack.rest, onboard.OnboardStack.apply
+
+        def counted_rest(self, plan_s):
+            rests[0] += 1
+            ok = rest(self, plan_s)
+            if not skip:
+                self.batch.resting[self.row] = False  # asked again next round
+            return ok
+
+        def recorded_apply(self, decision):
+            if decision != self.decision:
+                decisions.append((self.uav_id, float(self.tracker.time_s), decision))
+            apply(self, decision)
+
+        with monkeypatch.context() as m:
+            m.setattr(onboard.OnboardStack, "rest", counted_rest)
+            m.setattr(onboard.OnboardStack, "apply", recorded_apply)
+            r = World(random_walk(12, area_m=160.0, duration_s=20.0, seed=2), avoidance=True,
+                      seed=2).run(20.0)
+        return r, rests[0], decisions
+
+    skipping, asked_less, decided = fly(True)
+    asking, asked_all, decided_all = fly(False)
+    _assert_same_flight(skipping, asking)
+    assert decided == decided_all and any(d.z_offset_m > 0 for _, _, d in decided)
+    assert asked_less < asked_all / 3
+
+
 def test_batched_equals_per_object_through_a_conflict_with_faults_and_mixed_airframes() -> None:
     """Climbs, tightened limits (the virtual UAV brakes), a lossy late link, gusty wind, a
     quadrotor and a hexacopter in one world, and a flight log being written."""

@@ -460,6 +460,11 @@ class OnboardBatch:
         #: (:attr:`~uavmpc.avoidance.AvoidanceDecision.holding`): only their strategies have
         #: :meth:`~uavmpc.avoidance.EncounterStrategy.hold_probes` to find.
         self.holding: set[int] = set()
+        #: (N,) bool the row's strategy came to rest at a round with nobody near or silent
+        #: (:meth:`OnboardStack.rest`) and has not decided since. Rest is idempotent
+        #: (:meth:`~uavmpc.avoidance.EncounterStrategy.rest`): a round that finds nobody near
+        #: or silent again changes nothing for it, and is not asked of it.
+        self.resting = np.zeros(n, dtype=np.bool_)
         self.n = n
         self._one: tuple[ReferenceTable, object] | None = None
 
@@ -620,9 +625,6 @@ class OnboardStack:
         sched = batch.schedule
         sched.next_broadcast_s[self.row] = float(t0_s) + float(broadcast_phase_s)
         sched.next_avoidance_s[self.row] = float(t0_s)
-        #: The message of the last broadcast when its bytes are exactly its encoding (no
-        #: signature or seal): what a receiver decodes them to (a simulated world's receivers
-        #: take it rather than decode the same bytes again).
         #: How many predictions it has broadcast.
         self.predictions_sent = 0
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
@@ -631,6 +633,7 @@ class OnboardStack:
         self._limits_key: tuple[float, float | None, float | None] = (1.0, None, None)
         self._ticked = False
         sched.planning[self.row] = False
+        batch.resting[self.row] = False
         self._idx = np.array([self.row], dtype=np.int64)
         for name in StackStats._fields:
             getattr(batch.stats, name)[self.row] = 0
@@ -666,6 +669,7 @@ class OnboardStack:
         heading = float(heading_of(_estimate_part(estimate, "attitude_wxyz", 4)))
         self.cooperative = False
         self.batch.schedule.planning[self.row] = False
+        self.batch.resting[self.row] = False
         self.decision = None
         self.batch.holding.discard(self.row)
         self.batch.stats.avoiding[self.row] = False
@@ -717,6 +721,7 @@ class OnboardStack:
         avoidance round, :func:`avoidance_round`); ``probes``: while it holds short, the
         encounters of its :meth:`hold_probes`."""
         assert self._decider is not None, "decide: the stack's strategy takes encounters"
+        self.batch.resting[self.row] = False
         self.apply(self._decider.decide(plan_s, self.uav_id, self.priority, times_s, found,
                                         climbed_m=climbed_m, positions=positions_m,
                                         probes=probes))
@@ -724,11 +729,13 @@ class OnboardStack:
     def rest(self, plan_s: float) -> bool:
         """Its avoidance round at ``plan_s`` when nobody is near or silent: if its strategy
         has nothing left to do (:meth:`~uavmpc.avoidance.EncounterStrategy.rest`), steered by
-        the calm decision and True; else False, nothing done (:meth:`decide` must run)."""
+        the calm decision, marked :attr:`OnboardBatch.resting`, and True; else False, nothing
+        done (:meth:`decide` must run)."""
         assert self._decider is not None, "rest: the stack's strategy takes encounters"
         if not self._decider.rest(plan_s):
             return False
         self.apply(CALM)
+        self.batch.resting[self.row] = True
         return True
 
     def hold_probes(self, plan_s: float, times_s: np.ndarray, here_m: np.ndarray
@@ -973,19 +980,23 @@ def avoidance_round(batch: OnboardBatch,
     sigma = batch.position_sigma_m[due]
     if held:
         at = [*range(due.size)] + [j for j, p in held for _ in range(p.shape[0])]
-        found = finder.find(due[at], times[at], np.concatenate([own, *(p for _, p in held)]),
-                            plan_s[at], radius[at], [ov[j] for j in at], sigma[at])
+        found = finder.find_rows(due[at], times[at],
+                                 np.concatenate([own, *(p for _, p in held)]), plan_s[at],
+                                 radius[at], [ov[j] for j in at], sigma[at])
     else:  # most rounds: the rows once each, as they are
-        found = finder.find(due, times, own, plan_s, radius, ov, sigma)
+        found = finder.find_rows(due, times, own, plan_s, radius, ov, sigma)
     probes: dict[int, list[Encounters]] = {}
     k = due.size
     for j, p in held:
-        probes[j] = found[k:k + p.shape[0]]
+        probes[j] = [found.encounters(q) for q in range(k, k + p.shape[0])]
         k += p.shape[0]
-    for j, i in enumerate(which):
-        f = found[j]
-        if not f.ids and not f.silent and stacks[i].rest(float(plan_s[j])):
-            continue  # nobody near, nothing to do: most UAVs, most rounds
-        stacks[i].decide(float(plan_s[j]), times[j], f, float(climbed[j]), own[j],
-                         probes.get(j))
+    quiet = found.quiet[:due.size]
+    # Nobody near nor silent, and at rest since its last round: nothing happens to it
+    # (rest is idempotent, :attr:`OnboardBatch.resting`). Most UAVs, most rounds.
+    for j in np.flatnonzero(~(quiet & batch.resting[due])).tolist():
+        i = which[j]
+        if quiet[j] and stacks[i].rest(float(plan_s[j])):
+            continue  # come to rest now
+        stacks[i].decide(float(plan_s[j]), times[j], found.encounters(j), float(climbed[j]),
+                         own[j], probes.get(j))
     return due

@@ -622,6 +622,50 @@ def _nobody(m: int, silent: tuple[str, ...]) -> Encounters:
     return enc
 
 
+class FoundRows:
+    """What one call of :func:`encounter_rows` found for receivers ``due`` (R,): views of its
+    outputs (:meth:`EncounterFinder.find_rows`)."""
+
+    def __init__(self, table: InboxTable, due: np.ndarray, own_sigma_m: np.ndarray,
+                 sigma_k: float, out: tuple[np.ndarray, ...]) -> None:
+        self.table = table
+        self.due = due
+        self.own_sigma_m = own_sigma_m
+        self.sigma_k = sigma_k
+        self.out = out
+        r_count = due.shape[0]
+        e_start, s_start = out[0], out[7]
+        #: (R,) bool the receiver found nobody near and nobody silent.
+        self.quiet = ((e_start[1:r_count + 1] == e_start[:r_count])
+                      & (s_start[1:r_count + 1] == s_start[:r_count]))
+
+    def encounters(self, j: int) -> Encounters:
+        """Receiver ``j``'s encounters (views of the call's outputs)."""
+        e_start, e_col, e_silent, e_near, e_announced, e_dz, e_dxy, s_start, s_col = self.out
+        t = self.table
+        ids = t.ids
+        a, b = int(e_start[j]), int(e_start[j + 1])
+        sa, sb = int(s_start[j]), int(s_start[j + 1])
+        silent = tuple(ids[c] for c in s_col[sa:sb].tolist()) if sb > sa else ()
+        m = e_near.shape[1]
+        if a == b:  # nobody near (most UAVs, most of the time)
+            return _nobody(m, silent)
+        cols_j = e_col[a:b]
+        st, rows = t.store, t.rows
+        r = int(self.due[j])
+        slots = rows.held_slot[r, cols_j]
+        me = ids[int(rows.own_col[r])]
+        own_v = float(self.own_sigma_m[j, 1])
+        widen_v = np.array([pair_widening_m(own_v, s, self.sigma_k)
+                            for s in st.sigma_m[slots, 1].tolist()])
+        return Encounters(
+            tuple(map(ids.__getitem__, cols_j.tolist())), st.priority[slots],
+            st.avoiding[slots], e_silent[a:b], e_near[a:b], e_dz[a:b], silent,
+            e_announced[a:b],
+            np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v,
+            e_dxy[a:b])
+
+
 class EncounterFinder:
     """Runs :func:`encounter_rows` for the receivers of one :class:`InboxTable` and hands out
     :class:`Encounters` (its output arrays are kept and grown between rounds).
@@ -659,13 +703,13 @@ class EncounterFinder:
         self._cap_e = 16
         self._cap_s = 16
 
-    def find(self, due: np.ndarray, own_times: np.ndarray, own_pos: np.ndarray,
-             now_s: np.ndarray, radius_m: np.ndarray,
-             overrides: list[dict[int, float]] | None = None,
-             own_sigma_m: np.ndarray | None = None) -> list[Encounters]:
-        """The encounters of each receiver row in ``due`` (R,), see :func:`encounter_rows`
-        (``overrides``: per receiver, column → radius; ``own_sigma_m`` (R, 2): each
-        receiver's own position uncertainty, horizontal and vertical 1σ [m], default 0)."""
+    def find_rows(self, due: np.ndarray, own_times: np.ndarray, own_pos: np.ndarray,
+                  now_s: np.ndarray, radius_m: np.ndarray,
+                  overrides: list[dict[int, float]] | None = None,
+                  own_sigma_m: np.ndarray | None = None) -> FoundRows:
+        """:meth:`find` as rows: which receivers found nobody near or silent, and each one's
+        :class:`Encounters` when asked for (a round builds them only for the receivers that
+        must decide)."""
         r_count = due.shape[0]
         sig = np.zeros((r_count, 2)) if own_sigma_m is None else np.asarray(own_sigma_m, float)
         m = own_times.shape[1]
@@ -704,32 +748,18 @@ class EncounterFinder:
                 break
             self._cap_e = max(self._cap_e, 2 * ne)
             self._cap_s = max(self._cap_s, 2 * ns)
-        e_start, e_col, e_silent, e_near, e_announced, e_dz, e_dxy, s_start, s_col = out
-        ids, st, rows = t.ids, t.store, t.rows
-        result = []
-        starts = e_start[:r_count + 1].tolist()
-        silent_starts = s_start[:r_count + 1].tolist()
-        for j in range(r_count):
-            a, b = starts[j], starts[j + 1]
-            sa, sb = silent_starts[j], silent_starts[j + 1]
-            silent = tuple(ids[c] for c in s_col[sa:sb].tolist()) if sb > sa else ()
-            if a == b:  # nobody near (most UAVs, most of the time)
-                result.append(_nobody(m, silent))
-                continue
-            cols_j = e_col[a:b]
-            r = int(due[j])
-            slots = rows.held_slot[r, cols_j]
-            me = ids[int(rows.own_col[r])]
-            widen_v = np.array([pair_widening_m(float(sig[j, 1]), s, self.sigma_k)
-                                for s in st.sigma_m[slots, 1].tolist()])
-            # Views of this call's outputs (a call writes arrays of its own).
-            result.append(Encounters(
-                tuple(map(ids.__getitem__, cols_j.tolist())), st.priority[slots],
-                st.avoiding[slots], e_silent[a:b], e_near[a:b], e_dz[a:b], silent,
-                e_announced[a:b],
-                np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v,
-                e_dxy[a:b]))
-        return result
+        return FoundRows(self.table, due, sig, self.sigma_k, out)
+
+    def find(self, due: np.ndarray, own_times: np.ndarray, own_pos: np.ndarray,
+             now_s: np.ndarray, radius_m: np.ndarray,
+             overrides: list[dict[int, float]] | None = None,
+             own_sigma_m: np.ndarray | None = None) -> list[Encounters]:
+        """The encounters of each receiver row in ``due`` (R,), see :func:`encounter_rows`
+        (``overrides``: per receiver, column → radius; ``own_sigma_m`` (R, 2): each
+        receiver's own position uncertainty, horizontal and vertical 1σ [m], default 0)."""
+        found = self.find_rows(due, own_times, own_pos, now_s, radius_m, overrides,
+                               own_sigma_m)
+        return [found.encounters(j) for j in range(due.shape[0])]
 
     def heard(self, row: int, now_s: float, own_xy_m: np.ndarray,
               limit: int = MAX_HEARD) -> tuple[str, ...]:

@@ -324,8 +324,12 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
 
     def rest(self, now_s: float) -> bool:
         """A round at ``now_s`` with nobody near and nobody silent, when the strategy has
-        nothing left to do: noted as :meth:`decide` would note it, and True (the decision
-        is :data:`CALM`); else False and nothing changes (:meth:`decide` must run)."""
+        nothing left to do: left as :meth:`decide` would leave it, and True (the decision
+        is :data:`CALM`); else False and nothing changes (:meth:`decide` must run).
+
+        Idempotent: once it has given True, asked again later with no :meth:`decide` in
+        between it gives True and changes nothing (a driver need not ask again,
+        :attr:`~uavmpc.onboard.OnboardBatch.resting`)."""
         ...
 
     def decide(self, now_s: float, own_id: str, own_priority: int,
@@ -708,14 +712,15 @@ class HeightOffsetStrategy:
     def rest(self, now_s: float) -> bool:
         """(The contract's :meth:`EncounterStrategy.rest`.) At rest: no offset, no hold,
         no conflict within ``release_hysteresis_s``. A round with nobody near then releases
-        nothing and starts no hold: it forgets who had not listed us and is noted."""
+        nothing and starts no hold: it forgets who had not listed us. (The time of the
+        round is not noted: only a release reads it, and there is no offset to release; the
+        next :meth:`decide` notes its own. Asked again, it does the same: idempotent.)"""
         if (self.z_offset_m != 0.0 or self._hold_plan is not None
                 or (self._last_conflict_s is not None
                     and now_s - self._last_conflict_s < self.params.release_hysteresis_s)):
             return False
         self._unlisted_since = {}
         self._stuck = False
-        self._last_update_s = now_s
         return True
 
     def _hold_short(self, start: bool, times: np.ndarray, positions: np.ndarray | None,
