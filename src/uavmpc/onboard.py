@@ -273,32 +273,55 @@ class SentRows(NamedTuple):
                    np.zeros((n, 2)))
 
 
+class SenderRows(NamedTuple):
+    """What N stacks put in every broadcast that does not change from one to the next, one row
+    each (written by each stack when it is made).
+
+    Attributes:
+        inbox_row: (N,) int64 its row of its inbox table; priority: (N,) int64 its priority
+            (one int64 does not hold: a value the message gate refuses, so that the checked
+            path names it); counts_heard: (N,) bool its messages list whom it hears, with
+            its finder's ``use_received``: (N,) bool, ``timeout_s``: (N,) and
+            ``silent_hold_s``: (N,) [s] (:func:`~uavmpc.avoidance.encounters.heard_columns`).
+    """
+
+    inbox_row: np.ndarray
+    priority: np.ndarray
+    counts_heard: np.ndarray
+    use_received: np.ndarray
+    timeout_s: np.ndarray
+    silent_hold_s: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> SenderRows:
+        return cls(np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                   np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_), np.zeros(n),
+                   np.zeros(n))
+
+
 @kernel(allocates=True)
-def broadcast_rows(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
-                   consts: TrackerConsts, stamp_s: np.ndarray, avoiding: np.ndarray,
-                   priority: np.ndarray, sigma_m: np.ndarray, counts_heard: np.ndarray,
-                   use_received: np.ndarray, timeout_s: np.ndarray, silent_hold_s: np.ndarray,
-                   rows: InboxRows, store: Store, entries: np.ndarray, sent: SentRows,
-                   out: np.ndarray, length: np.ndarray) -> None:
+def broadcast_rows(idx: np.ndarray, trk: TrackerRows, consts: TrackerConsts,
+                   senders: SenderRows, stamp_s: np.ndarray, avoiding: np.ndarray,
+                   sigma_m: np.ndarray, rows: InboxRows, store: Store, entries: np.ndarray,
+                   sent: SentRows, out: np.ndarray, length: np.ndarray) -> None:
     """The broadcasts of rows ``idx`` (R,) in one call: each one's plan of its last tick into
     ``sent`` (the very plan :func:`avoidance_plans` hands the avoidance), its heard list (the
-    columns of inbox row ``inbox_row[j]`` that :func:`~uavmpc.avoidance.encounters.
-    heard_columns` counts, when ``counts_heard[j]``, with that row's finder parameters
-    ``use_received``, ``timeout_s``, ``silent_hold_s`` (R,)), and its message's bytes into
-    ``out[j]`` (:func:`~uavmpc.comms.message.write_message`, stamped ``stamp_s[j]``, flag
-    ``avoiding[j]``, ``priority[j]``, the row's ``sigma_m``), their number into
-    ``length[j]``. A message :func:`~uavmpc.comms.message.fields_valid` refuses (a plan not
-    finite or out of bounds, an uncertainty out of range, an id no message may carry: an
-    all-zero entry of ``entries``, the table's :attr:`~uavmpc.comms.inbox.InboxTable.entries`)
-    is not written: ``length[j] = -1``, and the caller builds it the checked way, which names
-    the problem."""
+    columns of its inbox row that :func:`~uavmpc.avoidance.encounters.heard_columns` counts,
+    with its finder's parameters: ``senders``), and its message's bytes into ``out[j]``
+    (:func:`~uavmpc.comms.message.write_message`, stamped ``stamp_s[j]``, flag
+    ``avoiding[j]``, its priority and ``sigma_m``), their number into ``length[j]``. A
+    message :func:`~uavmpc.comms.message.fields_valid` refuses (a plan not finite or out of
+    bounds, an uncertainty out of range, an id no message may carry: an all-zero entry of
+    ``entries``, the table's :attr:`~uavmpc.comms.inbox.InboxTable.entries`) is not written:
+    ``length[j] = -1``, and the caller builds it the checked way, which names the problem."""
     h = consts.horizon_s
     m = h.shape[0]
     pos = np.empty((m, 3))
     floats = np.empty(3)
     for j in range(idx.shape[0]):
         i = idx[j]
-        r = inbox_row[j]
+        r = senders.inbox_row[i]
+        priority = senders.priority[i]
         p = sent.plan[i]
         plan(trk.rel[i], trk.u_plan[i], trk.p0[i], consts.free_t, consts.forced_t, p)
         times = sent.times_s[i]
@@ -310,32 +333,31 @@ def broadcast_rows(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
         sent.heard_count[i] = 0
         sent.stamp_s[i] = stamp_s[j]
         sent.avoiding[i] = avoiding[j]
-        sent.priority[i] = priority[j]
+        sent.priority[i] = priority
         sent.sigma_m[i, 0] = sigma_m[i, 0]
         sent.sigma_m[i, 1] = sigma_m[i, 1]
         own = entries[rows.own_col[r]]
-        if not fields_valid(own[0], priority[j], stamp_s[j], sigma_m[i, 0], sigma_m[i, 1],
+        if not fields_valid(own[0], priority, stamp_s[j], sigma_m[i, 0], sigma_m[i, 1],
                             times, pos):
             length[j] = -1
             continue
         n = 0
-        if counts_heard[j]:
-            n = heard_columns(rows, store, r, stamp_s[j], use_received[j], timeout_s[j],
-                              silent_hold_s[j], pos[0, 0], pos[0, 1], sent.heard[i])
+        if senders.counts_heard[i]:
+            n = heard_columns(rows, store, r, stamp_s[j], senders.use_received[i],
+                              senders.timeout_s[i], senders.silent_hold_s[i], pos[0, 0],
+                              pos[0, 1], sent.heard[i])
         sent.heard_count[i] = n
         floats[0] = stamp_s[j]
         floats[1] = sigma_m[i, 0]
         floats[2] = sigma_m[i, 1]
-        length[j] = write_message(out[j], own, avoiding[j], priority[j], floats, times, pos,
+        length[j] = write_message(out[j], own, avoiding[j], priority, floats, times, pos,
                                   entries, sent.heard[i, :n])
 
 
 @kernel(parallel=True)
-def broadcast_rows_threads(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerRows,
-                           consts: TrackerConsts, stamp_s: np.ndarray, avoiding: np.ndarray,
-                           priority: np.ndarray, sigma_m: np.ndarray, counts_heard: np.ndarray,
-                           use_received: np.ndarray, timeout_s: np.ndarray,
-                           silent_hold_s: np.ndarray, rows: InboxRows, store: Store,
+def broadcast_rows_threads(idx: np.ndarray, trk: TrackerRows, consts: TrackerConsts,
+                           senders: SenderRows, stamp_s: np.ndarray, avoiding: np.ndarray,
+                           sigma_m: np.ndarray, rows: InboxRows, store: Store,
                            entries: np.ndarray, sent: SentRows, out: np.ndarray,
                            length: np.ndarray, blocks: int) -> None:
     """:func:`broadcast_rows` with the rows in ``blocks`` contiguous blocks, one per thread:
@@ -344,10 +366,8 @@ def broadcast_rows_threads(idx: np.ndarray, inbox_row: np.ndarray, trk: TrackerR
     nb = max(1, min(r_count, blocks))
     for b in numba.prange(nb):
         lo, hi = b * r_count // nb, (b + 1) * r_count // nb
-        broadcast_rows(idx[lo:hi], inbox_row[lo:hi], trk, consts, stamp_s[lo:hi],
-                       avoiding[lo:hi], priority[lo:hi], sigma_m, counts_heard[lo:hi],
-                       use_received[lo:hi], timeout_s[lo:hi], silent_hold_s[lo:hi], rows, store,
-                       entries, sent, out[lo:hi], length[lo:hi])
+        broadcast_rows(idx[lo:hi], trk, consts, senders, stamp_s[lo:hi], avoiding[lo:hi],
+                       sigma_m, rows, store, entries, sent, out[lo:hi], length[lo:hi])
 
 
 @kernel
@@ -388,21 +408,13 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     has a key or an identity."""
     r_count = len(stacks)
     table = stacks[0].inbox.table
-    finders = [s.heard_finder for s in stacks]
     flags = [s.flag_up for s in stacks]
-    # Per row: whether it lists whom it heard, and its finder's parameters.
-    params = np.array([(True, f.use_received, f.timeout_s, f.silent_hold_s) if f is not None
-                       else (False, False, 0.0, 0.0) for f in finders], dtype=float)
     stamp = np.ascontiguousarray(now_s, dtype=float)
     out = np.empty((r_count, MAX_MESSAGE_BYTES), dtype=np.uint8)
     length = np.empty(r_count, dtype=np.int64)
     trk = batch.tracker
-    args = (np.array([s.row for s in stacks], dtype=np.int64),
-            np.array([s.inbox.row for s in stacks], dtype=np.int64), trk.rows, trk.consts,
-            stamp, np.array(flags),
-            np.array([_as_int64(s.priority) for s in stacks], dtype=np.int64),
-            batch.position_sigma_m,
-            params[:, 0] != 0.0, params[:, 1] != 0.0, params[:, 2].copy(), params[:, 3].copy(),
+    args = (np.array([s.row for s in stacks], dtype=np.int64), trk.rows, trk.consts,
+            batch.senders, stamp, np.array(flags, dtype=np.bool_), batch.position_sigma_m,
             table.rows, table.store, table.entries, batch.sent, out, length)
     threads = numba.get_num_threads()
     if threads > 1 and r_count > 1:
@@ -435,6 +447,32 @@ class Schedule(NamedTuple):
         return cls(np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_))
 
 
+@kernel
+def broadcasts_due(sched: Schedule, offsets_s: np.ndarray, now_s: float, rows_out: np.ndarray,
+                   stamps_out: np.ndarray) -> int:
+    """The rows whose broadcast is due at world time ``now_s``, each on its own clock (the
+    world's plus ``offsets_s`` (N,) [s]), in row order into ``rows_out`` (N,) with their
+    clocks into ``stamps_out`` (N,); returns how many."""
+    n = 0
+    for i in range(offsets_s.shape[0]):
+        own = now_s + offsets_s[i]
+        if own >= sched.next_broadcast_s[i] - _SCHEDULE_TOL_S:
+            rows_out[n] = i
+            stamps_out[n] = own
+            n += 1
+    return n
+
+
+@kernel
+def next_broadcast_s(sched: Schedule, offsets_s: np.ndarray) -> float:
+    """The first world time [s] any row's next broadcast is due at (each row on its own
+    clock: the world's plus ``offsets_s`` (N,) [s])."""
+    first = np.inf
+    for i in range(offsets_s.shape[0]):
+        first = min(first, sched.next_broadcast_s[i] - offsets_s[i])
+    return first
+
+
 class OnboardBatch:
     """The numerical state of N onboard stacks of one tracker set-up, one row each.
 
@@ -455,6 +493,8 @@ class OnboardBatch:
         self.schedule = Schedule.empty(n)
         #: What each row broadcast last (:func:`broadcast`).
         self.sent = SentRows.empty(n, self.tracker.config.steps)
+        #: What each row's broadcasts carry that does not change (written by its stack).
+        self.senders = SenderRows.empty(n)
         self.position_sigma_m = np.zeros((n, 2))
         #: The rows whose last avoidance decision holds short
         #: (:attr:`~uavmpc.avoidance.AvoidanceDecision.holding`): only their strategies have
@@ -593,7 +633,7 @@ class OnboardStack:
         self.row = int(row)
         self.airframe = airframe
         self.uav_id = uav_id
-        self.priority = priority
+        self._priority = priority
         self.tracker = MpcTracker(batch.tracker.config, position_m=position_m,
                                   heading_rad=heading_rad, t0_s=t0_s, batch=batch.tracker,
                                   row=self.row)
@@ -619,6 +659,14 @@ class OnboardStack:
         self._decider = avoidance if isinstance(avoidance, EncounterStrategy) else None
         self._finder = (self._decider.finder(self.inbox.table) if self._decider is not None
                         else None)
+        f = self._finder
+        senders = batch.senders
+        senders.inbox_row[self.row] = self.inbox.row
+        senders.priority[self.row] = _as_int64(priority)
+        senders.counts_heard[self.row] = f is not None
+        senders.use_received[self.row] = f is not None and f.use_received
+        senders.timeout_s[self.row] = f.timeout_s if f is not None else 0.0
+        senders.silent_hold_s[self.row] = f.silent_hold_s if f is not None else 0.0
         self.nominal_limits = self.tracker.limits
         self.decision: AvoidanceDecision | None = None
         self.broadcast_period_s = float(broadcast_period_s)
@@ -780,6 +828,12 @@ class OnboardStack:
         if now_s < self.batch.schedule.next_broadcast_s[self.row] - _SCHEDULE_TOL_S:
             return None
         return broadcast(self.batch, (self,), np.array([now_s]))[0]
+
+    @property
+    def priority(self) -> int:
+        """Its priority on the link, as given (fixed: its broadcasts carry it,
+        :attr:`OnboardBatch.senders`)."""
+        return self._priority  # type: ignore[no-any-return]
 
     @property
     def flag_up(self) -> bool:

@@ -61,7 +61,7 @@ from uavmpc.drivers.world_tick import CompiledTick, world_post, world_pre, world
 from uavmpc.drivers.world_view import GROUND_VEHICLE_ID, SCENE_PERIOD_S, WorldScene
 from uavmpc.estimation import ObserverParams
 from uavmpc.estimation.fleet import FleetEstimator
-from uavmpc.jit import HAS_CYCLE_COUNTER, CompileWatch, cycle_count
+from uavmpc.jit import HAS_CYCLE_COUNTER, CompileWatch, bound, cycle_count
 from uavmpc.log import FlightRecorder
 from uavmpc.missions.formation import FormationFollower
 from uavmpc.missions.landing import LandingMission
@@ -72,6 +72,8 @@ from uavmpc.onboard import (
     OnboardStack,
     avoidance_round,
     broadcast,
+    broadcasts_due,
+    next_broadcast_s,
 )
 from uavmpc.plant import Airframe, PlantRows, Wind
 from uavmpc.plant.interface import heading_of
@@ -514,6 +516,9 @@ class World:
         self.period_s = self.onboard.tracker.config.first_step_s
         self.n_sub = _common_substeps(self.uavs, self.period_s)
         self._offsets = offsets.copy()
+        #: The rows due to broadcast at a tick and their clocks (work arrays of _emit).
+        self._due_rows = np.empty(n, dtype=np.int64)
+        self._due_stamps = np.empty(n)
         self.estimator = _estimator_of(gnss, self.onboard, n, self.period_s, seed)
         #: The numerical tick of every UAV (one compiled call).
         self.ticker = CompiledTick(self.onboard, self.plants, self.n_sub, self.period_s,
@@ -772,14 +777,13 @@ class World:
         if now < self._next_emit_s:
             return
         sched = self.onboard.schedule
-        due = np.flatnonzero(now + self._offsets >= sched.next_broadcast_s - 1e-9)
-        if due.size:
-            stacks = [self._stacks[i] for i in due.tolist()]
-            self.wire.publish(stacks, broadcast(self.onboard, stacks, now + self._offsets[due]),
-                              now)
+        rows, stamps = self._due_rows, self._due_stamps
+        n = bound(broadcasts_due)(sched, self._offsets, now, rows, stamps)
+        if n:
+            stacks = [self._stacks[i] for i in rows[:n].tolist()]
+            self.wire.publish(stacks, broadcast(self.onboard, stacks, stamps[:n]), now)
         # The next tick anyone can be due at (a tick early is harmless).
-        self._next_emit_s = float(np.min(sched.next_broadcast_s - self._offsets)) \
-            - self.period_s
+        self._next_emit_s = bound(next_broadcast_s)(sched, self._offsets) - self.period_s
 
     def _tick_batched(self, now: float, traces: tuple[Any, ...]) -> None:
         clock = time.perf_counter
