@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
-from uavmpc.avoidance.encounters import EncounterFinder, silent_reach_m
+from uavmpc.avoidance.encounters import EncounterFinder, pair_widening_m, silent_reach_m
 from uavmpc.avoidance.proximity import align
 from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, encode
@@ -25,9 +25,9 @@ def _plan(rng: np.random.Generator, centre: np.ndarray, t0: float) -> tuple[np.n
     return t0 + HORIZON, np.column_stack([xy, z])
 
 
-def _world_table(seed: int, n: int, area_m: float, receive: bool):
-    """N UAVs' inbox rows after one round of broadcasts (some lost, some stale, some silent),
-    and their own plans."""
+def _world_table(seed: int, n: int, area_m: float, receive: bool, sigma: bool = False):
+    """N UAVs' inbox rows after one round of broadcasts (some lost, some stale, some silent;
+    with ``sigma``, some with a position uncertainty), and their own plans."""
     rng = np.random.default_rng(seed)
     ids = [f"u{i}" for i in range(n)]
     table = InboxTable(ids, time_reference="receive" if receive else "stamp", max_age_s=20.0)
@@ -41,8 +41,13 @@ def _world_table(seed: int, n: int, area_m: float, receive: bool):
         # Each sender's newest message is 0–12 s old: fresh, silent or ignored by the strategy.
         stamp = now - rng.choice([0.2, 0.6, 1.5, 4.0, 12.0])
         times, pos = _plan(rng, centres[i], stamp)
+        # Whom it hears: some of the others, and UAVs this table has never heard of.
+        others = [u for u in ids if u != ids[i]] + ["ghost1", "ghost2"]
+        heard = tuple(rng.choice(others, size=rng.integers(0, min(len(others), 8) + 1),
+                                 replace=False).tolist())
+        sigma_m = tuple(rng.choice([0.0, 0.4, 1.5], size=2).tolist()) if sigma else (0.0, 0.0)
         msg = PredictionMessage(SCHEMA_VERSION, ids[i], i + 1, stamp, times, pos,
-                                bool(rng.random() < 0.9))
+                                bool(rng.random() < 0.9), None, heard, sigma_m)
         slot = table.slot_for(encode(msg))
         receivers = np.flatnonzero(rng.random(n) < 0.8)  # the copies that got through
         accept_copies(table.rows, table.store, receivers, np.full(receivers.size, slot),
@@ -75,6 +80,33 @@ def _same(a, b) -> None:
     assert np.array_equal(a.announced_xy, b.announced_xy)
     assert np.array_equal(a.dz_m, b.dz_m)
     assert np.array_equal(a.priority, b.priority)
+    assert np.array_equal(a.hears_us, b.hears_us)
+    assert np.array_equal(a.widen_v_m, b.widen_v_m)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 40), area=st.floats(20.0, 300.0),
+       blocks=st.integers(1, 4))
+def test_each_encounter_says_whether_its_sender_hears_us_and_how_far_the_pair_widens(
+        seed, n, area, blocks) -> None:
+    """hears_us: the sender's heard list (by name, as decoded) names the receiver;
+    widen_v_m: pair_widening_m of the receiver's vertical σ and the sender's."""
+    table, own_t, own_p, now, ids = _world_table(seed, n, area, False, sigma=True)
+    own_sigma = np.random.default_rng(seed + 2).choice([0.0, 0.3, 1.2], size=(n, 2))
+    finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0, use_received=False,
+                             silent_radius_m=SILENT_RADIUS_M, silent_speed_mps=SILENT_SPEED_MPS,
+                             silent_accel_mps2=SILENT_ACCEL_MPS2, sigma_k=2.0)
+    finder.blocks = blocks
+    found = finder.find(np.arange(n), own_t, own_p, now, np.full(n, 30.0), None, own_sigma)
+    checked = 0
+    for j, enc in enumerate(found):
+        for k, sender in enumerate(enc.ids):
+            slot = int(table.rows.held_slot[j, table.col_of(sender)])
+            assert bool(enc.hears_us[k]) == (ids[j] in table.heard_ids(slot))
+            assert enc.widen_v_m[k] == pair_widening_m(
+                float(own_sigma[j, 1]), float(table.store.sigma_m[slot, 1]), 2.0)
+            checked += 1
+    assert checked or n < 10 or area > 150.0  # (the comparison is not empty)
 
 
 @settings(max_examples=40, deadline=None)

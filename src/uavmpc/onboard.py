@@ -375,8 +375,8 @@ def store_sent(store: Store, slots: np.ndarray, cols: np.ndarray, sent: SentRows
                rows: np.ndarray) -> None:
     """The messages rows ``rows`` (R,) broadcast last (``sent``), into store ``slots`` (R,)
     (reserved: :meth:`~uavmpc.comms.inbox.InboxTable.reserve`) with their senders' columns
-    ``cols`` (R,): field for field what their bytes decode to (the heard list apart: the
-    table keeps its names)."""
+    ``cols`` (R,): field for field what their bytes decode to (the heard list as the
+    columns it was written from)."""
     m = sent.times_s.shape[1]
     for j in range(rows.shape[0]):
         i = rows[j]
@@ -385,6 +385,10 @@ def store_sent(store: Store, slots: np.ndarray, cols: np.ndarray, sent: SentRows
             store.times_s[slot, k] = sent.times_s[i, k]
             for ax in range(3):
                 store.positions_m[slot, k, ax] = sent.plan[i, ax, k, 0]
+        n = sent.heard_count[i]
+        store.heard_n[slot] = n
+        for k in range(n):
+            store.heard_col[slot, k] = sent.heard[i, k]
         fill_slot(store, slot, cols[j], m, sent.stamp_s[i], sent.priority[i], sent.avoiding[i],
                   sent.sigma_m[i, 0], sent.sigma_m[i, 1])
 
@@ -994,8 +998,8 @@ def avoidance_round(batch: OnboardBatch,
     each on its tracker's clock: their plans (:func:`avoidance_plans`), their encounters in
     one call of ``finder`` (one finder for the rows of one inbox table), and each one's own
     decision (:meth:`OnboardStack.decide`). ``stacks[i]`` is row i's stack; ``overrides``:
-    per row, its per-pair radii (default: asked of each stack). Returns the rows that
-    planned (D,)."""
+    per row, its per-pair radii (default: asked of each stack). Returns the rows whose
+    strategies decided (D,): every other row due is at rest (steered by :data:`CALM`)."""
     sched = batch.schedule
     trk = batch.tracker
     t = trk.rows.t_s
@@ -1047,10 +1051,12 @@ def avoidance_round(batch: OnboardBatch,
     quiet = found.quiet[:due.size]
     # Nobody near nor silent, and at rest since its last round: nothing happens to it
     # (rest is idempotent, :attr:`OnboardBatch.resting`). Most UAVs, most rounds.
+    decided = []
     for j in np.flatnonzero(~(quiet & batch.resting[due])).tolist():
         i = which[j]
         if quiet[j] and stacks[i].rest(float(plan_s[j])):
             continue  # come to rest now
         stacks[i].decide(float(plan_s[j]), times[j], found.encounters(j), float(climbed[j]),
                          own[j], probes.get(j))
-    return due
+        decided.append(i)
+    return np.array(decided, dtype=np.int64)

@@ -340,14 +340,16 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
                radius: float, announced_radius: float, extrapolate_s: float, box_own: np.ndarray,
                own_times: np.ndarray, own_pos: np.ndarray, box: np.ndarray,
                shifted: np.ndarray, near: np.ndarray, near_announced: np.ndarray, dz: np.ndarray,
-               dxy: np.ndarray, ne: int, e_col: np.ndarray, e_silent: np.ndarray,
-               e_near: np.ndarray, e_announced: np.ndarray, e_dz: np.ndarray,
-               e_dxy: np.ndarray) -> int:
+               dxy: np.ndarray, own_sigma_v_m: float, sigma_k: float, ne: int,
+               e_col: np.ndarray, e_silent: np.ndarray, e_near: np.ndarray,
+               e_announced: np.ndarray, e_dz: np.ndarray, e_dxy: np.ndarray,
+               e_hears: np.ndarray, e_widen_v: np.ndarray) -> int:
     """Row ``r``'s message from ``col`` against our plan (box test, then the cylinder's
     horizontal test at ``radius``); written as encounter row ``ne`` when it comes near (and
     fits the outputs), with the points near at ``announced_radius`` ≤ ``radius`` (the plan as
-    announced, without a silent sender's widening) in ``e_announced``. Returns the new row
-    count."""
+    announced, without a silent sender's widening) in ``e_announced``, whether its heard list
+    names row ``r`` in ``e_hears``, and the pair's vertical widening (:func:`pair_widening_m`
+    of ``own_sigma_v_m`` and the sender's) in ``e_widen_v``. Returns the new row count."""
     slot = rows.held_slot[r, col]
     _inflated_box(store, slot, extrapolate_s, box)
     reach = radius + BOX_MARGIN_M
@@ -373,6 +375,12 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
         e_near[ne] = near
         e_dz[ne] = dz
         e_dxy[ne] = dxy
+        me = rows.own_col[r]
+        hears = False
+        for k in range(store.heard_n[slot]):
+            hears = hears or store.heard_col[slot, k] == me
+        e_hears[ne] = hears
+        e_widen_v[ne] = pair_widening_m(own_sigma_v_m, store.sigma_m[slot, 1], sigma_k)
         if announced_radius < radius:
             near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s,
                         own_pos, announced_radius, near_announced, dz, dxy)
@@ -388,12 +396,13 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
                      timeout_s: float, silent_hold_s: float, use_received: bool,
                      silent_radius_m: float, silent_speed_mps: float, silent_accel_mps2: float,
                      radius_m: np.ndarray, ov_start: np.ndarray, ov_col: np.ndarray,
-                     ov_radius: np.ndarray, own_sigma_h_m: np.ndarray, sigma_k: float,
-                     use_index: bool, cell_m: float, start: np.ndarray, entries: np.ndarray,
-                     sigma_max: float, e_start: np.ndarray, e_col: np.ndarray,
-                     e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
-                     e_dz: np.ndarray, e_dxy: np.ndarray, s_start: np.ndarray,
-                     s_col: np.ndarray) -> tuple[int, int]:
+                     ov_radius: np.ndarray, own_sigma_h_m: np.ndarray,
+                     own_sigma_v_m: np.ndarray, sigma_k: float, use_index: bool, cell_m: float,
+                     start: np.ndarray, entries: np.ndarray, sigma_max: float,
+                     e_start: np.ndarray, e_col: np.ndarray, e_silent: np.ndarray,
+                     e_near: np.ndarray, e_announced: np.ndarray, e_dz: np.ndarray,
+                     e_dxy: np.ndarray, e_hears: np.ndarray, e_widen_v: np.ndarray,
+                     s_start: np.ndarray, s_col: np.ndarray) -> tuple[int, int]:
     """:func:`encounter_rows` for the receivers ``due[j0:j1]``, with the grid (``start``,
     ``entries``: :func:`build_grid`, when ``use_index``) and the widest sender's horizontal σ
     ``sigma_max`` given: their rows written from the start of the outputs ``e_*``, ``s_col``
@@ -443,7 +452,8 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
             ne = _encounter(rows, store, r, col, silent, ref, radius, announced, timeout_s, box_own,
                             own_times[j], own_pos[j], box, shifted, near, near_announced, dz,
-                            dxy, ne, e_col, e_silent, e_near, e_announced, e_dz, e_dxy)
+                            dxy, own_sigma_v_m[j], sigma_k, ne, e_col, e_silent, e_near,
+                            e_announced, e_dz, e_dxy, e_hears, e_widen_v)
         r_max = radius_m[j]
         for o in range(ov_start[j], ov_start[j + 1]):
             r_max = max(r_max, ov_radius[o])
@@ -470,7 +480,8 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
             radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
             ne = _encounter(rows, store, r, col, fresh, ref, radius, radius, timeout_s, box_own,
                             own_times[j], own_pos[j], box, shifted, near, near_announced, dz,
-                            dxy, ne, e_col, e_silent, e_near, e_announced, e_dz, e_dxy)
+                            dxy, own_sigma_v_m[j], sigma_k, ne, e_col, e_silent, e_near,
+                            e_announced, e_dz, e_dxy, e_hears, e_widen_v)
     return ne, ns
 
 
@@ -480,10 +491,11 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                    silent_hold_s: float, use_received: bool, silent_radius_m: float,
                    silent_speed_mps: float, silent_accel_mps2: float, radius_m: np.ndarray,
                    ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
-                   own_sigma_h_m: np.ndarray, sigma_k: float,
+                   own_sigma_h_m: np.ndarray, own_sigma_v_m: np.ndarray, sigma_k: float,
                    use_index: bool, cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
                    e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
-                   e_dz: np.ndarray, e_dxy: np.ndarray, s_start: np.ndarray,
+                   e_dz: np.ndarray, e_dxy: np.ndarray, e_hears: np.ndarray,
+                   e_widen_v: np.ndarray, s_start: np.ndarray,
                    s_col: np.ndarray) -> tuple[int, int]:
     """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
     ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
@@ -494,8 +506,11 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
 
     Per receiver, as :class:`Encounters` rows: ``e_col``, ``e_silent``, ``e_near`` (·, m),
     ``e_announced`` (·, m: near along the plan as announced, without a silent sender's
-    widening), ``e_dz`` (·, m) and ``e_dxy`` (·, m: the horizontal distance, as
-    :attr:`Encounters.dxy_m`) from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
+    widening), ``e_dz`` (·, m), ``e_dxy`` (·, m: the horizontal distance, as
+    :attr:`Encounters.dxy_m`), ``e_hears`` (its heard list names the receiver, as
+    :attr:`Encounters.hears_us`) and ``e_widen_v`` (the pair's vertical widening for the
+    receiver's ``own_sigma_v_m[j]`` and the sender's σ, as :attr:`Encounters.widen_v_m`)
+    from ``e_start[j]`` to ``e_start[j + 1]``, the silent senders
     first, then the fresh ones, each in column order; and every silent column in
     ``s_col[s_start[j]:s_start[j + 1]]``. A message counts when its time reference (stamp, or
     its receive time with ``use_received``) is within ``timeout_s`` of now; a stale one is
@@ -515,9 +530,10 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
     ne, ns = _encounter_block(rows, store, due, 0, due.shape[0], own_times, own_pos, now_s,
                               timeout_s, silent_hold_s, use_received, silent_radius_m,
                               silent_speed_mps, silent_accel_mps2, radius_m, ov_start, ov_col,
-                              ov_radius, own_sigma_h_m, sigma_k, use_index, cell_m, start,
-                              entries, _sigma_max(store), e_start, e_col, e_silent, e_near,
-                              e_announced, e_dz, e_dxy, s_start, s_col)
+                              ov_radius, own_sigma_h_m, own_sigma_v_m, sigma_k, use_index,
+                              cell_m, start, entries, _sigma_max(store), e_start, e_col,
+                              e_silent, e_near, e_announced, e_dz, e_dxy, e_hears, e_widen_v,
+                              s_start, s_col)
     e_start[due.shape[0]] = ne
     s_start[due.shape[0]] = ns
     return ne, ns
@@ -530,11 +546,13 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
                            silent_radius_m: float, silent_speed_mps: float,
                            silent_accel_mps2: float, radius_m: np.ndarray,
                            ov_start: np.ndarray, ov_col: np.ndarray, ov_radius: np.ndarray,
-                           own_sigma_h_m: np.ndarray, sigma_k: float, use_index: bool,
-                           cell_m: float, e_start: np.ndarray, e_col: np.ndarray,
-                           e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
-                           e_dz: np.ndarray, e_dxy: np.ndarray, s_start: np.ndarray,
-                           s_col: np.ndarray, blocks: int) -> tuple[int, int]:
+                           own_sigma_h_m: np.ndarray, own_sigma_v_m: np.ndarray,
+                           sigma_k: float, use_index: bool, cell_m: float,
+                           e_start: np.ndarray, e_col: np.ndarray, e_silent: np.ndarray,
+                           e_near: np.ndarray, e_announced: np.ndarray, e_dz: np.ndarray,
+                           e_dxy: np.ndarray, e_hears: np.ndarray, e_widen_v: np.ndarray,
+                           s_start: np.ndarray, s_col: np.ndarray,
+                           blocks: int) -> tuple[int, int]:
     """:func:`encounter_rows` with the receivers in ``blocks`` ≥ 1 contiguous blocks, one per
     thread (the caller passes ``numba.get_num_threads()``): the same outputs, bit for bit.
 
@@ -558,11 +576,11 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
         ne_b[b], ns_b[b] = _encounter_block(
             rows, store, due, b * r_count // nb, (b + 1) * r_count // nb, own_times, own_pos,
             now_s, timeout_s, silent_hold_s, use_received, silent_radius_m, silent_speed_mps,
-            silent_accel_mps2, radius_m, ov_start, ov_col, ov_radius, own_sigma_h_m, sigma_k,
-            use_index, cell_m, start, entries, sigma_max, e_start, e_col[e0:e0 + share_e],
-            e_silent[e0:e0 + share_e], e_near[e0:e0 + share_e],
+            silent_accel_mps2, radius_m, ov_start, ov_col, ov_radius, own_sigma_h_m,
+            own_sigma_v_m, sigma_k, use_index, cell_m, start, entries, sigma_max, e_start,
+            e_col[e0:e0 + share_e], e_silent[e0:e0 + share_e], e_near[e0:e0 + share_e],
             e_announced[e0:e0 + share_e], e_dz[e0:e0 + share_e], e_dxy[e0:e0 + share_e],
-            s_start,
+            e_hears[e0:e0 + share_e], e_widen_v[e0:e0 + share_e], s_start,
             s_col[s0:s0 + share_s])
     if ne_b.max() > share_e or ns_b.max() > share_s:
         return nb * ne_b.max(), nb * ns_b.max()
@@ -581,6 +599,8 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
             e_announced[ne + i] = e_announced[e0 + i]
             e_dz[ne + i] = e_dz[e0 + i]
             e_dxy[ne + i] = e_dxy[e0 + i]
+            e_hears[ne + i] = e_hears[e0 + i]
+            e_widen_v[ne + i] = e_widen_v[e0 + i]
         for i in range(ns_b[b]):
             s_col[ns + i] = s_col[s0 + i]
         ne += ne_b[b]
@@ -626,44 +646,33 @@ class FoundRows:
     """What one call of :func:`encounter_rows` found for receivers ``due`` (R,): views of its
     outputs (:meth:`EncounterFinder.find_rows`)."""
 
-    def __init__(self, table: InboxTable, due: np.ndarray, own_sigma_m: np.ndarray,
-                 sigma_k: float, out: tuple[np.ndarray, ...]) -> None:
+    def __init__(self, table: InboxTable, due: np.ndarray, out: tuple[np.ndarray, ...]) -> None:
         self.table = table
         self.due = due
-        self.own_sigma_m = own_sigma_m
-        self.sigma_k = sigma_k
         self.out = out
         r_count = due.shape[0]
-        e_start, s_start = out[0], out[7]
+        e_start, s_start = out[0], out[9]
         #: (R,) bool the receiver found nobody near and nobody silent.
         self.quiet = ((e_start[1:r_count + 1] == e_start[:r_count])
                       & (s_start[1:r_count + 1] == s_start[:r_count]))
 
     def encounters(self, j: int) -> Encounters:
         """Receiver ``j``'s encounters (views of the call's outputs)."""
-        e_start, e_col, e_silent, e_near, e_announced, e_dz, e_dxy, s_start, s_col = self.out
-        t = self.table
-        ids = t.ids
+        (e_start, e_col, e_silent, e_near, e_announced, e_dz, e_dxy, e_hears, e_widen_v,
+         s_start, s_col) = self.out
+        ids = self.table.ids
         a, b = int(e_start[j]), int(e_start[j + 1])
         sa, sb = int(s_start[j]), int(s_start[j + 1])
         silent = tuple(ids[c] for c in s_col[sa:sb].tolist()) if sb > sa else ()
-        m = e_near.shape[1]
         if a == b:  # nobody near (most UAVs, most of the time)
-            return _nobody(m, silent)
+            return _nobody(e_near.shape[1], silent)
         cols_j = e_col[a:b]
-        st, rows = t.store, t.rows
-        r = int(self.due[j])
-        slots = rows.held_slot[r, cols_j]
-        me = ids[int(rows.own_col[r])]
-        own_v = float(self.own_sigma_m[j, 1])
-        widen_v = np.array([pair_widening_m(own_v, s, self.sigma_k)
-                            for s in st.sigma_m[slots, 1].tolist()])
+        st = self.table.store
+        slots = self.table.rows.held_slot[int(self.due[j]), cols_j]
         return Encounters(
             tuple(map(ids.__getitem__, cols_j.tolist())), st.priority[slots],
             st.avoiding[slots], e_silent[a:b], e_near[a:b], e_dz[a:b], silent,
-            e_announced[a:b],
-            np.array([me in t.heard[s] for s in slots.tolist()], dtype=bool), widen_v,
-            e_dxy[a:b])
+            e_announced[a:b], e_hears[a:b], e_widen_v[a:b], e_dxy[a:b])
 
 
 class EncounterFinder:
@@ -736,8 +745,8 @@ class EncounterFinder:
             args = (t.rows, t.store, due, own_times, own_pos, now_s, self.timeout_s,
                     self.silent_hold_s, self.use_received, self.silent_radius_m,
                     self.silent_speed_mps, self.silent_accel_mps2, radius_m, ov_start, ov_col,
-                    ov_radius, np.ascontiguousarray(sig[:, 0]), self.sigma_k, use_index, cell,
-                    *out)
+                    ov_radius, np.ascontiguousarray(sig[:, 0]),
+                    np.ascontiguousarray(sig[:, 1]), self.sigma_k, use_index, cell, *out)
             # The receivers on threads when there are several of each.
             blocks = numba.get_num_threads() if self.blocks is None else self.blocks
             if blocks > 1 and r_count > 1:
@@ -748,7 +757,7 @@ class EncounterFinder:
                 break
             self._cap_e = max(self._cap_e, 2 * ne)
             self._cap_s = max(self._cap_s, 2 * ns)
-        return FoundRows(self.table, due, sig, self.sigma_k, out)
+        return FoundRows(self.table, due, out)
 
     def find(self, due: np.ndarray, own_times: np.ndarray, own_pos: np.ndarray,
              now_s: np.ndarray, radius_m: np.ndarray,
@@ -780,4 +789,5 @@ class EncounterFinder:
         return (np.empty(r_count + 1, dtype=np.int64), np.empty(ce, dtype=np.int64),
                 np.empty(ce, dtype=np.bool_), np.empty((ce, m), dtype=np.bool_),
                 np.empty((ce, m), dtype=np.bool_), np.empty((ce, m)), np.empty((ce, m)),
+                np.empty(ce, dtype=np.bool_), np.empty(ce),
                 np.empty(r_count + 1, dtype=np.int64), np.empty(cs, dtype=np.int64))

@@ -26,6 +26,7 @@ import numpy as np
 
 from uavmpc.comms.message import (
     ENTRY_BYTES,
+    MAX_HEARD,
     SCHEMA_VERSION,
     InvalidMessageError,
     PredictionMessage,
@@ -56,6 +57,9 @@ class Store(NamedTuple):
             it for copies in flight (:meth:`InboxTable.hold`); pinned: (C,) int8 in use by a
             delivery in progress; generation: (C,) int64 bumped when a slot is reused.
         sigma_m: (C, 2) the sender's position uncertainty, horizontal and vertical 1σ [m].
+        heard_col: (C, :data:`~uavmpc.comms.message.MAX_HEARD`) int64 the UAVs its heard list
+            names, as the table's columns, the first ``heard_n`` (C,) int64 of them (the
+            names the table has no column for are left out: none is a receiver's).
     """
 
     times_s: np.ndarray
@@ -71,6 +75,8 @@ class Store(NamedTuple):
     pinned: np.ndarray
     generation: np.ndarray
     sigma_m: np.ndarray
+    heard_col: np.ndarray
+    heard_n: np.ndarray
 
     @classmethod
     def empty(cls, slots: int, points: int) -> Store:
@@ -79,7 +85,9 @@ class Store(NamedTuple):
                    np.full(slots, -1, dtype=np.int64), np.zeros(slots, dtype=np.int64),
                    np.zeros(slots, dtype=np.bool_), np.zeros((slots, 4)), np.zeros((slots, 2)),
                    np.zeros(slots, dtype=np.int64), np.zeros(slots, dtype=np.int8),
-                   np.zeros(slots, dtype=np.int64), np.zeros((slots, 2)))
+                   np.zeros(slots, dtype=np.int64), np.zeros((slots, 2)),
+                   np.zeros((slots, MAX_HEARD), dtype=np.int64),
+                   np.zeros(slots, dtype=np.int64))
 
 
 class InboxRows(NamedTuple):
@@ -256,8 +264,10 @@ class InboxTable:
         #: carry): what a compiled broadcast writes into its heard list.
         self.entries = np.zeros((self.rows.held_slot.shape[1], ENTRY_BYTES), dtype=np.uint8)
         self.store = Store.empty(max(8, 2 * n), points)
-        #: Per store slot: its message's heard list (compiled code never reads it).
-        self.heard: list[tuple[str, ...]] = [()] * self.store.holders.shape[0]
+        #: Per store slot: its message's heard list by name when it was decoded (it may name
+        #: UAVs the table has no column for); None when it was written from columns
+        #: (the store's ``heard_col``). :meth:`heard_ids` reads either.
+        self.heard: list[tuple[str, ...] | None] = [()] * self.store.holders.shape[0]
         for r, uid in enumerate(self.receivers):
             self.rows.own_col[r] = self.col_of(uid)
         #: Rejections the stamp check does not count (decoding, signatures), per row.
@@ -345,16 +355,28 @@ class InboxTable:
         st.positions_m[slot, :m] = msg.positions_m
         bound(fill_slot)(st, slot, self.col_of(msg.uav_id), m, msg.stamp_s, msg.priority,
                          msg.avoiding, *msg.position_sigma_m)
+        cols = [c for c in map(self.cols.get, msg.heard) if c is not None]
+        st.heard_col[slot, :len(cols)] = cols
+        st.heard_n[slot] = len(cols)
         self.heard[slot] = msg.heard
         return slot
 
+    def heard_ids(self, slot: int) -> tuple[str, ...]:
+        """The heard list of the message in ``slot``, by name."""
+        names = self.heard[slot]
+        if names is not None:
+            return names
+        cols = self.store.heard_col[slot, :self.store.heard_n[slot]].tolist()
+        return tuple(map(self.ids.__getitem__, cols))
+
     def reserve(self, points: int) -> int:
         """A free slot for a message of ``points`` points, pinned until :meth:`unpin`: the
-        caller writes its times and positions, then :func:`fill_slot`, and sets
-        :attr:`heard`."""
+        caller writes its times and positions, then :func:`fill_slot`, and its heard list
+        (the store's ``heard_col`` and ``heard_n``; or :attr:`heard`)."""
         if points > self.store.times_s.shape[1]:
             self._grow_store(self.store.holders.shape[0], points)
         slot = self._allocate()
+        self.heard[slot] = None
         self.store.pinned[slot] = 1
         return slot
 
@@ -391,14 +413,10 @@ class InboxTable:
 
     def _grow_store(self, slots: int, points: int) -> None:
         old = self.store
-        c, m = old.times_s.shape
+        c = old.times_s.shape[0]
         new = Store.empty(slots, points)
-        for name, arr in zip(Store._fields, old, strict=True):
-            dst = getattr(new, name)
-            if arr.ndim == 1:
-                dst[:c] = arr
-            else:
-                dst[:c, :m] = arr
+        for arr, dst in zip(old, new, strict=True):
+            dst[tuple(slice(0, k) for k in arr.shape)] = arr
         self.store = new
         self.heard.extend([()] * (slots - c))
 
@@ -413,7 +431,7 @@ class InboxTable:
         return PredictionMessage(SCHEMA_VERSION, self.ids[col], int(st.priority[slot]),
                                  float(st.stamp_s[slot]), st.times_s[slot, :m],
                                  st.positions_m[slot, :m], bool(st.avoiding[slot]),
-                                 None if np.isnan(rec) else rec, self.heard[slot],
+                                 None if np.isnan(rec) else rec, self.heard_ids(slot),
                                  (float(st.sigma_m[slot, 0]), float(st.sigma_m[slot, 1])))
 
 

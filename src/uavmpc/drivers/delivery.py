@@ -87,11 +87,6 @@ class WorldLink:
         slots = np.array([table.reserve(m) for _ in plain], dtype=np.int64)
         cols = table.rows.own_col[[stacks[j].inbox.row for j in plain]]  # who sent it
         bound(store_sent)(table.store, slots, cols, sent, rows)
-        ids = table.ids.__getitem__
-        heard, count = sent.heard[rows].tolist(), sent.heard_count[rows].tolist()
-        names = table.heard
-        for k, slot in enumerate(slots.tolist()):
-            names[slot] = tuple(map(ids, heard[k][:count[k]]))
         table.hold(slots, [data[j] for j in plain])
         self._held.update(zip([pids[j] for j in plain], slots.tolist(), strict=True))
 

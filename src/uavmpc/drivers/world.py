@@ -707,9 +707,9 @@ class World:
         """The avoidance round of every UAV due at this tick (:func:`~uavmpc.onboard.
         avoidance_round`, one finder for all), and when the next one can be due."""
         assert self._finder is not None
-        due = avoidance_round(self.onboard, self._stacks, self._finder,
-                              overrides=self._overrides)
-        self._yields.add(due.tolist())
+        decided = avoidance_round(self.onboard, self._stacks, self._finder,
+                                  overrides=self._overrides)
+        self._yields.add(decided.tolist())  # the others are calm: they yield to nobody
         sched = self.onboard.schedule
         planning = sched.planning
         if planning.any():
