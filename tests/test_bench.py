@@ -70,9 +70,22 @@ def test_bench_world_rows_are_consistent() -> None:
     assert len(lines) == 1 + 2 * len(threads) * per_flight + 2 * (len(threads) - 1) + 2
 
 
+@pytest.mark.slow
+def test_bench_world_repeats_keep_each_thread_counts_fastest_flight() -> None:
+    lines: list[str] = []
+    result = bench_world(sizes=(2,), duration_s=0.5, threads=(1,), progress=lines.append,
+                         repeats=2)
+    (row,) = result["worlds"]
+    assert result["repeats"] == row["repeats"] == 2
+    assert row["slowest_over_fastest"] >= 1.0
+    assert "fastest of 2" in lines[0] and "fastest of 2, slowest" in lines[1]
+
+
 def test_bench_world_rejects_a_bad_duration() -> None:
     with pytest.raises(ConfigError, match="duration_large_s"):
         bench_world(sizes=(2,), duration_s=1.0, duration_large_s=0.0)
+    with pytest.raises(ConfigError, match="repeats"):
+        bench_world(sizes=(2,), duration_s=1.0, repeats=0)
 
 
 @pytest.mark.parametrize("argv", [["bench", "world", "--sizes", "5,x"],

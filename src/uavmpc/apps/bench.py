@@ -426,7 +426,7 @@ def _growth(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _check_world_args(sizes: tuple[int, ...], threads: tuple[int, ...], duration_s: float,
-                      duration_large_s: float) -> None:
+                      duration_large_s: float, repeats: int = 1) -> None:
     from uavmpc.config import ConfigError  # a ValueError the CLI reports as a message
     from uavmpc.jit import available_threads
 
@@ -443,13 +443,18 @@ def _check_world_args(sizes: tuple[int, ...], threads: tuple[int, ...], duration
     for name, v in (("duration_s", duration_s), ("duration_large_s", duration_large_s)):
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"bench world: {name} must be > 0, got {v}")
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= 20:
+        raise ConfigError(f"bench world: repeats must be an integer from 1 to 20, got "
+                          f"{repeats!r}")
 
 
 def _print_world_row(row: dict[str, Any], progress: Callable[[str], None],
                      profile: bool) -> None:
     closest = "-" if row["min_distance_m"] is None else f"{row['min_distance_m']:.2f} m"
+    spread = (f" (fastest of {row['repeats']}, slowest {row['slowest_over_fastest']:.2f}× "
+              "its time)" if row.get("repeats", 1) > 1 else "")
     progress(f"{row['uavs']:5d} UAVs, {row['threads']} thread(s): "
-             f"{row['realtime_factor']:8.2f}× real time, "
+             f"{row['realtime_factor']:8.2f}× real time{spread}, "
              f"{row['us_per_uav_second']:8.1f} µs per UAV-second, "
              f"RSS {row['peak_rss_mib']:.0f} MiB (+{row['flight_rss_mib']:.0f} over "
              f"{row['baseline_rss_mib']:.0f}), {100 * row['compiled_share']:.0f} % in the "
@@ -469,7 +474,7 @@ def _print_world_row(row: dict[str, Any], progress: Callable[[str], None],
 def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
                 duration_large_s: float = 10.0, avoidance: bool = True,
                 threads: tuple[int, ...] | None = None, profile: bool = False,
-                progress: Callable[[str], None] = print) -> dict[str, Any]:
+                progress: Callable[[str], None] = print, repeats: int = 1) -> dict[str, Any]:
     """How the world scales with N and with threads: one random_walk world of N UAVs (full
     pipeline at 100 Hz, plants at 500 Hz, avoidance on) for each N in ``sizes`` and each
     thread count in ``threads`` (default: 1 and every core), every tick one compiled call
@@ -485,13 +490,18 @@ def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
     UAVs. The smallest size is flown again UAV by UAV (``World(batched=False)``: the same
     kernels, one thread) as the in-run reference, and the flights are compared bit for bit.
 
+    With ``repeats`` > 1 each size's flights are flown that many times, the thread counts
+    taking turns (1, 2, 1, 2, …: a slow spell of a shared machine falls on both), and each
+    thread count's fastest flight is the one reported (every repeat must fly the same flight);
+    ``slowest_over_fastest`` says how far apart its flights were.
+
     Worlds of ≥ :data:`WORLD_LARGE_UAVS` UAVs fly ``min(duration_s, duration_large_s)``; the
     area grows with N so the density stays that of the protocol (5 UAVs in 100 m × 100 m)."""
     from uavmpc.jit import available_threads
 
     sizes = tuple(sizes)
     threads = tuple(sorted({1, available_threads()})) if threads is None else tuple(threads)
-    _check_world_args(sizes, threads, duration_s, duration_large_s)
+    _check_world_args(sizes, threads, duration_s, duration_large_s, repeats)
 
     def duration(n: int) -> float:
         return duration_s if n < WORLD_LARGE_UAVS else min(duration_s, duration_large_s)
@@ -499,13 +509,24 @@ def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
     progress(f"world benchmark: {', '.join(map(str, sizes))} UAVs on "
              f"{', '.join(map(str, threads))} thread(s), {duration_s:g} s "
              f"({min(duration_s, duration_large_s):g} s from {WORLD_LARGE_UAVS} UAVs), "
-             f"avoidance {'on' if avoidance else 'off'}, one fresh process per flight")
+             f"avoidance {'on' if avoidance else 'off'}, one fresh process per flight"
+             + (f", the fastest of {repeats} flights each" if repeats > 1 else ""))
     rows, digests, scaling = [], {}, []
     for n in sizes:
+        flights: dict[int, list[dict[str, Any]]] = {t: [] for t in threads}
+        for _ in range(repeats):
+            for t in threads:
+                flights[t].append(_spawn_world(n, duration(n), avoidance, True, t))
         first: dict[str, Any] | None = None
         for t in threads:
-            child = _spawn_world(n, duration(n), avoidance, True, t)
+            child = min(flights[t], key=lambda c: c["wall_s"])
             row = _world_row(child)
+            walls = [c["wall_s"] for c in flights[t]]
+            row["repeats"] = repeats
+            row["slowest_over_fastest"] = _sig(max(walls) / min(walls))
+            if len({c["flight_digest"] for c in flights[t]}) != 1:
+                raise RuntimeError(f"bench world: {n} UAVs on {t} thread(s) flew different "
+                                   "flights in its repeats")
             rows.append(row)
             _print_world_row(row, progress, profile)
             if first is None:
@@ -534,6 +555,7 @@ def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
                  f"{growth['ratio_reference_uavs']} do")
     return {"duration_s": duration_s, "duration_large_s": duration_large_s,
             "large_from_uavs": WORLD_LARGE_UAVS, "avoidance": avoidance, "threads": threads,
+            "repeats": repeats,
             "worlds": rows, "thread_scaling": scaling, "reference": ref, **growth,
             "batched_speedup": round(speedup, 2), "identical_to_per_object": identical,
             "identical_across_threads": all(r["identical"] for r in scaling),
@@ -656,7 +678,7 @@ def main_tracker(ticks: int, seed: int) -> int:
 
 def main_world(duration_s: float, sizes: str | None = None,
                duration_large_s: float | None = None, threads: str | None = None,
-               profile: bool = False) -> int:
+               profile: bool = False, repeats: int = 1) -> int:
     from uavmpc.config import ConfigError
 
     def ints(text: str | None, name: str, default: Any) -> Any:
@@ -668,7 +690,8 @@ def main_world(duration_s: float, sizes: str | None = None,
 
     print(json.dumps(bench_world(ints(sizes, "sizes", WORLD_SIZES), duration_s,
                                  10.0 if duration_large_s is None else duration_large_s,
-                                 threads=ints(threads, "threads", None), profile=profile)))
+                                 threads=ints(threads, "threads", None), profile=profile,
+                                 repeats=repeats)))
     return 0
 
 

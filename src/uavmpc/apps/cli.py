@@ -668,10 +668,12 @@ def _bench(args: argparse.Namespace) -> int:
     if args.what == "tracker":
         return main_tracker(args.ticks, args.seed)
     if args.what == "loop":
-        return main_loop(args.duration, args.repeats, args.airframe)
+        return main_loop(args.duration, 3 if args.repeats is None else args.repeats,
+                         args.airframe)
     if args.what == "world":
         return main_world(args.duration if args.duration != 60.0 else 20.0, args.sizes,
-                          args.duration_large, args.threads, args.profile)
+                          args.duration_large, args.threads, args.profile,
+                          1 if args.repeats is None else args.repeats)
     if args.what == "px4":
         return main_px4(args.duration if args.duration != 60.0 else 20.0)
     if args.what == "ros2":
@@ -971,7 +973,9 @@ def _add_bench_parser(sub: Any) -> None:
     bench.add_argument("--profile", action="store_true",
                        help="world: each flight's compiled tick stage by stage (prepare, QP, "
                             "advance, control, plant, traces) and the Python phases per tick")
-    bench.add_argument("--repeats", type=int, default=3, help="loop: timed runs")
+    bench.add_argument("--repeats", type=int, default=None,
+                       help="loop: timed runs (default 3); world: flights per size and thread "
+                            "count, taking turns, the fastest reported (default 1)")
     bench.add_argument("--airframe", default="f550", help="loop: airframe")
     bench.set_defaults(func=_bench)
 
