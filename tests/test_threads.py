@@ -10,7 +10,7 @@ import pytest
 from uavmpc.apps.campaign_engine import CampaignError, split_cores
 from uavmpc.apps.cli import main
 from uavmpc.drivers.world import World
-from uavmpc.jit import CACHE_DIR, CompileWatch, available_threads, set_threads
+from uavmpc.jit import CACHE_DIR, CompileWatch, available_threads, set_threads, thread_count
 from uavmpc.scenarios.random_walk import random_walk
 
 needs_two = pytest.mark.skipif(available_threads() < 2, reason="one core: nothing to split")
@@ -128,8 +128,29 @@ def test_threads_set_for_a_block_come_back_after_it(restore_threads) -> None:
 
     set_threads(1)
     with using_threads(available_threads()) as n:
-        assert numba.get_num_threads() == n == available_threads()
-    assert numba.get_num_threads() == 1
+        assert numba.get_num_threads() == n == available_threads() == thread_count()
+    assert numba.get_num_threads() == 1 == thread_count()
+
+
+def test_the_thread_count_drivers_read_is_numbas_per_thread_of_python(restore_threads) -> None:
+    """jit.thread_count (read at every tick instead of asking numba) follows set_threads in
+    each thread of Python, as numba's own count does."""
+    import threading
+
+    set_threads(1)
+    seen: list[tuple[int, int]] = []
+
+    def other() -> None:
+        seen.append((thread_count(), numba.get_num_threads()))
+        set_threads(available_threads())
+        seen.append((thread_count(), numba.get_num_threads()))
+
+    t = threading.Thread(target=other)
+    t.start()
+    t.join()
+    top = available_threads()
+    assert seen == [(numba.config.NUMBA_NUM_THREADS,) * 2, (top, top)]
+    assert thread_count() == numba.get_num_threads() == 1  # this thread's is its own
 
 
 @needs_two

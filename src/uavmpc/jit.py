@@ -170,7 +170,23 @@ def set_threads(n: int | None) -> int:
         raise ValueError(f"threads must be an integer from 1 to {top} (this machine's cores, "
                          f"or NUMBA_NUM_THREADS), got {n!r}")
     numba.set_num_threads(n)
+    _threads.n = n
     return n
+
+
+#: This thread of Python's count of threads (numba keeps one per thread of Python too).
+_threads = threading.local()
+
+
+def thread_count() -> int:
+    """The threads this thread of Python runs the parallel kernels on (:func:`set_threads`):
+    how many row blocks a driver hands them. numba's own count, read once per thread of
+    Python (asking numba costs µs at every tick); set it with :func:`set_threads` or
+    :func:`using_threads`, not with ``numba.set_num_threads``."""
+    n = getattr(_threads, "n", None)
+    if n is None:
+        n = _threads.n = numba.get_num_threads()
+    return int(n)
 
 
 if os.environ.get(THREADS_ENV):
@@ -186,6 +202,7 @@ def using_threads(n: int | None) -> Iterator[int]:
         yield set_threads(n)
     finally:
         numba.set_num_threads(before)
+        _threads.n = before
 
 
 def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:

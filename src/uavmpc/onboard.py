@@ -50,7 +50,7 @@ from uavmpc.comms.message import (
     write_message,
 )
 from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
-from uavmpc.jit import bind, bound, cycle_count, kernel
+from uavmpc.jit import bind, bound, cycle_count, kernel, thread_count
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
 from uavmpc.reference import Reference, sample_reference
@@ -420,7 +420,7 @@ def broadcast(batch: OnboardBatch, stacks: Sequence[OnboardStack],
     args = (np.array([s.row for s in stacks], dtype=np.int64), trk.rows, trk.consts,
             batch.senders, stamp, np.array(flags, dtype=np.bool_), batch.position_sigma_m,
             table.rows, table.store, table.entries, batch.sent, out, length)
-    threads = numba.get_num_threads()
+    threads = thread_count()
     if threads > 1 and r_count > 1:
         bound(broadcast_rows_threads)(*args, threads)
     else:
@@ -1016,7 +1016,7 @@ def avoidance_round(batch: OnboardBatch,
     times = np.empty((due.size, m))
     own = np.empty((due.size, m, 3))
     climbed = np.empty(due.size)
-    threads = numba.get_num_threads()
+    threads = thread_count()
     if threads > 1 and due.size > 1:
         bound(avoidance_plans_threads)(due, trk.rows, trk.table(), trk.consts, times, own, climbed,
                                 threads)

@@ -34,7 +34,7 @@ import numpy as np
 from uavmpc.avoidance.proximity import near_and_dz
 from uavmpc.comms.inbox import InboxRows, InboxTable, Store
 from uavmpc.comms.message import MAX_HEARD
-from uavmpc.jit import bound, kernel
+from uavmpc.jit import bound, kernel, thread_count
 
 #: Boxes are widened by this much more than the radius: the aligned points are computed with
 #: a rounding the box bounds do not share, and a pair must never be pruned by round-off.
@@ -554,7 +554,7 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
                            s_start: np.ndarray, s_col: np.ndarray,
                            blocks: int) -> tuple[int, int]:
     """:func:`encounter_rows` with the receivers in ``blocks`` ≥ 1 contiguous blocks, one per
-    thread (the caller passes ``numba.get_num_threads()``): the same outputs, bit for bit.
+    thread (the caller passes :func:`uavmpc.jit.threads`): the same outputs, bit for bit.
 
     Each block writes its rows into its own equal share of the outputs, which are then moved
     together in receiver order. When a block's rows exceed its share, nothing is moved and
@@ -748,7 +748,7 @@ class EncounterFinder:
                     ov_radius, np.ascontiguousarray(sig[:, 0]),
                     np.ascontiguousarray(sig[:, 1]), self.sigma_k, use_index, cell, *out)
             # The receivers on threads when there are several of each.
-            blocks = numba.get_num_threads() if self.blocks is None else self.blocks
+            blocks = thread_count() if self.blocks is None else self.blocks
             if blocks > 1 and r_count > 1:
                 ne, ns = bound(encounter_rows_threads)(*args, blocks)
             else:

@@ -30,7 +30,7 @@ from uavmpc.comms.inbox import (
     accept_copy,
 )
 from uavmpc.comms.message import InvalidMessageError, PredictionMessage
-from uavmpc.jit import bound, kernel
+from uavmpc.jit import bound, kernel, thread_count
 
 
 @runtime_checkable
@@ -610,7 +610,7 @@ class SimulatedLink:
                 self._next_payload, self._seq, pids, counts,
                 self._work_at[:copies].reshape(b, n - 1),
                 self._work_rcv[:copies].reshape(b, n - 1))
-        threads = numba.get_num_threads()
+        threads = thread_count()
         if threads > 1 and b > 1 and copies >= THREADED_COPIES:
             self._chunks, used, lost, out = bound(queue_copies_threads)(*args, threads)
         else:

@@ -8,13 +8,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import numba
 import numpy as np
 
 from uavmpc.comms.inbox import InboxTable, accept_copies, accept_copies_threads
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.comms.message import InvalidMessageError
-from uavmpc.jit import bound
+from uavmpc.jit import bound, thread_count
 from uavmpc.log import FlightRecorder
 from uavmpc.onboard import OnboardStack, store_sent
 
@@ -144,7 +143,7 @@ class WorldLink:
         to, into = ((receivers, copy_slots) if good.all()
                     else (receivers[good], copy_slots[good]))
         try:
-            threads = numba.get_num_threads()
+            threads = thread_count()
             if threads > 1 and to.shape[0] >= _THREADED_COPIES:
                 bound(accept_copies_threads)(table.rows, table.store, to, into,
                                              now + self.offsets_s, threads)

@@ -12,7 +12,7 @@ import numba
 import numpy as np
 
 from uavmpc.estimation.fleet import FleetEstimator
-from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel
+from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel, thread_count
 from uavmpc.onboard import OnboardBatch, onboard_post, onboard_pre, onboard_row
 from uavmpc.plant import PlantRows
 from uavmpc.plant.kernels import fly_target
@@ -68,7 +68,7 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
 def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out,
                        dmin_out, cycles, est, blocks):
     """:func:`world_tick` with its rows in ``blocks`` ≥ 1 contiguous blocks, one per thread
-    (the caller passes ``numba.get_num_threads()``, see :func:`uavmpc.jit.set_threads`: a
+    (the caller passes :func:`uavmpc.jit.threads`, see :func:`uavmpc.jit.set_threads`: a
     compiled function that asks numba itself cannot be cached), the traces' closest distance
     found over the threads likewise. A row reads and writes only its own rows of the records,
     with work arrays of its block's own, so the flight is bit-identical to
@@ -271,7 +271,7 @@ class CompiledTick:
     def blocks(self) -> int:
         """The row blocks the tick runs in: 0 for :func:`world_tick` (one thread, or one
         UAV), else the blocks of :func:`world_tick_threads` (the current thread count)."""
-        blocks = min(numba.get_num_threads(), self.plants.x.shape[0])
+        blocks = min(thread_count(), self.plants.x.shape[0])
         return blocks if blocks > 1 else 0
 
     def bound(self, table: Any, traces: tuple[Any, ...], blocks: int) -> Any:
