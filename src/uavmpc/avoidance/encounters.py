@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -554,7 +555,7 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
                            s_start: np.ndarray, s_col: np.ndarray,
                            blocks: int) -> tuple[int, int]:
     """:func:`encounter_rows` with the receivers in ``blocks`` ≥ 1 contiguous blocks, one per
-    thread (the caller passes :func:`uavmpc.jit.threads`): the same outputs, bit for bit.
+    thread (the caller passes :func:`uavmpc.jit.thread_count`): the same outputs, bit for bit.
 
     Each block writes its rows into its own equal share of the outputs, which are then moved
     together in receiver order. When a block's rows exceed its share, nothing is moved and
@@ -642,37 +643,53 @@ def _nobody(m: int, silent: tuple[str, ...]) -> Encounters:
     return enc
 
 
+class EncounterOutputs(NamedTuple):
+    """The outputs of one call of :func:`encounter_rows`, in its arguments' order (R
+    receivers, E encounter rows, S silent entries, m points; see :func:`encounter_rows`)."""
+
+    e_start: np.ndarray  # (R + 1,) int64
+    e_col: np.ndarray  # (E,) int64
+    e_silent: np.ndarray  # (E,) bool
+    e_near: np.ndarray  # (E, m) bool
+    e_announced: np.ndarray  # (E, m) bool
+    e_dz: np.ndarray  # (E, m) [m]
+    e_dxy: np.ndarray  # (E, m) [m]
+    e_hears: np.ndarray  # (E,) bool
+    e_widen_v: np.ndarray  # (E,) [m]
+    s_start: np.ndarray  # (R + 1,) int64
+    s_col: np.ndarray  # (S,) int64
+
+
 class FoundRows:
     """What one call of :func:`encounter_rows` found for receivers ``due`` (R,): views of its
     outputs (:meth:`EncounterFinder.find_rows`)."""
 
-    def __init__(self, table: InboxTable, due: np.ndarray, out: tuple[np.ndarray, ...]) -> None:
+    def __init__(self, table: InboxTable, due: np.ndarray, out: EncounterOutputs) -> None:
         self.table = table
         self.due = due
         self.out = out
         r_count = due.shape[0]
-        e_start, s_start = out[0], out[9]
+        e_start, s_start = out.e_start, out.s_start
         #: (R,) bool the receiver found nobody near and nobody silent.
         self.quiet = ((e_start[1:r_count + 1] == e_start[:r_count])
                       & (s_start[1:r_count + 1] == s_start[:r_count]))
 
     def encounters(self, j: int) -> Encounters:
         """Receiver ``j``'s encounters (views of the call's outputs)."""
-        (e_start, e_col, e_silent, e_near, e_announced, e_dz, e_dxy, e_hears, e_widen_v,
-         s_start, s_col) = self.out
+        o = self.out
         ids = self.table.ids
-        a, b = int(e_start[j]), int(e_start[j + 1])
-        sa, sb = int(s_start[j]), int(s_start[j + 1])
-        silent = tuple(ids[c] for c in s_col[sa:sb].tolist()) if sb > sa else ()
+        a, b = int(o.e_start[j]), int(o.e_start[j + 1])
+        sa, sb = int(o.s_start[j]), int(o.s_start[j + 1])
+        silent = tuple(ids[c] for c in o.s_col[sa:sb].tolist()) if sb > sa else ()
         if a == b:  # nobody near (most UAVs, most of the time)
-            return _nobody(e_near.shape[1], silent)
-        cols_j = e_col[a:b]
+            return _nobody(o.e_near.shape[1], silent)
+        cols_j = o.e_col[a:b]
         st = self.table.store
         slots = self.table.rows.held_slot[int(self.due[j]), cols_j]
         return Encounters(
             tuple(map(ids.__getitem__, cols_j.tolist())), st.priority[slots],
-            st.avoiding[slots], e_silent[a:b], e_near[a:b], e_dz[a:b], silent,
-            e_announced[a:b], e_hears[a:b], e_widen_v[a:b], e_dxy[a:b])
+            st.avoiding[slots], o.e_silent[a:b], o.e_near[a:b], o.e_dz[a:b], silent,
+            o.e_announced[a:b], o.e_hears[a:b], o.e_widen_v[a:b], o.e_dxy[a:b])
 
 
 class EncounterFinder:
@@ -783,11 +800,12 @@ class EncounterFinder:
                           float(own_xy_m[1]), out)
         return tuple(map(t.ids.__getitem__, out[:n].tolist()))
 
-    def _buffers(self, r_count: int, m: int) -> tuple[np.ndarray, ...]:
+    def _buffers(self, r_count: int, m: int) -> EncounterOutputs:
         """The outputs of one call, fresh: the encounters it returns are views of them."""
         ce, cs = self._cap_e, self._cap_s
-        return (np.empty(r_count + 1, dtype=np.int64), np.empty(ce, dtype=np.int64),
-                np.empty(ce, dtype=np.bool_), np.empty((ce, m), dtype=np.bool_),
-                np.empty((ce, m), dtype=np.bool_), np.empty((ce, m)), np.empty((ce, m)),
-                np.empty(ce, dtype=np.bool_), np.empty(ce),
-                np.empty(r_count + 1, dtype=np.int64), np.empty(cs, dtype=np.int64))
+        return EncounterOutputs(
+            np.empty(r_count + 1, dtype=np.int64), np.empty(ce, dtype=np.int64),
+            np.empty(ce, dtype=np.bool_), np.empty((ce, m), dtype=np.bool_),
+            np.empty((ce, m), dtype=np.bool_), np.empty((ce, m)), np.empty((ce, m)),
+            np.empty(ce, dtype=np.bool_), np.empty(ce),
+            np.empty(r_count + 1, dtype=np.int64), np.empty(cs, dtype=np.int64))

@@ -68,7 +68,7 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
 def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out,
                        dmin_out, cycles, est, blocks):
     """:func:`world_tick` with its rows in ``blocks`` ≥ 1 contiguous blocks, one per thread
-    (the caller passes :func:`uavmpc.jit.threads`, see :func:`uavmpc.jit.set_threads`: a
+    (the caller passes :func:`uavmpc.jit.thread_count`, see :func:`uavmpc.jit.set_threads`: a
     compiled function that asks numba itself cannot be cached), the traces' closest distance
     found over the threads likewise. A row reads and writes only its own rows of the records,
     with work arrays of its block's own, so the flight is bit-identical to
