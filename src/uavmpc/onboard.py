@@ -663,6 +663,7 @@ class OnboardStack:
         self._decider = avoidance if isinstance(avoidance, EncounterStrategy) else None
         self._finder = (self._decider.finder(self.inbox.table) if self._decider is not None
                         else None)
+        # Its messages list whom its finder counts (docs/safety.md, A2); without one, nobody.
         f = self._finder
         senders = batch.senders
         senders.inbox_row[self.row] = self.inbox.row
@@ -845,12 +846,6 @@ class OnboardStack:
         it steers), down while its hold cannot (:attr:`AvoidanceDecision.stuck`)."""
         stuck = self.decision is not None and self.decision.stuck
         return self.avoidance is not None and self.cooperative and not stuck
-
-    @property
-    def heard_finder(self) -> EncounterFinder | None:
-        """The finder whose :meth:`~uavmpc.avoidance.encounters.EncounterFinder.heard` its
-        messages list (docs/safety.md, A2), or None: it lists nobody."""
-        return self._finder
 
     def sent(self, now_s: float, data: bytes | None, avoiding: bool) -> bytes:
         """Its broadcast at ``now_s`` (:func:`broadcast`) with the flag ``avoiding``
