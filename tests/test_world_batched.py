@@ -199,8 +199,9 @@ def test_compiled_proximity_equals_the_numpy_oracle(seed: int, n: int, k: int,
     near = np.empty(m, dtype=bool)
     dz = np.empty(m)
     dxy = np.empty(m)
+    work = np.empty((m, 3))
     for i in range(k):
-        near_and_dz(times[i], pos[i], at, 1.0, own, 5.0, near, dz, dxy)
+        near_and_dz(times[i], pos[i], at, 1.0, own, 5.0, near, dz, dxy, work)
         assert np.array_equal(near, near_ref[i])
         assert np.array_equal(dz, -d[i, :, 2])
         assert np.array_equal(dxy, np.sqrt(d[i, :, 0] ** 2 + d[i, :, 1] ** 2))

@@ -277,7 +277,7 @@ def build_grid(store: Store, extrapolate_s: float, cell_m: float
     return start, np.empty(0, dtype=np.int64)  # not reached
 
 
-@kernel(allocates=True)
+@kernel
 def grid_candidates(rows: InboxRows, store: Store, r: int, box: np.ndarray, cell_m: float,
                     start: np.ndarray, entries: np.ndarray, mark: np.ndarray, stamp: int,
                     out: np.ndarray) -> int:
@@ -298,8 +298,68 @@ def grid_candidates(rows: InboxRows, store: Store, r: int, box: np.ndarray, cell
                     mark[col] = stamp
                     out[k] = col
                     k += 1
-    out[:k] = np.sort(out[:k])
+    _sort_head(out, k)
     return k
+
+
+@kernel
+def _sift_down(a: np.ndarray, root: int, end: int) -> None:
+    """Restore the max-heap below ``root`` in ``a[:end]``."""
+    while 2 * root + 1 < end:
+        child = 2 * root + 1
+        if child + 1 < end and a[child] < a[child + 1]:
+            child += 1
+        if a[root] >= a[child]:
+            return
+        a[root], a[child] = a[child], a[root]
+        root = child
+
+
+@kernel
+def _sort_head(a: np.ndarray, k: int) -> None:
+    """Sort ``a[:k]`` in place, ascending (a heapsort: numba's sort allocates)."""
+    for root in range(k // 2 - 1, -1, -1):
+        _sift_down(a, root, k)
+    for end in range(k - 1, 0, -1):
+        a[0], a[end] = a[end], a[0]
+        _sift_down(a, 0, end)
+
+
+class SearchScratch(NamedTuple):
+    """One block's work arrays of the search (:func:`_encounter_block`), made once per call
+    and block (:func:`search_scratch`) so that the per-pair kernels allocate nothing: a kernel
+    that allocates counts references to every array it passes on (:func:`uavmpc.jit.kernel`),
+    some 80 atomic operations per pair looked at here.
+
+    Attributes:
+        box_own, box: (4,) our plan's box and a sender's [x0, x1, y0, y1] [m].
+        shifted: (P,) a sender's prediction times on our clock [s] (P: the store's points).
+        near, near_announced: (m,) bool; dz, dxy: (m,) [m]; aligned: (m, 3) [m]: one pair's
+            points (:func:`~uavmpc.avoidance.proximity.near_and_dz`).
+        cand: (C,) int64 the candidate columns of a receiver; mark: (C,) int64 the receiver
+            that last listed a column (C: the inbox table's columns).
+    """
+
+    box_own: np.ndarray
+    box: np.ndarray
+    shifted: np.ndarray
+    near: np.ndarray
+    near_announced: np.ndarray
+    dz: np.ndarray
+    dxy: np.ndarray
+    aligned: np.ndarray
+    cand: np.ndarray
+    mark: np.ndarray
+
+
+@kernel(allocates=True)
+def search_scratch(m: int, points: int, cols: int) -> SearchScratch:
+    """Fresh :class:`SearchScratch` for plans of ``m`` points, stored predictions of
+    ``points`` and ``cols`` inbox columns."""
+    return SearchScratch(np.empty(4), np.empty(4), np.empty(points),
+                         np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
+                         np.empty(m), np.empty(m), np.empty((m, 3)),
+                         np.empty(cols, dtype=np.int64), np.full(cols, -1, dtype=np.int64))
 
 
 @kernel
@@ -336,12 +396,11 @@ def pair_widening_m(own_sigma_m: float, other_sigma_m: float, sigma_k: float) ->
     return sigma_k * math.sqrt(own_sigma_m * own_sigma_m + other_sigma_m * other_sigma_m)
 
 
-@kernel(allocates=True)
+@kernel
 def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
-               radius: float, announced_radius: float, extrapolate_s: float, box_own: np.ndarray,
-               own_times: np.ndarray, own_pos: np.ndarray, box: np.ndarray,
-               shifted: np.ndarray, near: np.ndarray, near_announced: np.ndarray, dz: np.ndarray,
-               dxy: np.ndarray, own_sigma_v_m: float, sigma_k: float, ne: int,
+               radius: float, announced_radius: float, extrapolate_s: float,
+               own_times: np.ndarray, own_pos: np.ndarray, sc: SearchScratch,
+               own_sigma_v_m: float, sigma_k: float, ne: int,
                e_col: np.ndarray, e_silent: np.ndarray, e_near: np.ndarray,
                e_announced: np.ndarray, e_dz: np.ndarray, e_dxy: np.ndarray,
                e_hears: np.ndarray, e_widen_v: np.ndarray) -> int:
@@ -351,6 +410,8 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
     announced, without a silent sender's widening) in ``e_announced``, whether its heard list
     names row ``r`` in ``e_hears``, and the pair's vertical widening (:func:`pair_widening_m`
     of ``own_sigma_v_m`` and the sender's) in ``e_widen_v``. Returns the new row count."""
+    box_own, box, shifted = sc.box_own, sc.box, sc.shifted
+    near, dz, dxy = sc.near, sc.dz, sc.dxy
     slot = rows.held_slot[r, col]
     _inflated_box(store, slot, extrapolate_s, box)
     reach = radius + BOX_MARGIN_M
@@ -364,7 +425,7 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
     for k in range(n):
         shifted[k] = store.times_s[slot, k] + (ref - stamp)
     near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s, own_pos,
-                radius, near, dz, dxy)
+                radius, near, dz, dxy, sc.aligned)
     hit = False
     for k in range(near.shape[0]):
         hit = hit or near[k]
@@ -373,9 +434,10 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
     if ne < e_col.shape[0]:
         e_col[ne] = col
         e_silent[ne] = silent
-        e_near[ne] = near
-        e_dz[ne] = dz
-        e_dxy[ne] = dxy
+        for k in range(near.shape[0]):  # loops: a row assignment may copy (an allocation)
+            e_near[ne, k] = near[k]
+            e_dz[ne, k] = dz[k]
+            e_dxy[ne, k] = dxy[k]
         me = rows.own_col[r]
         hears = False
         for k in range(store.heard_n[slot]):
@@ -384,14 +446,16 @@ def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, re
         e_widen_v[ne] = pair_widening_m(own_sigma_v_m, store.sigma_m[slot, 1], sigma_k)
         if announced_radius < radius:
             near_and_dz(shifted[:n], store.positions_m[slot, :n], own_times, extrapolate_s,
-                        own_pos, announced_radius, near_announced, dz, dxy)
-            e_announced[ne] = near_announced
+                        own_pos, announced_radius, sc.near_announced, dz, dxy, sc.aligned)
+            for k in range(near.shape[0]):
+                e_announced[ne, k] = sc.near_announced[k]
         else:
-            e_announced[ne] = near
+            for k in range(near.shape[0]):
+                e_announced[ne, k] = near[k]
     return ne + 1
 
 
-@kernel(allocates=True)
+@kernel
 def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1: int,
                      own_times: np.ndarray, own_pos: np.ndarray, now_s: np.ndarray,
                      timeout_s: float, silent_hold_s: float, use_received: bool,
@@ -400,16 +464,17 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
                      ov_radius: np.ndarray, own_sigma_h_m: np.ndarray,
                      own_sigma_v_m: np.ndarray, sigma_k: float, use_index: bool, cell_m: float,
                      start: np.ndarray, entries: np.ndarray, sigma_max: float,
-                     e_start: np.ndarray, e_col: np.ndarray, e_silent: np.ndarray,
-                     e_near: np.ndarray, e_announced: np.ndarray, e_dz: np.ndarray,
-                     e_dxy: np.ndarray, e_hears: np.ndarray, e_widen_v: np.ndarray,
-                     s_start: np.ndarray, s_col: np.ndarray) -> tuple[int, int]:
+                     sc: SearchScratch, e_start: np.ndarray, e_col: np.ndarray,
+                     e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
+                     e_dz: np.ndarray, e_dxy: np.ndarray, e_hears: np.ndarray,
+                     e_widen_v: np.ndarray, s_start: np.ndarray,
+                     s_col: np.ndarray) -> tuple[int, int]:
     """:func:`encounter_rows` for the receivers ``due[j0:j1]``, with the grid (``start``,
     ``entries``: :func:`build_grid`, when ``use_index``) and the widest sender's horizontal σ
-    ``sigma_max`` given: their rows written from the start of the outputs ``e_*``, ``s_col``
-    (and counted past their ends), ``e_start[j]`` and ``s_start[j]`` counted from there.
+    ``sigma_max`` given, in the work arrays ``sc`` (:func:`search_scratch`, its ``mark``
+    fresh: −1): their rows written from the start of the outputs ``e_*``, ``s_col`` (and
+    counted past their ends), ``e_start[j]`` and ``s_start[j]`` counted from there.
     Returns (encounter rows, silent entries) of the block."""
-    m = own_times.shape[1]
     n_cols = rows.held_slot.shape[1]
     cap_s = s_col.shape[0]
     # Typed int64 and bool from the start: a literal would have _encounter compiled once more
@@ -417,15 +482,7 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
     ne = np.int64(0)
     ns = np.int64(0)
     silent, fresh = np.bool_(True), np.bool_(False)
-    box_own = np.empty(4)
-    box = np.empty(4)
-    shifted = np.empty(store.times_s.shape[1])
-    near = np.empty(m, dtype=np.bool_)
-    near_announced = np.empty(m, dtype=np.bool_)
-    dz = np.empty(m)
-    dxy = np.empty(m)
-    cand = np.empty(n_cols, dtype=np.int64)
-    mark = np.full(n_cols, -1, dtype=np.int64)
+    box_own, box, cand = sc.box_own, sc.box, sc.cand
     for j in range(j0, j1):
         r = due[j]
         now = now_s[j]
@@ -451,10 +508,9 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
             announced = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
             radius = max(announced, silent_radius_m + silent_reach_m(
                 now - ref - timeout_s, silent_speed_mps, silent_accel_mps2))
-            ne = _encounter(rows, store, r, col, silent, ref, radius, announced, timeout_s, box_own,
-                            own_times[j], own_pos[j], box, shifted, near, near_announced, dz,
-                            dxy, own_sigma_v_m[j], sigma_k, ne, e_col, e_silent, e_near,
-                            e_announced, e_dz, e_dxy, e_hears, e_widen_v)
+            ne = _encounter(rows, store, r, col, silent, ref, radius, announced, timeout_s,
+                            own_times[j], own_pos[j], sc, own_sigma_v_m[j], sigma_k, ne, e_col,
+                            e_silent, e_near, e_announced, e_dz, e_dxy, e_hears, e_widen_v)
         r_max = radius_m[j]
         for o in range(ov_start[j], ov_start[j + 1]):
             r_max = max(r_max, ov_radius[o])
@@ -462,7 +518,7 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
         if use_index:
             for a in range(4):
                 box[a] = box_own[a] + (r_max + BOX_MARGIN_M) * (1.0 if a % 2 else -1.0)
-            n_cand = grid_candidates(rows, store, r, box, cell_m, start, entries, mark, j,
+            n_cand = grid_candidates(rows, store, r, box, cell_m, start, entries, sc.mark, j,
                                      cand)
         else:
             n_cand = 0
@@ -479,10 +535,9 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
             widen = pair_widening_m(own_sigma_h_m[j], store.sigma_m[rows.held_slot[r, col], 0],
                                     sigma_k)
             radius = _pair_radius(radius_m[j], ov_start, ov_col, ov_radius, j, col) + widen
-            ne = _encounter(rows, store, r, col, fresh, ref, radius, radius, timeout_s, box_own,
-                            own_times[j], own_pos[j], box, shifted, near, near_announced, dz,
-                            dxy, own_sigma_v_m[j], sigma_k, ne, e_col, e_silent, e_near,
-                            e_announced, e_dz, e_dxy, e_hears, e_widen_v)
+            ne = _encounter(rows, store, r, col, fresh, ref, radius, radius, timeout_s,
+                            own_times[j], own_pos[j], sc, own_sigma_v_m[j], sigma_k, ne, e_col,
+                            e_silent, e_near, e_announced, e_dz, e_dxy, e_hears, e_widen_v)
     return ne, ns
 
 
@@ -532,7 +587,9 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                               timeout_s, silent_hold_s, use_received, silent_radius_m,
                               silent_speed_mps, silent_accel_mps2, radius_m, ov_start, ov_col,
                               ov_radius, own_sigma_h_m, own_sigma_v_m, sigma_k, use_index,
-                              cell_m, start, entries, _sigma_max(store), e_start, e_col,
+                              cell_m, start, entries, _sigma_max(store),
+                              search_scratch(own_times.shape[1], store.times_s.shape[1],
+                                             rows.held_slot.shape[1]), e_start, e_col,
                               e_silent, e_near, e_announced, e_dz, e_dxy, e_hears, e_widen_v,
                               s_start, s_col)
     e_start[due.shape[0]] = ne
@@ -578,7 +635,9 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
             rows, store, due, b * r_count // nb, (b + 1) * r_count // nb, own_times, own_pos,
             now_s, timeout_s, silent_hold_s, use_received, silent_radius_m, silent_speed_mps,
             silent_accel_mps2, radius_m, ov_start, ov_col, ov_radius, own_sigma_h_m,
-            own_sigma_v_m, sigma_k, use_index, cell_m, start, entries, sigma_max, e_start,
+            own_sigma_v_m, sigma_k, use_index, cell_m, start, entries, sigma_max,
+            search_scratch(own_times.shape[1], store.times_s.shape[1], rows.held_slot.shape[1]),
+            e_start,
             e_col[e0:e0 + share_e], e_silent[e0:e0 + share_e], e_near[e0:e0 + share_e],
             e_announced[e0:e0 + share_e], e_dz[e0:e0 + share_e], e_dxy[e0:e0 + share_e],
             e_hears[e0:e0 + share_e], e_widen_v[e0:e0 + share_e], s_start,

@@ -60,21 +60,22 @@ def align_into(other_times_s: np.ndarray, other_positions_m: np.ndarray,
         known[i] = at <= t_end
 
 
-@kernel(allocates=True)
+@kernel
 def near_and_dz(other_times_s: np.ndarray, other_positions_m: np.ndarray, at_times_s: np.ndarray,
                 extrapolate_s: float, own_positions_m: np.ndarray, radius_m: float,
-                near_out: np.ndarray, dz_out: np.ndarray, dxy_out: np.ndarray) -> None:
-    """One other prediction against ours: :func:`align_into`, then per point whether it is
-    known and horizontally within ``radius_m`` (``near_out`` (m,) bool), our height minus
-    theirs (``dz_out`` (m,)) and the horizontal distance between the two (``dxy_out`` (m,)
-    [m]; where the point is unknown, that of the extrapolation).
+                near_out: np.ndarray, dz_out: np.ndarray, dxy_out: np.ndarray,
+                aligned: np.ndarray) -> None:
+    """One other prediction against ours: :func:`align_into` (into ``aligned`` (m, 3), work
+    space), then per point whether it is known and horizontally within ``radius_m``
+    (``near_out`` (m,) bool), our height minus theirs (``dz_out`` (m,)) and the horizontal
+    distance between the two (``dxy_out`` (m,) [m]; where the point is unknown, that of the
+    extrapolation).
 
     Args:
         other_times_s: (n,) strictly increasing, n ≥ 2; other_positions_m: (n, 3).
         at_times_s: (m,) our prediction times; own_positions_m: (m, 3).
     """
     m = at_times_s.shape[0]
-    aligned = np.empty((m, 3))
     align_into(other_times_s, other_positions_m, at_times_s, extrapolate_s, aligned, near_out)
     r2 = radius_m**2
     for i in range(m):
