@@ -12,6 +12,9 @@ import numpy as np
 import pytest
 from numba.core.runtime import _nrt_python, rtsys
 
+from uavmpc.avoidance.encounters import EncounterFinder
+from uavmpc.comms.inbox import InboxTable, accept_copies
+from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage, encode
 from uavmpc.drivers.world import World
 from uavmpc.jit import kernel, using_threads
 from uavmpc.scenarios import load
@@ -108,6 +111,44 @@ def test_flights_free_every_array_their_kernels_make(threads) -> None:
             assert allocated > 1000, name  # the count is live: the kernels allocate
             # Arrays the world holds between ticks are replaced, not added: a few either way.
             assert abs(allocated - freed) < 50, (name, allocated, freed)
+
+
+def test_the_encounter_search_allocates_per_block_not_per_pair() -> None:
+    """The search's per-pair kernels work in the arrays their block made once
+    (:class:`~uavmpc.avoidance.encounters.SearchScratch`): a kernel that made one per pair
+    would also count the references of every array it passes on, around every pair (some
+    760 000 atomic operations per round of a 300-UAV world; docs/scale.md)."""
+    n, horizon = 24, np.cumsum(np.r_[0.01, np.full(39, 0.2)])
+    ids = [f"u{i}" for i in range(n)]
+    table = InboxTable(ids)
+    now = 100.0
+    rng = np.random.default_rng(0)
+    plans = np.repeat(np.column_stack([rng.uniform(0.0, 5.0, (n, 2)), np.full(n, 10.0)]
+                                      )[:, None, :], 40, axis=1)  # all within 10 m
+    for i in range(n):
+        slot = table.slot_for(encode(PredictionMessage(
+            SCHEMA_VERSION, ids[i], i + 1, now - 0.1, now - 0.1 + horizon, plans[i], True)))
+        accept_copies(table.rows, table.store, np.arange(n), np.full(n, slot),
+                      np.full(n, now))
+        table.unpin()
+    finder = EncounterFinder(table, timeout_s=1.0, silent_hold_s=10.0, use_received=False)
+
+    def search(receivers: int) -> tuple[int, list[int]]:
+        """Pairs found near, [arrays allocated, freed] by a search of the first receivers
+        (the same arrays passed in, the same blocks: only the pairs differ)."""
+        args = (np.arange(receivers), np.tile(now + horizon, (receivers, 1)),
+                plans[:receivers], np.full(receivers, now), np.full(receivers, 10.0))
+        finder.find(*args)  # compiled, outputs grown
+        with _allocation_count() as count:
+            found = finder.find(*args)
+        return sum(len(e.ids) for e in found), count
+
+    for blocks in (1, 2):
+        finder.blocks = blocks
+        pairs_all, all_receivers = search(n)
+        pairs_two, two_receivers = search(2)
+        assert (pairs_all, pairs_two) == (n * (n - 1), 2 * (n - 1))  # every pair near
+        assert all_receivers == two_receivers, blocks
 
 
 class _Pair(NamedTuple):

@@ -652,13 +652,16 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
             e_start[j] += ne
             s_start[j] += ns
         # Moved down (ne ≤ e0): a forward copy never overwrites what it has yet to move.
+        # Element by element: a row assignment copies through a new array (numba cannot
+        # tell that the rows never overlap), four per encounter.
         for i in range(ne_b[b]):
             e_col[ne + i] = e_col[e0 + i]
             e_silent[ne + i] = e_silent[e0 + i]
-            e_near[ne + i] = e_near[e0 + i]
-            e_announced[ne + i] = e_announced[e0 + i]
-            e_dz[ne + i] = e_dz[e0 + i]
-            e_dxy[ne + i] = e_dxy[e0 + i]
+            for k in range(e_near.shape[1]):
+                e_near[ne + i, k] = e_near[e0 + i, k]
+                e_announced[ne + i, k] = e_announced[e0 + i, k]
+                e_dz[ne + i, k] = e_dz[e0 + i, k]
+                e_dxy[ne + i, k] = e_dxy[e0 + i, k]
             e_hears[ne + i] = e_hears[e0 + i]
             e_widen_v[ne + i] = e_widen_v[e0 + i]
         for i in range(ns_b[b]):
