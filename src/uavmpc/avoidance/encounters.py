@@ -735,6 +735,19 @@ class FoundRows:
         #: (R,) bool the receiver found nobody near and nobody silent.
         self.quiet = ((e_start[1:r_count + 1] == e_start[:r_count])
                       & (s_start[1:r_count + 1] == s_start[:r_count]))
+        self._senders: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _sender_flags(self) -> tuple[np.ndarray, np.ndarray]:
+        """(E,) each encounter row's sender's priority and flag, from the messages held
+        (looked up once for all rows: a round's decisions take slices)."""
+        if self._senders is None:
+            o = self.out
+            r_count = self.due.shape[0]
+            receiver = np.repeat(self.due, np.diff(o.e_start[:r_count + 1]))
+            slots = self.table.rows.held_slot[receiver, o.e_col[:receiver.shape[0]]]
+            st = self.table.store
+            self._senders = st.priority[slots], st.avoiding[slots]
+        return self._senders
 
     def encounters(self, j: int) -> Encounters:
         """Receiver ``j``'s encounters (views of the call's outputs)."""
@@ -745,12 +758,10 @@ class FoundRows:
         silent = tuple(ids[c] for c in o.s_col[sa:sb].tolist()) if sb > sa else ()
         if a == b:  # nobody near (most UAVs, most of the time)
             return _nobody(o.e_near.shape[1], silent)
-        cols_j = o.e_col[a:b]
-        st = self.table.store
-        slots = self.table.rows.held_slot[int(self.due[j]), cols_j]
+        priority, avoiding = self._sender_flags()
         return Encounters(
-            tuple(map(ids.__getitem__, cols_j.tolist())), st.priority[slots],
-            st.avoiding[slots], o.e_silent[a:b], o.e_near[a:b], o.e_dz[a:b], silent,
+            tuple(map(ids.__getitem__, o.e_col[a:b].tolist())), priority[a:b],
+            avoiding[a:b], o.e_silent[a:b], o.e_near[a:b], o.e_dz[a:b], silent,
             o.e_announced[a:b], o.e_hears[a:b], o.e_widen_v[a:b], o.e_dxy[a:b])
 
 

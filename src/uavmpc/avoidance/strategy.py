@@ -510,6 +510,8 @@ class HeightOffsetStrategy:
         self._hold_plan: tuple[np.ndarray, np.ndarray] | None = None
         #: :attr:`AvoidanceDecision.stuck`, kept until the conflict is resolved.
         self._stuck = False
+        #: The last decision with nobody near and what it was made of (:meth:`_nobody_near`).
+        self._last_nobody_near: tuple[tuple[object, ...], AvoidanceDecision] | None = None
 
     @property
     def holding(self) -> bool:
@@ -702,12 +704,19 @@ class HeightOffsetStrategy:
         self._stuck = False  # nobody near: no conflict
         recent = holding or (self._last_conflict_s is not None
                              and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-        return AvoidanceDecision(
+        # The same as the last such round (within a hysteresis, say): the same decision,
+        # which the stack already steers by (building one costs µs, applying it again more).
+        inputs = (prm, self.z_offset_m, recent, holding, known.silent)
+        if self._last_nobody_near is not None and self._last_nobody_near[0] == inputs:
+            return self._last_nobody_near[1]
+        decision = AvoidanceDecision(
             z_offset_m=self.z_offset_m, avoiding=recent or self.z_offset_m > 0.0,
             horizontal_scale=prm.horizontal_scale if recent else 1.0,
             climb_speed_mps=prm.climb_speed_mps if recent else None,
             climb_accel_mps2=prm.climb_accel_mps2 if recent else None,
             silent=known.silent, holding=holding)
+        self._last_nobody_near = (inputs, decision)
+        return decision
 
     def rest(self, now_s: float) -> bool:
         """(The contract's :meth:`EncounterStrategy.rest`.) At rest: no offset, no hold,
