@@ -239,3 +239,32 @@ def test_every_ticks_closest_distance_and_contacts_are_the_pairs_own(threads: in
         got = [c.distance_m for c in r.collisions if (c.a, c.b) == (r.uav_ids[a[j]],
                                                                     r.uav_ids[b[j]])]
         assert min(got) == d[close[:, j], j].min()
+
+
+def test_a_kernel_compiled_mid_flight_is_left_out_of_the_phases_as_of_the_wall_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The run's wall time leaves out what numba compiles during it (a kernel first called
+    mid-flight on a cold cache), and so do the phases it is split into: the phases (sub-
+    intervals of the run) add up to at most its wall time, not to it plus the compilation."""
+    import numba
+
+    import uavmpc.drivers.delivery as delivery
+
+    @numba.njit  # a fresh function, not cached: compiles at its first call
+    def first_call(x: float) -> float:
+        return x + 1.0
+
+    accept = delivery.accept_copies
+    compiled = []
+
+    def accept_compiling_once(*args):
+        if not compiled:
+            compiled.append(first_call(1.0))  # inside the delivery: the first phase
+        return accept(*args)
+
+    world = World(random_walk(3, area_m=30.0, duration_s=2.0, seed=1), avoidance=True, seed=1)
+    world.run(0.3)  # the world's own kernels compiled or loaded
+    monkeypatch.setattr(delivery, "accept_copies", accept_compiling_once)
+    result = world.run(1.0)
+    assert compiled == [2.0]
+    assert sum(world.phase_wall_s) <= result.wall_s
