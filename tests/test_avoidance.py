@@ -176,6 +176,22 @@ def test_equal_altitudes_lower_priority_climbs_one_dz_higher_priority_only_slows
     assert d_lo.conflicts == () and d_lo.z_offset_m == 3.0
 
 
+def test_a_decision_like_the_last_one_is_that_one_and_a_different_one_is_new() -> None:
+    """The stack skips a decision it steers by already (``OnboardStack.apply``): a round that
+    decides what the last one did hands back that very object, field for field the same."""
+    a, b = head_on()
+    t = NOW + REL
+    hi = HeightOffsetStrategy()
+    first = hi.update(NOW, "a", 1, t, a, {"b": msg("b", 2, b)})
+    again = hi.update(NOW, "a", 1, t, a, {"b": msg("b", 2, b)})
+    assert again is first and first.conflicts == ("b",)
+    # b has climbed: no conflict any more, a new decision (built by field name, as read).
+    other = hi.update(NOW, "a", 1, t, a, {"b": msg("b", 2, b + UP3)})
+    assert other is not first and other == AvoidanceDecision(
+        z_offset_m=0.0, avoiding=True, horizontal_scale=0.5, climb_speed_mps=5.0,
+        climb_accel_mps2=3.0)
+
+
 def test_three_way_conflict_stacks_offsets_by_priority() -> None:
     """Priorities 1, 2, 3 converge on one point at one height → offsets 0, Δz, 2Δz."""
     angles = {"u1": 0.0, "u2": 2 * np.pi / 3, "u3": 4 * np.pi / 3}  # 120° apart
