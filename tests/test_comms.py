@@ -356,7 +356,7 @@ def test_a_ticks_copies_on_threads_are_queued_as_on_one(
               range_m=60.0 if ranged else None, position_of=where.get if ranged else None)
     serial = SimulatedLink(ids, **kw)
     want = _tick_by_tick(serial, ids, 5)
-    def queue(*args: object) -> tuple[int, int, int, int]:
+    def queue(*args: object) -> tuple[int, int, int, int, float]:
         return link_module.queue_copies_threads(*args, blocks)
 
     monkeypatch.setattr(link_module, "queue_copies", queue)

@@ -254,7 +254,8 @@ def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders
     broadcast with copies gets the next payload id from ``first_pid`` on in ``pids[j]`` (−1
     without), its copies' count in ``counts[j]``, and sequence numbers from ``first_seq`` on
     in receiver order. ``at`` (≥ B, n − 1), ``rcv`` (≥ B, n − 1) int64: work. Returns
-    (chunks, used, copies lost, copies out of range).
+    (chunks, used, copies lost, copies out of range, the earliest time of the copies
+    queued (inf without any)).
 
     Three passes: each broadcast drawn into its row of the work arrays, the chunks numbered
     in sending order, each broadcast's copies sorted into its place (what
@@ -278,7 +279,18 @@ def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders
     for j in range(b):
         if counts[j]:  # equal times in sending order
             _place_copies(q, start[j], counts[j], first[j], at[j], rcv[j], order, bucket)
-    return chunks, used, lost_n, out_n
+    return chunks, used, lost_n, out_n, _first_due(q, counts, start)
+
+
+@kernel
+def _first_due(q: InFlight, counts: np.ndarray, start: np.ndarray) -> float:
+    """The earliest time of the copies just placed (each broadcast's first: they are sorted;
+    inf without any)."""
+    first = np.inf
+    for j in range(counts.shape[0]):
+        if counts[j]:
+            first = min(first, q.at_s[start[j]])
+    return first
 
 
 @kernel(parallel=True)
@@ -313,7 +325,7 @@ def queue_copies_threads(q: InFlight, chunks: int, used: int, draws: np.ndarray,
         for j in range(blk * b // nb, (blk + 1) * b // nb):
             if counts[j]:
                 _place_copies(q, start[j], counts[j], first[j], at[j], rcv[j], order, bucket)
-    return chunks, used, int(lost.sum()), int(out.sum())
+    return chunks, used, int(lost.sum()), int(out.sum()), _first_due(q, counts, start)
 
 
 @kernel
@@ -612,13 +624,12 @@ class SimulatedLink:
                 self._work_rcv[:copies].reshape(b, n - 1))
         threads = thread_count()
         if threads > 1 and b > 1 and copies >= THREADED_COPIES:
-            self._chunks, used, lost, out = bound(queue_copies_threads)(*args, threads)
+            self._chunks, used, lost, out, first = bound(queue_copies_threads)(*args, threads)
         else:
-            self._chunks, used, lost, out = bound(queue_copies)(*args)
+            self._chunks, used, lost, out, first = bound(queue_copies)(*args)
         self.stats.dropped += lost
         self.stats.dropped_range += out
-        if used > self._used:
-            self.next_due_s = min(self.next_due_s, float(self._q.at_s[self._used:used].min()))
+        self.next_due_s = min(self.next_due_s, first)
         self._seq += used - self._used
         self._used = used
         for j, (pid, count) in enumerate(zip(pids.tolist(), counts.tolist(), strict=True)):
@@ -738,10 +749,11 @@ class SimulatedLink:
         """The bytes of payload ``pid`` (see :meth:`take_due`)."""
         return self._payloads[int(pid)]
 
-    def release(self, payload_ids: np.ndarray, copies: np.ndarray | None = None) -> None:
+    def release(self, payload_ids: np.ndarray, copies: np.ndarray | None = None) -> list[int]:
         """The copies of ``payload_ids`` were read: forget their bytes after the last one.
         ``payload_ids``: one entry per copy, or, with ``copies``, distinct ids and how many
-        copies of each."""
+        copies of each. Returns the ids whose last copies these were (:meth:`holds` them no
+        more)."""
         if copies is not None:
             counts = dict(zip(payload_ids.tolist(), copies.tolist(), strict=True))
         elif payload_ids.shape[0] > 16:
@@ -751,6 +763,7 @@ class SimulatedLink:
             counts = {}
             for pid in payload_ids.tolist():
                 counts[pid] = counts.get(pid, 0) + 1
+        gone = []
         for pid, c in counts.items():
             left = self._copies_left[pid] - c
             if left:
@@ -758,6 +771,8 @@ class SimulatedLink:
             else:
                 del self._copies_left[pid]
                 del self._payloads[pid]
+                gone.append(pid)
+        return gone
 
     def _drop_delivered(self) -> None:
         """Forget the chunks delivered in full; the next due time."""

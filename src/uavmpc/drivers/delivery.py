@@ -6,7 +6,7 @@ all its receivers, docs/scale.md) or UAV by UAV; both written to the flight log.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -89,11 +89,16 @@ class WorldLink:
         table.hold(slots, [data[j] for j in plain])
         self._held.update(zip([pids[j] for j in plain], slots.tolist(), strict=True))
 
-    def _let_go(self) -> None:
-        """Let go of the slots of the broadcasts whose copies are all delivered."""
-        gone = [pid for pid in self._held if not self.link.holds(pid)]
+    def _let_go(self, gone: Iterable[int] | None = None) -> None:
+        """Let go of the slots of the broadcasts whose copies are all delivered: ``gone``
+        (the link's ids of those just delivered in full), or, without it, every one the
+        link no longer holds."""
+        if gone is None:
+            gone = [pid for pid in self._held if not self.link.holds(pid)]
         for pid in gone:
-            self.inboxes.let_go(self._held.pop(pid))
+            slot = self._held.pop(pid, None)
+            if slot is not None:
+                self.inboxes.let_go(slot)
 
     def receive_one(self, i: int, now: float) -> None:
         """Row ``i``'s due datagrams into its stack's inbox (the per-object path)."""
@@ -129,9 +134,9 @@ class WorldLink:
             except InvalidMessageError as exc:
                 slots[j] = -1
                 errors[j] = str(exc)
-        self.link.release(due.payloads, due.copies)
+        gone = self.link.release(due.payloads, due.copies)
         if self._held:
-            self._let_go()
+            self._let_go(gone)
         copy_slots = slots[due.which]
         good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
         if errors:
