@@ -309,7 +309,9 @@ def test_a_ticks_broadcasts_at_once_draw_and_deliver_as_one_by_one(loss: float, 
                 assert np.array_equal(due.payloads, np.unique(pids))
                 assert np.array_equal(due.copies, np.bincount(due.which))
                 got[name].append((k, due.receivers.tolist(), [link.payload(p) for p in pids]))
-                link.release(due.payloads, due.copies)
+                gone = link.release(due.payloads, due.copies)
+                # It names exactly the payloads these copies were the last of.
+                assert gone == [p for p in due.payloads.tolist() if not link.holds(p)]
     assert got["one"] == got["many"] and len(got["one"]) > 100
     assert vars(one.stats) == vars(many.stats)
     assert (one.stats.dropped > 0) == (loss > 0.0)
