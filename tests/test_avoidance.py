@@ -192,6 +192,36 @@ def test_a_decision_like_the_last_one_is_that_one_and_a_different_one_is_new() -
         climb_accel_mps2=3.0)
 
 
+def test_a_strategy_bound_to_a_batch_row_decides_as_its_unbound_twin() -> None:
+    """A strategy's state moves with it into a batch's row (``bind``, what an onboard stack
+    does): the offset, the conflict history and the acknowledgement's clocks, by UAV id; it
+    decides from then on exactly as a twin that was never bound, and the row it left is
+    free again."""
+    from uavmpc.avoidance.strategy import StrategyTable
+
+    a, b = head_on()
+    prm = AvoidanceParams(ack_grace_s=2.0)
+    bound_one, twin = HeightOffsetStrategy(prm), HeightOffsetStrategy(prm)
+    def deaf_b(now: float) -> PredictionMessage:  # b does not list a: a's clock of it runs
+        return replace(msg("b", 2, b, stamp=now), heard=())
+
+    for s in (bound_one, twin):
+        first = s.update(NOW, "a", 1, NOW + REL, a, {"b": deaf_b(NOW)})
+        assert first.z_offset_m == 0.0 and first.conflicts == ("b",)  # a outranks b
+    home = StrategyTable(3)
+    home.col_of("x")  # columns of its own: b is not the first one
+    old_home = bound_one.home
+    bound_one.bind(home, 2)
+    assert bound_one.home is home and bound_one.row == 2 and home.bound.tolist() == [
+        False, False, True] and not old_home.bound[0]
+    for k in range(1, 8):  # b stays deaf to a: after ack_grace_s, a yields to it and climbs
+        now = NOW + 0.5 * k
+        d1 = bound_one.update(now, "a", 1, now + REL, a, {"b": deaf_b(now)})
+        d2 = twin.update(now, "a", 1, now + REL, a, {"b": deaf_b(now)})
+        assert d1 == d2
+    assert d1.deaf == ("b",) and d1.z_offset_m == 3.0 and bound_one.z_offset_m == 3.0
+
+
 def test_three_way_conflict_stacks_offsets_by_priority() -> None:
     """Priorities 1, 2, 3 converge on one point at one height → offsets 0, Δz, 2Δz."""
     angles = {"u1": 0.0, "u2": 2 * np.pi / 3, "u3": 4 * np.pi / 3}  # 120° apart

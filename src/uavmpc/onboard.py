@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -36,8 +37,20 @@ from uavmpc.avoidance import (
     EncounterStrategy,
     ResolutionStrategy,
 )
-from uavmpc.avoidance.encounters import EncounterFinder, Encounters, heard_columns
-from uavmpc.avoidance.strategy import CALM, HOLD_SPEED_MPS
+from uavmpc.avoidance.decide import (
+    CALM_KIND,
+    N_FLAGS,
+    N_MASKS,
+    NEW_KIND,
+    decide_rows,
+)
+from uavmpc.avoidance.encounters import EncounterFinder, Encounters, FoundRows, heard_columns
+from uavmpc.avoidance.strategy import (
+    CALM,
+    HOLD_SPEED_MPS,
+    HeightOffsetStrategy,
+    StrategyTable,
+)
 from uavmpc.comms.auth import Identity, Roster, seal, sign
 from uavmpc.comms.inbox import InboxRows, InboxTable, Store, fill_slot
 from uavmpc.comms.link import PREDICTION_CHANNEL, Inbox
@@ -512,8 +525,19 @@ class OnboardBatch:
         self.resting = np.zeros(n, dtype=np.bool_)
         #: (N,) each row's conflict cylinder radius (its stack's ``params.radius_m``) [m].
         self.radius_m = np.zeros(n)
+        #: The state of the rows' height-offset strategies, one row each, its columns those
+        #: of the first inbox table a stack binds it with (:meth:`strategies_for`).
+        self.strategies: StrategyTable | None = None
         self.n = n
         self._one: tuple[ReferenceTable, object] | None = None
+
+    def strategies_for(self, table: InboxTable) -> StrategyTable | None:
+        """The rows its stacks' height-offset strategies live in when their inbox table is
+        ``table`` (made with the first one asked for); None for another table (such a
+        strategy keeps a row of its own and decides by itself)."""
+        if self.strategies is None:
+            self.strategies = StrategyTable(self.n, table)
+        return self.strategies if self.strategies.table is table else None
 
     @property
     def inline(self) -> bool:
@@ -665,6 +689,14 @@ class OnboardStack:
         #: :class:`~uavmpc.avoidance.EncounterStrategy`) and its finder; else None (it gets
         #: the messages through ``update``).
         self._decider = avoidance if isinstance(avoidance, EncounterStrategy) else None
+        #: Its strategy when a height-offset one whose state is its row of
+        #: :attr:`OnboardBatch.strategies` (a round decides it with the others).
+        self._height: HeightOffsetStrategy | None = None
+        if isinstance(avoidance, HeightOffsetStrategy):
+            home = batch.strategies_for(self.inbox.table)
+            if home is not None:
+                avoidance.bind(home, self.row)
+                self._height = avoidance
         self._finder = (self._decider.finder(self.inbox.table) if self._decider is not None
                         else None)
         # Its messages list whom its finder counts (docs/safety.md, A2); without one, nobody.
@@ -801,6 +833,18 @@ class OnboardStack:
         later (:meth:`~uavmpc.avoidance.HeightOffsetStrategy.hold_probes`); else None."""
         return (None if self._decider is None
                 else self._decider.hold_probes(plan_s, times_s, here_m))
+
+    def steer_round(self, kind: int, z_offset_m: float = 0.0, first_s: float = math.nan,
+                    flags: np.ndarray | None = None, masks: np.ndarray | None = None,
+                    ids: Sequence[str] = (), silent: tuple[str, ...] = ()) -> None:
+        """Steer by its decision of an avoidance round (:func:`avoidance_round`): what
+        :func:`~uavmpc.avoidance.decide.decide_rows` said of its row (``kind``; for a new
+        decision its fields, see :meth:`~uavmpc.avoidance.HeightOffsetStrategy.decision_of`);
+        the caller marks :attr:`OnboardBatch.resting` (at rest: :data:`~uavmpc.avoidance.
+        decide.CALM_KIND`, as :meth:`rest` does)."""
+        assert self._height is not None
+        self.apply(self._height.decision_of(kind, z_offset_m, first_s, flags, masks, ids,
+                                            silent))
 
     def encounter_overrides(self) -> dict[int, float]:
         """Its strategy's per-pair radii by its inbox table's columns (none without one)."""
@@ -1059,12 +1103,81 @@ def avoidance_round(batch: OnboardBatch,
     quiet = found.quiet[:due.size]
     # Nobody near nor silent, and at rest since its last round: nothing happens to it
     # (rest is idempotent, :attr:`OnboardBatch.resting`). Most UAVs, most rounds.
+    cand = np.flatnonzero(~(quiet & batch.resting[due]))
+    home = batch.strategies
+    if home is not None and home.table is finder.table and home.bound[due[cand]].all():
+        return _decide_round(batch, stacks, home, found, due, cand, plan_s, times, own,
+                             climbed, held)
     decided = []
-    for j in np.flatnonzero(~(quiet & batch.resting[due])).tolist():
+    for j in cand.tolist():
         i = which[j]
         if quiet[j] and stacks[i].rest(float(plan_s[j])):
             continue  # come to rest now
         stacks[i].decide(float(plan_s[j]), times[j], found.encounters(j), float(climbed[j]),
                          own[j], probes.get(j))
         decided.append(i)
+    return np.array(decided, dtype=np.int64)
+
+
+def _decide_round(batch: OnboardBatch, stacks: Sequence[OnboardStack] | Mapping[int, OnboardStack],
+                  home: StrategyTable, found: FoundRows, due: np.ndarray, cand: np.ndarray,
+                  plan_s: np.ndarray, times: np.ndarray, own: np.ndarray, climbed: np.ndarray,
+                  held: list[tuple[int, np.ndarray]]) -> np.ndarray:
+    """:func:`avoidance_round`'s decisions of the rows ``due[cand]`` in one compiled call
+    (:func:`~uavmpc.avoidance.decide.decide_rows`: their strategies' state is ``home``'s
+    rows); each stack then steers by its decision, made into an object only when it is not
+    its last one. Returns the rows that decided (not come to rest)."""
+    out = found.out
+    f_count = found.due.shape[0]
+    e_start = out.e_start[:f_count + 1]
+    e_count = int(e_start[f_count])
+    priority, avoiding = found.sender_flags()
+    # A tie of priorities (which a valid set-up never has) is broken by id.
+    receivers = np.repeat(found.due, np.diff(e_start))
+    before_us = np.zeros(e_count, dtype=np.bool_)
+    ties = np.flatnonzero(priority == batch.senders.priority[receivers])
+    if ties.size:
+        ids = home.ids
+        for e in ties.tolist():
+            before_us[e] = ids[out.e_col[e]] < stacks[int(receivers[e])].uav_id
+    q_lo = np.zeros(due.size, dtype=np.int64)
+    q_hi = np.zeros(due.size, dtype=np.int64)
+    has_probes = np.zeros(due.size, dtype=np.bool_)
+    k = due.size
+    for j, p in held:
+        q_lo[j], q_hi[j], has_probes[j] = k, k + p.shape[0], True
+        k += p.shape[0]
+    rows = due[cand]
+    d_count = rows.shape[0]
+    kind = np.empty(d_count, dtype=np.int8)
+    z = np.empty(d_count)
+    first = np.empty(d_count)
+    flags = np.empty((d_count, N_FLAGS), dtype=np.bool_)
+    masks = np.empty((e_count, N_MASKS), dtype=np.bool_)
+    strategy_rows = home.ensure(times.shape[1])
+    bound(decide_rows)(
+        strategy_rows, rows, plan_s[cand], times[cand], own[cand],
+        np.ones(d_count, dtype=np.bool_), climbed[cand], batch.senders.priority[rows],
+        out.e_col[:e_count], out.e_silent[:e_count], out.e_near[:e_count],
+        out.e_announced[:e_count], out.e_dz[:e_count], out.e_dxy[:e_count],
+        out.e_hears[:e_count], out.e_widen_v[:e_count], priority, avoiding, before_us,
+        e_start, cand, q_lo[cand], q_hi[cand], has_probes[cand], out.s_start, out.s_col,
+        kind, z, first, flags, masks)
+    batch.resting[rows] = kind == CALM_KIND
+    decided = []
+    ids = home.ids
+    kinds = kind.tolist()
+    for j, i in enumerate(rows.tolist()):
+        c = kinds[j]
+        if c == NEW_KIND:
+            f = int(cand[j])
+            lo, hi = int(e_start[f]), int(e_start[f + 1])
+            s_lo, s_hi = int(out.s_start[f]), int(out.s_start[f + 1])
+            stacks[i].steer_round(c, float(z[j]), float(first[j]), flags[j], masks[lo:hi],
+                                  tuple(map(ids.__getitem__, out.e_col[lo:hi].tolist())),
+                                  tuple(map(ids.__getitem__, out.s_col[s_lo:s_hi].tolist())))
+        else:
+            stacks[i].steer_round(c)
+        if c != CALM_KIND:
+            decided.append(i)
     return np.array(decided, dtype=np.int64)

@@ -738,7 +738,7 @@ class FoundRows:
                       & (s_start[1:r_count + 1] == s_start[:r_count]))
         self._senders: tuple[np.ndarray, np.ndarray] | None = None
 
-    def _sender_flags(self) -> tuple[np.ndarray, np.ndarray]:
+    def sender_flags(self) -> tuple[np.ndarray, np.ndarray]:
         """(E,) each encounter row's sender's priority and flag, from the messages held
         (looked up once for all rows: a round's decisions take slices)."""
         if self._senders is None:
@@ -759,7 +759,7 @@ class FoundRows:
         silent = tuple(ids[c] for c in o.s_col[sa:sb].tolist()) if sb > sa else ()
         if a == b:  # nobody near (most UAVs, most of the time)
             return _nobody(o.e_near.shape[1], silent)
-        priority, avoiding = self._sender_flags()
+        priority, avoiding = self.sender_flags()
         return Encounters(
             tuple(map(ids.__getitem__, o.e_col[a:b].tolist())), priority[a:b],
             avoiding[a:b], o.e_silent[a:b], o.e_near[a:b], o.e_dz[a:b], silent,

@@ -30,38 +30,56 @@ a UAV that broadcast its down flag while quiet would look non-cooperative to eve
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
+from uavmpc.avoidance.decide import (
+    CALM_KIND,
+    F_AVOIDING,
+    F_CEILING,
+    F_HOLDING,
+    F_STUCK,
+    F_TIGHT,
+    F_UNHEARD,
+    M_CONFLICT,
+    M_DEAF,
+    M_UNRESOLVED,
+    M_WAITING,
+    M_YIELD,
+    N_FLAGS,
+    N_MASKS,
+    SAME_KIND,
+    EncounterRows,
+    StrategyRows,
+    climb_height,
+    decide_rows,
+    reset_row,
+    rest_row,
+)
+from uavmpc.avoidance.decide import EPS as _EPS
+from uavmpc.avoidance.decide import conflict_below as conflict_below
+from uavmpc.avoidance.decide import conflict_points as conflict_points
+from uavmpc.avoidance.decide import conflict_rows as conflict_rows
 from uavmpc.avoidance.encounters import EncounterFinder, Encounters
 from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.message import PredictionMessage
 from uavmpc.config import ConfigError, from_table, positive
-from uavmpc.jit import kernel
+from uavmpc.jit import bound, kernel
 
 #: Sanity bounds: beyond any multirotor scenario, small enough to catch unit mistakes.
 MAX_DISTANCE_M = 1000.0
 MAX_TIME_S = 600.0
 MAX_SPEED_MPS = 100.0
 MAX_ACCEL_MPS2 = 100.0
-#: Two plans closer in height than this count as level for a climb's way check (rule 6): the
-#: collision distance of the campaigns, so "above us" means above by more than a collision.
-LEVEL_M = 1.0
 #: The horizontal speed limit of a UAV holding short [m/s] (a limit must be positive).
 HOLD_SPEED_MPS = 0.01
-#: A plan whose points all lie within this of its first one, horizontally, stands still [m]
-#: (:attr:`AvoidanceDecision.stuck`): a hold's creep at :data:`HOLD_SPEED_MPS` over the
-#: horizon is a tenth of it.
-STANDING_M = 1.0
 #: Spacing of the delays a holding UAV probes its plan at [s] (``hold_delay_s``).
 HOLD_PROBE_STEP_S = 1.0
 #: Largest ``hold_delay_s`` [s]: each second is a probe, found with every avoidance round.
 MAX_HOLD_DELAY_S = 10.0
-#: Relative slack for "offset is a multiple of Δz that fits under the ceiling" (round-off).
-_EPS = 1e-9
 
 
 @dataclass(frozen=True)
@@ -357,98 +375,68 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
         ...
 
 
-def _standing_still(positions: np.ndarray | None) -> bool:
-    """The plan ``positions`` (m, 3) stays within :data:`STANDING_M` of its first point,
-    horizontally (False without a plan)."""
-    if positions is None:
-        return False
-    d = positions[:, :2] - positions[0, :2]
-    return bool(np.max(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) <= STANDING_M * STANDING_M)
+class StrategyTable:
+    """The rows of height-offset strategies (:class:`~uavmpc.avoidance.decide.StrategyRows`)
+    and what their columns are: an inbox table's (every strategy of one
+    :class:`~uavmpc.onboard.OnboardBatch`, found in one call), or ids of its own (a strategy
+    by itself).
+
+    Args:
+        n: how many rows.
+        table: the inbox table whose columns the rows' columns are (None: its own).
+    """
+
+    def __init__(self, n: int, table: InboxTable | None = None) -> None:
+        self.rows = StrategyRows.empty(n)
+        self.table = table
+        #: (N,) bool a strategy's state is the row (:meth:`HeightOffsetStrategy.bind`).
+        self.bound = np.zeros(n, dtype=np.bool_)
+        self._ids: list[str] = []
+        self._cols: dict[str, int] = {}
+
+    @property
+    def ids(self) -> list[str]:
+        """Each column's UAV id."""
+        return self.table.ids if self.table is not None else self._ids
+
+    def col_of(self, uav_id: str) -> int:
+        """The column of ``uav_id`` (a new one the first time)."""
+        if self.table is not None:
+            return self.table.col_of(uav_id)
+        col = self._cols.get(uav_id)
+        if col is None:
+            col = self._cols[uav_id] = len(self._ids)
+            self._ids.append(uav_id)
+        return col
+
+    def ensure(self, points: int) -> StrategyRows:
+        """The rows, grown to hold plans of ``points`` points and every column."""
+        self.rows = self.rows.grown(points, len(self.ids))
+        return self.rows
 
 
-def _named(ids: tuple[str, ...], which: np.ndarray) -> tuple[str, ...]:
-    """The ids whose entry of ``which`` (k,) is set."""
-    return tuple(i for i, h in zip(ids, which.tolist(), strict=True) if h)
+def _packed(plans: Sequence[Encounters], own_id: str, col_of: Callable[[str], int]
+            ) -> tuple[Any, np.ndarray]:
+    """The encounters of ``plans`` as one call's rows (:func:`~uavmpc.avoidance.decide.
+    decide_rows`' ``e`` and ``e_start``)."""
+    e_start = np.zeros(len(plans) + 1, dtype=np.int64)
+    e_start[1:] = np.cumsum([len(p.ids) for p in plans])
+    m = plans[0].near_xy.shape[1]
+    ids = [i for p in plans for i in p.ids]
 
+    def cat(name: str, dtype: Any, shape: tuple[int, ...] = ()) -> np.ndarray:
+        parts = [np.asarray(getattr(p, name), dtype=dtype).reshape(len(p.ids), *shape)
+                 for p in plans]
+        return np.ascontiguousarray(np.concatenate(parts) if parts
+                                    else np.zeros((0, *shape), dtype=dtype))
 
-def _half(enc: Encounters, half_height_m: float) -> np.ndarray:
-    """(k, 1) each pair's half height: the cylinder's, widened for both UAVs' vertical
-    position uncertainty (docs/safety.md, A3)."""
-    return half_height_m + enc.widen_v_m[:, None]
-
-
-@kernel
-def _in_cylinder(near_xy: bool, dz_m: float, offset_m: float, half_m: float) -> bool:
-    """The cylinder (SPEC §5.2) at one point: horizontally near, and our height raised by
-    ``offset_m`` within ``half_m`` of theirs (``dz_m``: ours minus theirs)."""
-    return near_xy and abs(dz_m + offset_m) <= half_m
-
-
-@kernel
-def conflict_points(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
-                    half_height_m: float, offsets_m: np.ndarray, out: np.ndarray) -> None:
-    """Whether each of k encounters' m points (horizontally near: ``near_xy`` (k, m); our
-    height minus theirs: ``dz_m`` (k, m)) is in the cylinder (:func:`_in_cylinder`) with our
-    plan raised by each of ``offsets_m`` (c,), its half height ``half_height_m`` widened by
-    the pair's ``widen_v_m`` (k,) (docs/safety.md, A3). Into ``out`` (c, k, m)."""
-    for c in range(offsets_m.shape[0]):
-        for j in range(near_xy.shape[0]):
-            h = half_height_m + widen_v_m[j]
-            for p in range(near_xy.shape[1]):
-                out[c, j, p] = _in_cylinder(near_xy[j, p], dz_m[j, p], offsets_m[c], h)
-
-
-@kernel
-def conflict_rows(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
-                  half_height_m: float, offset_m: float, hit: np.ndarray) -> int:
-    """:func:`conflict_points` at one offset, summed up: whether each encounter conflicts
-    somewhere into ``hit`` (k,); returns the first point any of them conflicts at (−1: none
-    does)."""
-    m = near_xy.shape[1]
-    first = m
-    for j in range(near_xy.shape[0]):
-        h = half_height_m + widen_v_m[j]
-        hit[j] = False
-        for p in range(m):
-            if _in_cylinder(near_xy[j, p], dz_m[j, p], offset_m, h):
-                hit[j] = True
-                first = min(first, p)
-                break
-    return first if first < m else -1
-
-
-@kernel
-def conflict_below(near_xy: np.ndarray, dz_m: np.ndarray, widen_v_m: np.ndarray,
-                   half_height_m: float, offset_m: float) -> bool:
-    """Whether some point conflicts at SOME offset in [0, ``offset_m``]: the way down
-    (arguments as :func:`conflict_points`). |dz + o| ≤ h for some o ∈ [0, z]  ⇔
-    −h − z ≤ dz ≤ h (an exact interval test)."""
-    for j in range(near_xy.shape[0]):
-        h = half_height_m + widen_v_m[j]
-        for p in range(near_xy.shape[1]):
-            if near_xy[j, p] and dz_m[j, p] >= -h - offset_m and dz_m[j, p] <= h:
-                return True
-    return False
-
-
-def _conflicts(enc: Encounters, offset_m: float | np.ndarray, half_height_m: float
-               ) -> np.ndarray:
-    """(k, m) for a scalar offset, (c, k, m) for (c,) candidate offsets
-    (:func:`conflict_points`)."""
-    offsets = np.asarray(offset_m, dtype=float)
-    k, m = enc.near_xy.shape
-    out = np.empty((offsets.size, k, m), dtype=bool)
-    conflict_points(enc.near_xy, enc.dz_m, enc.widen_v_m, half_height_m,
-                    offsets.reshape(-1), out)
-    return out if offsets.ndim else out[0]
-
-
-def _subset(enc: Encounters, keep: np.ndarray) -> Encounters:
-    return Encounters(tuple(i for i, k in zip(enc.ids, keep, strict=True) if k),
-                      enc.priority[keep], enc.avoiding[keep], enc.silent_row[keep],
-                      enc.near_xy[keep], enc.dz_m[keep], enc.silent,
-                      enc.announced_xy[keep], enc.hears_us[keep], enc.widen_v_m[keep],
-                      enc.dxy_m[keep])
+    enc = EncounterRows(
+        np.array([col_of(i) for i in ids], dtype=np.int64), cat("silent_row", np.bool_),
+        cat("near_xy", np.bool_, (m,)), cat("announced_xy", np.bool_, (m,)),
+        cat("dz_m", float, (m,)), cat("dxy_m", float, (m,)), cat("hears_us", np.bool_),
+        cat("widen_v_m", float), cat("priority", np.int64), cat("avoiding", np.bool_),
+        np.array([i < own_id for i in ids], dtype=np.bool_))
+    return enc, e_start
 
 
 class HeightOffsetStrategy:
@@ -472,21 +460,91 @@ class HeightOffsetStrategy:
 
     The horizontal limits stay tightened (and the ascend limits lifted) until the release
     starts; :attr:`AvoidanceDecision.avoiding` stays up until the offset is back to 0.
+
+    The law is compiled (:mod:`uavmpc.avoidance.decide`, where each rule below is written
+    once) and the strategy is a view of its row of a :class:`StrategyTable`: its own, or,
+    once an onboard stack binds it (:meth:`bind`), its batch's, whose rows a world's avoidance round
+    decides all at once. Each rule, and the campaign that found it, is documented where it
+    is written (docs/safety.md lists them).
     """
 
     def __init__(self, params: AvoidanceParams | None = None, *,
                  pair_radius_m: Mapping[str, float] | None = None) -> None:
-        self.params = params if params is not None else AvoidanceParams()
         #: Per-pair cylinder radii by the other UAV's id (e.g. members of this UAV's
         #: formation, :mod:`uavmpc.missions.formation`); everyone else: ``radius_m``.
         self.pair_radius_m: dict[str, float] = {}
         for other, r in (pair_radius_m or {}).items():
             self.pair_radius_m[str(other)] = positive(r, f"pair_radius_m[{other!r}]",
                                                       upper=MAX_DISTANCE_M)
-        #: The highest offset the operational volume allows over the mission flown (its
-        #: ceiling; :meth:`limit_offset`); ``max_offset_m`` applies too.
-        self.offset_ceiling_m = math.inf
+        self._home = StrategyTable(1)
+        self._row = 0
+        self._home.bound[0] = True
+        #: The last decision made (:func:`~uavmpc.avoidance.decide.decide_rows` says when the
+        #: next one is the same, field for field: the stack already steers by it).
+        self._last_decision: AvoidanceDecision | None = None
+        self.params = params if params is not None else AvoidanceParams()
         self.reset()
+
+    @property
+    def params(self) -> AvoidanceParams:
+        """The parameters it flies (written into its row)."""
+        return self._params
+
+    @params.setter
+    def params(self, params: AvoidanceParams) -> None:
+        self._params = params
+        self._home.rows.params[self._row] = (
+            params.height_m, params.dz_m, params.max_offset_m, params.release_rate_mps,
+            params.release_hysteresis_s, params.climb_speed_mps, params.climb_accel_mps2,
+            params.climb_lag_s, params.ack_grace_s, params.hold_delay_s)
+
+    @property
+    def home(self) -> StrategyTable:
+        """The rows its state lives in (:meth:`bind`)."""
+        return self._home
+
+    @property
+    def row(self) -> int:
+        """Its row of :attr:`home`."""
+        return self._row
+
+    def bind(self, home: StrategyTable, row: int) -> None:
+        """Its state into row ``row`` of ``home`` from now on (an onboard stack's batch, whose
+        rows a world decides at once), as it is now."""
+        old, r0, old_ids = self._home.rows, self._row, self._home.ids
+        points = int(old.hold_n[r0])
+        unlisted = [(old_ids[c], float(old.unlisted_s[r0, c]))
+                    for c in np.flatnonzero(~np.isnan(old.unlisted_s[r0])).tolist()]
+        cols = [home.col_of(i) for i, _ in unlisted]
+        new = home.ensure(old.hold_t_s.shape[1])
+        for name in ("params", "ceiling_m", "z_offset_m", "listed_s", "last_conflict_s",
+                     "last_update_s", "stuck", "holding", "hold_n"):
+            getattr(new, name)[row] = getattr(old, name)[r0]
+        new.hold_t_s[row, :points] = old.hold_t_s[r0, :points]
+        new.hold_m[row, :points] = old.hold_m[r0, :points]
+        new.unlisted_s[row] = np.nan
+        for c, (_, since) in zip(cols, unlisted, strict=True):
+            new.unlisted_s[row, c] = since
+        new.key_n[row] = -1
+        self._last_decision = None
+        self._home.bound[r0] = False
+        self._home, self._row = home, int(row)
+        home.bound[row] = True
+
+    @property
+    def z_offset_m(self) -> float:
+        """The offset in force [m]."""
+        return float(self._home.rows.z_offset_m[self._row])
+
+    @z_offset_m.setter
+    def z_offset_m(self, value: float) -> None:
+        self._home.rows.z_offset_m[self._row] = float(value)
+
+    @property
+    def offset_ceiling_m(self) -> float:
+        """The highest offset the operational volume allows over the mission flown (its
+        ceiling; :meth:`limit_offset`); ``max_offset_m`` applies too."""
+        return float(self._home.rows.ceiling_m[self._row])
 
     def limit_offset(self, ceiling_m: float) -> None:
         """(docs/safety.md, A6.) Offsets stay at or below ``ceiling_m`` [m] (≥ 0) as well as
@@ -496,28 +554,17 @@ class HeightOffsetStrategy:
         already above is not cut (it is released as usual)."""
         if not (ceiling_m >= 0.0):
             raise ValueError(f"ceiling_m: must be ≥ 0, got {ceiling_m}")
-        self.offset_ceiling_m = float(ceiling_m)
+        self._home.rows.ceiling_m[self._row] = float(ceiling_m)
 
     def reset(self) -> None:
         """Forget the offset and the conflict history (e.g. after landing)."""
-        self.z_offset_m = 0.0
-        #: Since when each UAV near us has not listed us (the acknowledgement).
-        self._unlisted_since: dict[str, float] = {}
-        #: When a UAV near us last listed us (None: never).
-        self._listed_s: float | None = None
-        self._last_conflict_s: float | None = None
-        self._last_update_s: float | None = None
-        #: While holding short: the plan from before the hold (times (m,), positions (m, 3)).
-        self._hold_plan: tuple[np.ndarray, np.ndarray] | None = None
-        #: :attr:`AvoidanceDecision.stuck`, kept until the conflict is resolved.
-        self._stuck = False
-        #: The last decision made and its field values (:meth:`_decision`).
-        self._last_decision: tuple[tuple[object, ...], AvoidanceDecision] | None = None
+        reset_row(self._home.rows, self._row)
+        self._last_decision = None
 
     @property
     def holding(self) -> bool:
         """It holds short (``hold_delay_s``): its next round needs :meth:`hold_probes`."""
-        return self._hold_plan is not None
+        return bool(self._home.rows.holding[self._row])
 
     def hold_probes(self, now_s: float, grid_t_s: np.ndarray, here_m: np.ndarray
                     ) -> np.ndarray | None:
@@ -525,15 +572,16 @@ class HeightOffsetStrategy:
         up again from ``here_m`` (3,) now and up to ``hold_delay_s`` later, at the times
         ``grid_t_s`` (m,) (:func:`hold_probes`); the driver finds their encounters and hands
         them to :meth:`decide`. None when not holding."""
-        if self._hold_plan is None:
+        rows, i = self._home.rows, self._row
+        if not rows.holding[i]:
             return None
         hd = self.params.hold_delay_s
         delays = np.linspace(0.0, hd, math.ceil(hd / HOLD_PROBE_STEP_S - _EPS) + 1)
         grid = np.ascontiguousarray(grid_t_s, dtype=float)
         out = np.empty((delays.size, grid.size, 3))
-        plan_t, plan_m = self._hold_plan
-        hold_probes(plan_t, plan_m, float(now_s), np.asarray(here_m, dtype=float), delays,
-                    grid, out)
+        n = int(rows.hold_n[i])
+        hold_probes(rows.hold_t_s[i, :n], rows.hold_m[i, :n], float(now_s),
+                    np.asarray(here_m, dtype=float), delays, grid, out)
         return out
 
     def update(self, now_s: float, own_id: str, own_priority: int,
@@ -594,134 +642,66 @@ class HeightOffsetStrategy:
         ``climbed_m``: how much of the offset in force the UAV has climbed now (default: all
         of it); a climb raised again starts from there. ``positions`` (m, 3): the plan
         itself (without it the UAV never holds short); ``probes``: while holding, the
-        encounters of each of :meth:`hold_probes` (without them a hold goes on)."""
+        encounters of each of :meth:`hold_probes` (without them a hold goes on). One row of
+        :func:`~uavmpc.avoidance.decide.decide_rows`."""
+        home = self._home
+        times = np.ascontiguousarray(own_prediction_times, dtype=float)
+        m = times.shape[0]
+        plans = [known, *(probes or ())]
+        enc, e_start = _packed(plans, own_id, home.col_of)
+        s_col = np.array([home.col_of(i) for i in known.silent], dtype=np.int64)
+        rows = home.ensure(m)
+        pos = (np.zeros((1, m, 3)) if positions is None
+               else np.ascontiguousarray(positions, dtype=float).reshape(1, m, 3))
+        kind = np.empty(1, dtype=np.int8)
+        z, first = np.empty(1), np.empty(1)
+        flags = np.empty((1, N_FLAGS), dtype=np.bool_)
+        masks = np.empty((enc.col.shape[0], N_MASKS), dtype=np.bool_)
+        bound(decide_rows)(
+                    rows, np.array([self._row], dtype=np.int64), np.array([float(now_s)]),
+                    times.reshape(1, m), pos, np.array([positions is not None]),
+                    np.array([np.nan if climbed_m is None else float(climbed_m)]),
+                    np.array([own_priority], dtype=np.int64), *enc, e_start,
+                    np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.int64),
+                    np.array([len(plans)], dtype=np.int64), np.array([probes is not None]),
+                    np.array([0, s_col.shape[0]], dtype=np.int64), s_col, kind, z, first,
+                    flags, masks)
+        k = len(known.ids)
+        return self.decision_of(int(kind[0]), float(z[0]), float(first[0]), flags[0],
+                                masks[:k], known.ids, known.silent)
+
+    def decision_of(self, kind: int, z_offset_m: float, first_s: float,
+                    flags: np.ndarray | None, masks: np.ndarray | None, ids: Sequence[str],
+                    silent: tuple[str, ...]) -> AvoidanceDecision:
+        """The decision :func:`~uavmpc.avoidance.decide.decide_rows` made for this strategy's
+        row (its ``kind``, offset, first conflict (NaN: none), ``flags`` (6,), ``masks``
+        (k, 5) over the encounters of ``ids`` (k,), the ``silent`` ids): :data:`CALM`, the
+        last one made when it is the same, else a new one."""
+        if kind == CALM_KIND:
+            return CALM
+        if kind == SAME_KIND:
+            # The kernel says so only after a decision this made (a reset or a bind forgets
+            # the last one's fields with it).
+            assert self._last_decision is not None
+            return self._last_decision
+        assert flags is not None and masks is not None
         prm = self.params
-        half_h = 0.5 * prm.height_m
-        times = own_prediction_times
-        if not known.ids:
-            return self._nobody_near(now_s, known, times, positions, probes, own_id,
-                                     own_priority)
-        # Silent UAVs count at their last plans (widened by how far they can have left them):
-        # a pair that cannot hear each other still resolves its conflict.
-        enc = known
-        must_yield = known.must_yield(own_id, own_priority)
-        deaf, unheard, deaf_ids = self._deaf(now_s, enc)
-        if deaf_ids:
-            must_yield = must_yield | deaf | unheard
+        f = flags.tolist()
+        tight = f[F_TIGHT]
+        rows = masks.tolist()
 
-        z_start = self.z_offset_m
-        hit_start = np.empty(len(enc.ids), dtype=bool)
-        first = conflict_rows(enc.near_xy, enc.dz_m, enc.widen_v_m, half_h, z_start, hit_start)
-        any_start = first >= 0
-        yield_hit = hit_start & must_yield
-        ceiling_hit = False
-        waiting_for: tuple[str, ...] = ()
-        if any_start and yield_hit.any():
-            # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
-            # another climbed into its layer. A new offset must be clear of the silent ones too.
-            self.z_offset_m, ceiling_hit, waiting_for = self._climb(
-                enc, must_yield, half_h, times - now_s,
-                self.z_offset_m if climbed_m is None else min(climbed_m, self.z_offset_m))
-        if self.z_offset_m == z_start:
-            hit_end, any_end = hit_start, any_start
-        else:
-            hit_end = np.empty(len(enc.ids), dtype=bool)
-            any_end = conflict_rows(enc.near_xy, enc.dz_m, enc.widen_v_m, half_h,
-                                    self.z_offset_m, hit_end) >= 0
-        unresolved = hit_end & must_yield
-        any_unresolved = any_end and bool(unresolved.any())
-        # "Conflict-free" for the hysteresis and the release means: no conflict at the offset
-        # in force, and none anywhere on the way down to 0 either. Climbing over a UAV removes
-        # the conflict but not the reason for the offset; without this, the offset would be
-        # released on top of it and re-raised as soon as the conflict reappeared.
-        if any_start or any_end or conflict_below(enc.near_xy, enc.dz_m, enc.widen_v_m, half_h,
-                                                  self.z_offset_m):
-            self._last_conflict_s = now_s
-        else:
-            # Found in the 24 h campaign with 30 % loss: a UAV that had not heard from another
-            # for 5 s (ten lost messages in a row) released its offset onto it. Silent UAVs
-            # are among the encounters, at their widened last plans: the way down is clear
-            # of them too (until their plans end, with ``silent_hold_s``).
-            self._release(now_s)
-        self._last_update_s = now_s
+        def named(which: int) -> tuple[str, ...]:
+            return tuple(i for i, r in zip(ids, rows, strict=True) if r[which])
 
-        holding = self._hold_short(any_unresolved, times, positions,
-                                   probes, own_id, own_priority, deaf_ids, unheard)
-        # Stuck (docs/safety.md, A6): a hold is a stop within our plan, so that the one we
-        # yield to passes ahead of us. When our plan stands still and one we yield to comes
-        # to meet it later in the plan, it passes through us: found in the 24 h campaign
-        # (trial 42), uav3 waiting at its waypoint under uav5 (no way up), uav1 flying to a
-        # waypoint beside it, straight into uav3. Nothing we can do makes way; saying so (the
-        # flag down, A7) makes the others yield. Only for a UAV we yield to by priority alone
-        # (its flag up, it hears us, we are heard): a stuck UAV is never stuck for another
-        # stuck one, so two never lower their flags for each other (found with every fault at
-        # once: UAVs hovering at their starts, in each other's wide cylinders, all stuck).
-        # Once stuck, until that conflict is resolved (a hold's rounds alternate between the
-        # standing plan and the probes' one).
-        if any_unresolved:
-            by_rank = (unresolved & known.avoiding & ~deaf & (not unheard)
-                       & known.outrank(own_id, own_priority))
-            coming = by_rank & ~_conflicts(enc, self.z_offset_m, half_h)[:, 0]  # it comes to us
-            self._stuck = bool(by_rank.any()) and (
-                self._stuck or (bool(coming.any()) and _standing_still(positions)))
-        else:
-            self._stuck = False
-        recent = (self._last_conflict_s is not None
-                  and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-        limits_tight = bool(any_start or any_end or recent or holding)
-        first_s = float(times[first] - now_s) if any_start else None
-        return self._decision(
-            self.z_offset_m,
-            limits_tight or self.z_offset_m > 0.0,
-            _named(enc.ids, hit_start) if any_start else (),  # conflicts
-            _named(enc.ids, yield_hit) if any_start else (),  # yielding_to
-            _named(enc.ids, unresolved) if any_unresolved else (),  # unresolved
-            first_s,
-            prm.horizontal_scale if limits_tight else 1.0,
-            prm.climb_speed_mps if limits_tight else None,
-            prm.climb_accel_mps2 if limits_tight else None,
-            ceiling_hit,
-            waiting_for,
-            enc.silent,
-            deaf_ids,  # deaf
-            bool(unheard),
-            holding,
-            self._stuck,
-        )
-
-    def _nobody_near(self, now_s: float, known: Encounters, times: np.ndarray,
-                     positions: np.ndarray | None, probes: list[Encounters] | None,
-                     own_id: str, own_priority: int) -> AvoidanceDecision:
-        """Nobody near: no conflict now, none on the way down; only the release runs (and a
-        hold goes on until its probes clear)."""
-        if not known.silent and self.rest(now_s):
-            return CALM  # most UAVs, most rounds (a decision costs µs to build)
-        prm = self.params
-        self._unlisted_since = {}
-        self._release(now_s)
-        self._last_update_s = now_s
-        holding = self._hold_short(False, times, positions, probes, own_id, own_priority, (),
-                                   False)
-        self._stuck = False  # nobody near: no conflict
-        recent = holding or (self._last_conflict_s is not None
-                             and now_s - self._last_conflict_s < prm.release_hysteresis_s)
-        return self._decision(
-            self.z_offset_m, recent or self.z_offset_m > 0.0, (), (), (), None,
-            prm.horizontal_scale if recent else 1.0,
-            prm.climb_speed_mps if recent else None,
-            prm.climb_accel_mps2 if recent else None,
-            False, (), known.silent, (), False, holding, False)
-
-    def _decision(self, *values: Any) -> AvoidanceDecision:
-        """The decision of these field values (in :class:`AvoidanceDecision`'s order): the
-        last one made when they are the same. Most rounds decide what the last one did (two
-        in three of those with someone near, in 4 s of the 300-UAV world); the stack already
-        steers by it, and building one costs µs, applying it again more."""
-        last = self._last_decision
-        if last is not None and last[0] == values:
-            return last[1]
-        decision = AvoidanceDecision(*values)
-        self._last_decision = (values, decision)
+        decision = AvoidanceDecision(
+            z_offset_m, f[F_AVOIDING], named(M_CONFLICT), named(M_YIELD),
+            named(M_UNRESOLVED), None if math.isnan(first_s) else first_s,
+            prm.horizontal_scale if tight else 1.0,
+            prm.climb_speed_mps if tight else None,
+            prm.climb_accel_mps2 if tight else None,
+            f[F_CEILING], named(M_WAITING), silent, named(M_DEAF), f[F_UNHEARD],
+            f[F_HOLDING], f[F_STUCK])
+        self._last_decision = decision
         return decision
 
     def rest(self, now_s: float) -> bool:
@@ -730,223 +710,7 @@ class HeightOffsetStrategy:
         nothing and starts no hold: it forgets who had not listed us. (The time of the
         round is not noted: only a release reads it, and there is no offset to release; the
         next :meth:`decide` notes its own. Asked again, it does the same: idempotent.)"""
-        if (self.z_offset_m != 0.0 or self._hold_plan is not None
-                or (self._last_conflict_s is not None
-                    and now_s - self._last_conflict_s < self.params.release_hysteresis_s)):
-            return False
-        self._unlisted_since = {}
-        self._stuck = False
-        return True
-
-    def _hold_short(self, start: bool, times: np.ndarray, positions: np.ndarray | None,
-                    probes: list[Encounters] | None, own_id: str, own_priority: int,
-                    deaf_ids: tuple[str, ...], unheard: bool) -> bool:
-        """(docs/safety.md, A6: time as well as height.) Whether we hold short after this
-        round. A hold starts (``start``: a conflict with one we yield to is left unresolved)
-        with the plan it interrupts; it ends once some layer, at or above the
-        offset in force, is clear of them along every probe (:meth:`hold_probes`): going on
-        now or up to ``hold_delay_s`` later meets none of them. The order is the priorities'
-        (a total order): the highest never holds, and each holds only for higher ones."""
-        if self._hold_plan is None:
-            if start and self.params.hold_delay_s > 0.0 and positions is not None:
-                self._hold_plan = (np.array(times, dtype=float),
-                                   np.array(positions, dtype=float))
-            return self._hold_plan is not None
-        if probes is not None and self._way_clear(probes, own_id, own_priority, deaf_ids,
-                                                  unheard):
-            self._hold_plan = None
-        return self._hold_plan is not None
-
-    def _way_clear(self, probes: list[Encounters], own_id: str, own_priority: int,
-                   deaf_ids: tuple[str, ...], unheard: bool) -> bool:
-        """Some offset from the one in force up to the ceiling is clear, along every probe,
-        of everyone we yield to (as :meth:`decide` counts them)."""
-        prm = self.params
-        z = self.z_offset_m
-        top = min(prm.max_offset_m, self.offset_ceiling_m)
-        candidates = z + prm.dz_m * np.arange(math.floor(max(top - z, 0.0) / prm.dz_m + _EPS)
-                                              + 1)
-        blocked = np.zeros(candidates.size, dtype=bool)
-        for probe in probes:
-            if not probe.ids:
-                continue
-            must = probe.must_yield(own_id, own_priority)
-            must |= np.array([unheard or i in deaf_ids for i in probe.ids], dtype=bool)
-            yielded = _subset(probe, must)
-            c = _conflicts(yielded, candidates, 0.5 * prm.height_m)  # (c, k, m)
-            # A conflict from the first point on that ends for good while we only go away from
-            # them is one going on leaves behind (a UAV at the hold point itself, parked at
-            # its goal there): not in the way. Found with 32 UAVs under a 30 m ceiling: a UAV
-            # held beside the one whose goal its start was, each waiting for the other. But
-            # one that comes closer first is passing through us: found in the lossy 16-UAV
-            # antipodal swap (seed 0), a UAV held 4 m from a higher priority crossing its
-            # way went on every other round and passed it at 1.24 m.
-            d = yielded.dxy_m
-            apart = np.ones(d.shape, dtype=bool)
-            apart[:, 1:] = d[:, 1:] >= d[:, :-1]
-            left = np.logical_and.accumulate(c & apart, axis=2) & ~c.all(axis=2, keepdims=True)
-            blocked |= (c & ~left).any(axis=(1, 2))
-        return not bool(blocked.all())
-
-    def _deaf(self, now_s: float, enc: Encounters
-              ) -> tuple[np.ndarray, bool, tuple[str, ...]]:
-        """The acknowledgement (docs/safety.md, A2): (k,) the UAVs near that have not listed
-        us for ``ack_grace_s``, whether nobody near has (then we yield to all of them), and
-        the ids of the first.
-
-        Only a UAV whose flag is up is judged (we yield to the others anyway), and only on a
-        fresh message: a silent UAV's last list is old news, and a silent spell neither starts
-        nor restarts the count (on a lossy link a UAV flickers between fresh and silent)."""
-        grace = self.params.ack_grace_s
-        k = len(enc.ids)
-        deaf = np.zeros(k, dtype=bool)
-        if grace <= 0.0:
-            return deaf, False, ()
-        since: dict[str, float] = {}
-        named: list[str] = []
-        for j, (other, up, silent, hears) in enumerate(zip(
-                enc.ids, enc.avoiding.tolist(), enc.silent_row.tolist(), enc.hears_us.tolist(),
-                strict=True)):
-            if not up:
-                continue
-            if not silent and hears:
-                self._listed_s = now_s
-                continue
-            start = self._unlisted_since.get(other)
-            if start is None and silent:
-                continue
-            since[other] = now_s if start is None else start
-            if now_s - since[other] >= grace:
-                deaf[j] = True
-                named.append(other)
-        self._unlisted_since = since
-        unheard = bool(named) and (self._listed_s is None or now_s - self._listed_s >= grace)
-        return deaf, unheard, tuple(named)
-
-    def _climb(self, enc: Encounters, must_yield: np.ndarray, half_h: float,
-               ahead_s: np.ndarray, climbed: float) -> tuple[float, bool, tuple[str, ...]]:
-        """(docs/safety.md: A6 the layers, A4 the way up, A1 the plans as announced.) The lowest
-        offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without crossing anyone,
-        and clear of everyone else near too when such an offset exists; returns (offset,
-        ceiling hit, the UAVs in the way).
-
-        The way up is checked against every known UAV, not only those we yield to: at each
-        predicted point (``ahead_s`` (m,) seconds from now) the climb is somewhere between the
-        fastest one (from rest at ``climb_accel_mps2`` up to ``climb_speed_mps``) and the same
-        ``climb_lag_s`` later, and no altitude of that band may conflict. Found in the 24 h
-        campaign: a UAV yielding to a conflict 8 s ahead climbed two layers at once, straight
-        through the layer of a UAV passing over it 1.6 s later. When every offset clear at the
-        end is blocked on the way, the offset is held (the conflict is reported unresolved and
-        the limits stay tightened) and the climb starts once the way is clear.
-
-        A climb raised again while the last one is under way starts where the UAV is now
-        (``climbed`` of the offset in force ``z``), not at ``z``: the slow edge of the band
-        starts there (it reaches every height later), the fast edge at ``z`` (it cannot be
-        higher); the band holds every height the UAV can be at. Without this the slow edge was
-        too high, and a UAV passing while the climb was still under way went unseen (the gap
-        noted in docs/campaign.md).
-
-        A point already in conflict at ``z`` does not block the climb when we are level with
-        (within :data:`LEVEL_M`) or above the other there (climbing parts us), but it does
-        when the other is higher (climbing closes in on it). Found in the 24 h campaign with
-        burst loss (trial 12): uav5, at +3 m, heard uav3 again after 5 s of silence, 1.2 s
-        before they met, uav3 still climbing to its +6 m layer in its plan; the climb to
-        +9 m that uav5 took to escape went through uav3 (0.39 m). It now holds at +3 m while
-        uav3 climbs away.
-
-        The way is checked against the plans as announced (``announced_xy``), not against a
-        silent UAV's widening (rule 7). Found in the same campaign (trial 18): uav3, yielding
-        to uav1 from 8 s ahead, waited 7.6 s for the way up to clear of uav4, silent and so
-        possibly anywhere within a radius growing with its silence, and climbed only 0.1 s
-        before uav1 passed (1.22 m). The end layer is still chosen clear of the widened
-        plans.
-        """
-        prm = self.params
-        z = self.z_offset_m
-        if climbed < z - LEVEL_M:
-            # A climb under way goes on only while its way up to the offset in force is clear:
-            # it was checked when the offset was raised, not against those heard of since.
-            # Found with every fault at once (0.5 h, seed 11, trial 2): uav5, raised to the
-            # ceiling for a non-cooperative UAV (nothing was clear), then yielding to uav3
-            # hovering 20 m above it, climbed on at 5 m/s straight into uav3 (0.39 m). It now
-            # stops where it is (the offset it has climbed) and holds there until the way is
-            # clear, as a climb that was never started would.
-            way = _blocked_way(enc, np.array([z]), z, climbed, ahead_s, half_h, prm,
-                               at=climbed)[0]
-            if way.any():
-                return climbed, False, tuple(i for i, b in zip(enc.ids, way, strict=True) if b)
-        steps = math.floor((min(prm.max_offset_m, self.offset_ceiling_m) - z) / prm.dz_m + _EPS)
-        sub = _subset(enc, must_yield)
-        if steps < 1:
-            lower = self._layer_below(enc, sub, half_h)
-            return (z if lower is None else lower), True, ()
-        candidates = z + prm.dz_m * np.arange(1, steps + 1)
-        blocked_end = _conflicts(sub, candidates, half_h).any(axis=(1, 2))  # (c,)
-        blocked_way = _blocked_way(enc, candidates, z, climbed, ahead_s, half_h, prm)  # (c, k)
-        clear_way = ~blocked_way.any(axis=1)
-
-        def in_the_way(c: int) -> tuple[str, ...]:
-            return tuple(i for i, b in zip(enc.ids, blocked_way[c], strict=True) if b)
-
-        good = np.flatnonzero(~blocked_end & clear_way)
-        if good.size:
-            # Preferred: a layer clear of everyone, not only of those we yield to. Ending in
-            # the layer of a UAV that yields to us counts on it hearing us; found in the 24 h
-            # campaign with burst loss (trial 24): uav3 climbed into uav4's layer while uav4,
-            # which had not heard it for 3 s, flew on into it.
-            clear_all = ~_conflicts(enc, candidates, half_h).any(axis=(1, 2))
-            best = np.flatnonzero(~blocked_end & clear_way & clear_all)
-            return float(candidates[best[0] if best.size else good[0]]), False, ()
-        clear_end = np.flatnonzero(~blocked_end)
-        if clear_end.size:  # reachable later: hold until the way is clear
-            return z, False, in_the_way(clear_end[0])
-        # Nothing is clear up to the ceiling. A lower layer may be (a UAV above us at the
-        # ceiling, one below gone): down to the nearest one clear of those we yield to, over
-        # a way down clear of everyone known (docs/safety.md, A6). Found with 16 UAVs under a
-        # 30 m ceiling: a UAV holding short at its start, in the top layer, and the UAV whose
-        # goal that start is, arriving in the same layer: neither could move.
-        lower = self._layer_below(enc, sub, half_h)
-        if lower is not None:
-            return lower, True, ()
-        # Else as high as the way allows.
-        reachable = np.flatnonzero(clear_way)
-        if reachable.size:
-            return float(candidates[reachable[-1]]), True, ()
-        return z, True, in_the_way(candidates.size - 1)
-
-    def _layer_below(self, enc: Encounters, sub: Encounters, half_h: float) -> float | None:
-        """The highest offset z − jΔz ≥ 0 (j ≥ 1) clear of ``sub`` (those we yield to) along
-        the whole plan, whose way down from the offset in force meets nobody in ``enc`` at
-        any point of the plan (as the release checks its way) but those it escapes from;
-        None if there is none."""
-        prm = self.params
-        z = self.z_offset_m
-        for j in range(1, math.floor(z / prm.dz_m + _EPS) + 1):
-            o = z - j * prm.dz_m
-            if _conflicts(sub, o, half_h).any():
-                continue
-            way = np.arange(o, z, 0.5 * LEVEL_M)
-            # A point already in conflict at z with the other level or above is what the
-            # descent escapes from (as a climb escapes from one level or below).
-            escaping = _conflicts(enc, z, half_h) & (enc.dz_m + z <= LEVEL_M)
-            if (_conflicts(enc, way, half_h) & ~escaping).any():
-                return None  # the way down is blocked: no lower layer is reachable either
-            return max(o, 0.0)
-        return None
-
-    def _release(self, now_s: float) -> None:
-        """(docs/safety.md, A1: the way down.) Lower the offset at the release rate once the
-        hysteresis has passed. Only called
-        when the whole way down is clear of every known UAV, so no step can land in a conflict
-        however long the time between updates."""
-        prm = self.params
-        if self.z_offset_m <= 0.0 or self._last_conflict_s is None:
-            return
-        start = self._last_conflict_s + prm.release_hysteresis_s
-        if now_s < start:
-            return
-        since = start if self._last_update_s is None else max(self._last_update_s, start)
-        self.z_offset_m = max(0.0, self.z_offset_m - prm.release_rate_mps * (now_s - since))
+        return bool(rest_row(self._home.rows, self._row, float(now_s)))
 
 
 @kernel
@@ -978,38 +742,9 @@ def hold_probes(plan_t_s: np.ndarray, plan_m: np.ndarray, now_s: float, here_m: 
                 out_m[d, g, ax] = plan_m[j, ax] + w * (plan_m[j + 1, ax] - plan_m[j, ax])
 
 
+
 def _climbed(t_s: np.ndarray, prm: AvoidanceParams) -> np.ndarray:
-    """Height gained after ``t_s`` by the fastest climb: from rest at the lifted acceleration
-    up to the lifted speed (the virtual UAV cannot climb faster)."""
-    a, v = prm.climb_accel_mps2, prm.climb_speed_mps
-    t_a = v / a
-    return np.where(t_s < t_a, 0.5 * a * t_s**2, 0.5 * v * t_a + v * (t_s - t_a))
-
-
-def _blocked_way(enc: Encounters, candidates: np.ndarray, z: float, climbed: float,
-                 ahead_s: np.ndarray, half_h: float, prm: AvoidanceParams,
-                 at: float | None = None) -> np.ndarray:
-    """(c, k): whether the climb from the offset in force ``z`` (``climbed`` of it reached so
-    far) to each of the ``candidates`` (c,) offsets meets each of the k known UAVs on the way,
-    at the predicted points ``ahead_s`` (m,) seconds from now (see ``_climb``). ``at``: the
-    offset the UAV is at, from which a climb escapes (default ``z``)."""
-    fast = z + _climbed(np.maximum(ahead_s, 0.0), prm)  # (m,)
-    slow = climbed + _climbed(np.maximum(ahead_s - prm.climb_lag_s, 0.0), prm)
-    hi = np.minimum(fast[None, :], candidates[:, None])[:, None, :]  # (c, 1, m)
-    lo = np.minimum(slow[None, :], candidates[:, None])[:, None, :]
-    # While still climbing (lo < o; once there, the check at the end applies):
-    # |dz + o'| ≤ h for some o' in [lo, hi]  ⇔  dz + hi ≥ −h and dz + lo ≤ h
-    # A point already in conflict at the offset in force, with us level or above, is not
-    # made worse by climbing (it is what the climb escapes from). With them above us it
-    # is: the climb would close in on them (rule 6). "Level" is within the collision
-    # distance: two plans at one height differ by centimetres, and holding there is
-    # worse than climbing (found in the same campaign, trial 33).
-    climbing = lo < candidates[:, None, None]
-    here = z if at is None else at
-    escaping = _conflicts(enc, here, half_h) & (enc.dz_m + here >= -LEVEL_M)
-    # Along the plans as announced: where a silent UAV could have gone since does not
-    # hold a climb away from a conflict we know of (rule 7).
-    h = _half(enc, half_h)
-    in_way = (enc.announced_xy & climbing & ~escaping
-              & (enc.dz_m + hi >= -h) & (enc.dz_m + lo <= h))
-    return in_way.any(axis=2)
+    """Height gained after each of ``t_s`` by the fastest climb
+    (:func:`~uavmpc.avoidance.decide.climb_height`)."""
+    return np.array([climb_height(float(t), prm.climb_accel_mps2, prm.climb_speed_mps)
+                     for t in np.ravel(t_s)]).reshape(np.shape(t_s))
