@@ -87,7 +87,9 @@ class WorldLink:
         cols = table.rows.own_col[[stacks[j].inbox.row for j in plain]]  # who sent it
         bound(store_sent)(table.store, slots, cols, sent, rows)
         table.hold(slots, [data[j] for j in plain])
-        self._held.update(zip([pids[j] for j in plain], slots.tolist(), strict=True))
+        held = self._held
+        for j, slot in zip(plain, slots.tolist(), strict=True):
+            held[pids[j]] = slot
 
     def _let_go(self, gone: Iterable[int] | None = None) -> None:
         """Let go of the slots of the broadcasts whose copies are all delivered: ``gone``
@@ -124,13 +126,18 @@ class WorldLink:
         receivers = due.receivers
         table = self.inboxes
         n = len(self.stacks)
-        # A tick's copies come from a few broadcasts: each is decoded (or found) once.
+        # A tick's copies come from a few broadcasts: each is found (the slot its sender's
+        # side wrote, held while its copies fly) or decoded once.
         slots = np.empty(due.payloads.shape[0], dtype=np.int64)
         errors: dict[int, str] = {}
+        held = self._held
         for j, pid in enumerate(due.payloads.tolist()):
+            slot = held.get(pid)
+            if slot is not None:
+                slots[j] = slot
+                continue
             try:
-                data = self.link.payload(pid)
-                slots[j] = table.slot_for(data)
+                slots[j] = table.slot_for(self.link.payload(pid))
             except InvalidMessageError as exc:
                 slots[j] = -1
                 errors[j] = str(exc)
