@@ -179,3 +179,34 @@ def test_a_bound_kernel_binds_again_whenever_its_arguments_types_change() -> Non
         assert b(rec, x, k) == total(rec, x, k)
     assert bound(total) is bound(total) and isinstance(bound(total), Bound)
     assert bound(len) is len  # not a kernel: as it is (a test's or a profiler's stand-in)
+
+
+@kernel
+def _first_column_sum(a: np.ndarray) -> float:
+    total = 0.0
+    for i in range(a.shape[0]):
+        total += a[i, 0]
+    return total
+
+
+def test_a_bound_kernel_binds_once_for_full_and_empty_cuts_of_one_array(monkeypatch) -> None:
+    """An empty cut of a C array is both C- and F-contiguous; numba types it as C, like the
+    full one. The bound kernel must not bind again each time a call's rows come out empty
+    (a world's rounds with nobody near did, costing ~100 µs a call)."""
+    import uavmpc.jit as jit
+
+    binds = []
+    real_bind = jit.bind
+
+    def counted(dispatcher, *args):
+        binds.append(dispatcher)
+        return real_bind(dispatcher, *args)
+
+    monkeypatch.setattr(jit, "bind", counted)
+    call = jit.Bound(_first_column_sum)
+    full = np.arange(12.0).reshape(3, 4)
+    assert full[:0].flags.c_contiguous and full[:0].flags.f_contiguous
+    assert call(full) == 12.0 and call(full[:0]) == 0.0 and call(full[:2]) == 4.0
+    assert len(binds) == 1
+    assert call(np.asfortranarray(full)) == 12.0  # another layout: bound anew
+    assert len(binds) == 2

@@ -222,11 +222,13 @@ def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
 
 def _type_key(a: Any) -> Any:
     """What decides how numba types ``a``, cheaply: a record (a tuple) by identity (its
-    arrays are fixed), an array by dtype, dimensions, layout, alignment and writability, any
-    other value by its Python type."""
+    arrays are fixed), an array by dtype, dimensions, layout (as numba reads it: C before
+    F, so that an empty array, both at once, keys as the full ones it is cut from),
+    alignment and writability, any other value by its Python type."""
     if type(a) is np.ndarray:
         f = a.flags
-        return (a.dtype.num, a.ndim, f.c_contiguous, f.f_contiguous, f.aligned, f.writeable)
+        layout = "C" if f.c_contiguous else "F" if f.f_contiguous else "A"
+        return (a.dtype.num, a.ndim, layout, f.aligned, f.writeable)
     if isinstance(a, tuple):
         return id(a)
     return type(a)
