@@ -91,20 +91,6 @@ class Encounters:
         if self.dxy_m is None:
             object.__setattr__(self, "dxy_m", np.full(self.near_xy.shape, np.inf))
 
-    def must_yield(self, own_id: str, own_priority: int) -> np.ndarray:
-        """(k,) we yield to them: their flag is down (docs/safety.md, A7), or
-        :meth:`outrank` us. The strategy adds those that have not heard us (A2)."""
-        return np.logical_not(self.avoiding) | self.outrank(own_id, own_priority)
-
-    def outrank(self, own_id: str, own_priority: int) -> np.ndarray:
-        """(k,) a higher priority than ours (lower number; equal numbers, which a valid
-        set-up never has, are broken by id), whatever their flags."""
-        out = self.priority < own_priority
-        tie = self.priority == own_priority
-        if tie.any():
-            out |= tie & np.array([i < own_id for i in self.ids], dtype=bool)
-        return out
-
 
 @kernel
 def _inflated_box(store: Store, slot: int, extrapolate_s: float, out: np.ndarray) -> None:
