@@ -275,3 +275,56 @@ def test_a_kernel_compiled_mid_flight_is_left_out_of_the_phases_as_of_the_wall_t
     result = world.run(1.0)
     assert compiled == [2.0]
     assert sum(world.phase_wall_s) <= result.wall_s
+
+
+class _Delegating:
+    """An encounter strategy that is not a HeightOffsetStrategy (its whole contract handed to
+    one): a round cannot decide it in the compiled call, so each stack decides by itself."""
+
+    def __init__(self, params):
+        from uavmpc.avoidance import HeightOffsetStrategy
+
+        self.inner = HeightOffsetStrategy(params)
+        self.params = params
+        self.pair_radius_m = self.inner.pair_radius_m
+        self.decided = 0
+
+    def update(self, *args, **kwargs):
+        return self.inner.update(*args, **kwargs)
+
+    def limit_offset(self, ceiling_m):
+        self.inner.limit_offset(ceiling_m)
+
+    def finder(self, table, *, use_index=True):
+        return self.inner.finder(table, use_index=use_index)
+
+    def overrides(self, table):
+        return self.inner.overrides(table)
+
+    def hold_probes(self, now_s, grid_t_s, here_m):
+        return self.inner.hold_probes(now_s, grid_t_s, here_m)
+
+    def rest(self, now_s):
+        return self.inner.rest(now_s)
+
+    def decide(self, *args, **kwargs):
+        self.decided += 1
+        return self.inner.decide(*args, **kwargs)
+
+
+def test_another_encounter_strategy_decides_by_itself_and_flies_the_same() -> None:
+    """A strategy that only honours the EncounterStrategy contract is decided stack by stack
+    (from Encounters objects), not in the compiled call of the built-in one's rows: the same
+    decisions, the same flight."""
+    made = []
+
+    def delegating(params):
+        made.append(_Delegating(params))
+        return made[-1]
+
+    scenario = lambda: random_walk(8, area_m=110.0, duration_s=20.0, seed=3)  # noqa: E731
+    built_in = World(scenario(), avoidance=True, seed=3).run(20.0)
+    own = World(scenario(), avoidance=True, seed=3, strategy=delegating).run(20.0)
+    _assert_same_flight(built_in, own)
+    assert len(made) == 8 and sum(s.decided for s in made) > 0
+    assert np.max(own.z_offset_m) > 0.0  # someone climbed: the decisions mattered

@@ -1095,11 +1095,6 @@ def avoidance_round(batch: OnboardBatch,
                                  sigma[at])
     else:  # most rounds: the rows once each, as they are
         found = finder.find_rows(due, times, own, plan_s, radius, ov, sigma)
-    probes: dict[int, list[Encounters]] = {}
-    k = due.size
-    for j, p in held:
-        probes[j] = [found.encounters(q) for q in range(k, k + p.shape[0])]
-        k += p.shape[0]
     quiet = found.quiet[:due.size]
     # Nobody near nor silent, and at rest since its last round: nothing happens to it
     # (rest is idempotent, :attr:`OnboardBatch.resting`). Most UAVs, most rounds.
@@ -1108,6 +1103,12 @@ def avoidance_round(batch: OnboardBatch,
     if home is not None and home.table is finder.table and home.bound[due[cand]].all():
         return _decide_round(batch, stacks, home, found, due, cand, plan_s, times, own,
                              climbed, held)
+    # Another encounter strategy: each stack decides by itself, from Encounters objects.
+    probes: dict[int, list[Encounters]] = {}
+    k = due.size
+    for j, p in held:
+        probes[j] = [found.encounters(q) for q in range(k, k + p.shape[0])]
+        k += p.shape[0]
     decided = []
     for j in cand.tolist():
         i = which[j]
