@@ -246,7 +246,7 @@ class AvoidanceDecision:
             A6 and A7).
     """
 
-    # The fields' order is what HeightOffsetStrategy._decision builds a decision in.
+    # The fields' order is what HeightOffsetStrategy.decision_of builds a decision in.
     z_offset_m: float = 0.0
     avoiding: bool = False
     conflicts: tuple[str, ...] = ()
@@ -427,8 +427,7 @@ def _packed(plans: Sequence[Encounters], own_id: str, col_of: Callable[[str], in
     def cat(name: str, dtype: Any, shape: tuple[int, ...] = ()) -> np.ndarray:
         parts = [np.asarray(getattr(p, name), dtype=dtype).reshape(len(p.ids), *shape)
                  for p in plans]
-        return np.ascontiguousarray(np.concatenate(parts) if parts
-                                    else np.zeros((0, *shape), dtype=dtype))
+        return np.ascontiguousarray(np.concatenate(parts))  # plans: ours, then any probes
 
     enc = EncounterRows(
         np.array([col_of(i) for i in ids], dtype=np.int64), cat("silent_row", np.bool_),
