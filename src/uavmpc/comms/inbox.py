@@ -122,7 +122,9 @@ def accept_copies(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
                   now_s: np.ndarray) -> int:
     """The receiver's rule for valid messages, a tick's deliveries in their order: copy k,
     the message in store slot ``slots[k]`` (K,), arriving at row ``receivers[k]`` at that
-    row's clock ``now_s[receivers[k]]`` ((N,) per row). Each copy is :data:`FUTURE` or
+    row's clock ``now_s[receivers[k]]`` ((N,) per row); a copy of slot −1 (its bytes could
+    not be read) or to a receiver past the rows (not a row's) is passed over. Each copy is
+    :data:`FUTURE` or
     :data:`STALE` (the stamp check, counted), :data:`OWN` (the receiver's own echo, ignored),
     :data:`SUPERSEDED` (not newer than the one held, counted) or :data:`KEPT` (held from now
     on). Returns the outcome of the last copy (of the only one, :func:`accept_copy`)."""
@@ -164,6 +166,8 @@ def _accept_block(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
         if r < r_lo or r >= r_hi:
             continue
         slot = slots[k]
+        if slot < 0:  # a message that could not be read: the caller counts it rejected
+            continue
         t = now_s[r]
         col = store.col[slot]
         stamp = store.stamp_s[slot]

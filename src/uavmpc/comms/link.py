@@ -584,21 +584,24 @@ class SimulatedLink:
         b = len(payloads)
         if len(sender_ids) != b:
             raise ValueError(f"publish_many: {b} payloads but {len(sender_ids)} senders")
-        if b > 1 and (any(s not in self._members for s in sender_ids)
-                      or (self._thresholds is not None and len(set(sender_ids)) < b)):
+        members = self._members
+        index = [members.get(s, -1) for s in sender_ids]
+        if b > 1 and (-1 in index
+                      or (self._thresholds is not None and len(set(index)) < b)):
             # A sender joining changes how many draws the next broadcast takes, and a sender
             # twice steps its chains between its two broadcasts: one by one.
             return np.concatenate([self.publish_many((data,), (sender_id,), t_s)
                                    for data, sender_id in zip(payloads, sender_ids,
                                                               strict=True)])
-        for sender_id in sender_ids:
-            self.join(sender_id)
-        n = len(self._members)
+        if -1 in index:  # one broadcast, from a new member
+            self.join(sender_ids[0])
+            index = [members[sender_ids[0]]]
+        n = len(members)
         self.stats.published += b
         self.stats.sent += b * (n - 1)
         if n == 1 or b == 0:
             return np.full(b, -1, dtype=np.int64)
-        senders = np.array([self._members[s] for s in sender_ids], dtype=np.int64)
+        senders = np.array(index, dtype=np.int64)
         # Draw for every receiver, in join order, whether or not it is in range: the random
         # stream then does not depend on where the UAVs are, only on the call order. Per
         # broadcast: n − 1 uniforms for the loss, then n − 1 for the jitter.
@@ -755,21 +758,24 @@ class SimulatedLink:
         copies of each. Returns the ids whose last copies these were (:meth:`holds` them no
         more)."""
         if copies is not None:
-            counts = dict(zip(payload_ids.tolist(), copies.tolist(), strict=True))
+            counts: Iterable[tuple[int, int]] = zip(payload_ids.tolist(), copies.tolist(),
+                                                    strict=True)
         elif payload_ids.shape[0] > 16:
             ids, n = np.unique(payload_ids, return_counts=True)
-            counts = dict(zip(ids.tolist(), n.tolist(), strict=True))
+            counts = zip(ids.tolist(), n.tolist(), strict=True)
         else:
-            counts = {}
+            tally: dict[int, int] = {}
             for pid in payload_ids.tolist():
-                counts[pid] = counts.get(pid, 0) + 1
+                tally[pid] = tally.get(pid, 0) + 1
+            counts = tally.items()
         gone = []
-        for pid, c in counts.items():
-            left = self._copies_left[pid] - c
+        left_of = self._copies_left
+        for pid, c in counts:
+            left = left_of[pid] - c
             if left:
-                self._copies_left[pid] = left
+                left_of[pid] = left
             else:
-                del self._copies_left[pid]
+                del left_of[pid]
                 del self._payloads[pid]
                 gone.append(pid)
         return gone

@@ -43,6 +43,9 @@ class WorldLink:
         self.offsets_s = offsets_s
         self.silent_from_s = silent_from_s
         self.recorder = recorder
+        if inboxes.rows.own_col.shape[0] != len(stacks):
+            raise ValueError(f"WorldLink: {len(stacks)} stacks but {inboxes.rows.own_col.shape[0]} "
+                             "inbox rows (one row per stack)")
         #: Broadcasts swallowed by dead radios.
         self.silenced = 0
         #: The store slot of each broadcast in flight whose message the table holds for its
@@ -128,42 +131,42 @@ class WorldLink:
         n = len(self.stacks)
         # A tick's copies come from a few broadcasts: each is found (the slot its sender's
         # side wrote, held while its copies fly) or decoded once.
-        slots = np.empty(due.payloads.shape[0], dtype=np.int64)
-        errors: dict[int, str] = {}
+        pids = due.payloads.tolist()
         held = self._held
-        for j, pid in enumerate(due.payloads.tolist()):
-            slot = held.get(pid)
-            if slot is not None:
-                slots[j] = slot
-                continue
-            try:
-                slots[j] = table.slot_for(self.link.payload(pid))
-            except InvalidMessageError as exc:
-                slots[j] = -1
-                errors[j] = str(exc)
+        found = [held.get(pid, -1) for pid in pids]
+        errors: dict[int, str] = {}
+        if -1 in found:
+            for j, pid in enumerate(pids):
+                if found[j] < 0:
+                    try:
+                        found[j] = table.slot_for(self.link.payload(pid))
+                    except InvalidMessageError as exc:
+                        errors[j] = str(exc)
+        slots = np.array(found, dtype=np.int64)
         gone = self.link.release(due.payloads, due.copies)
-        if self._held:
+        if held:
             self._let_go(gone)
         copy_slots = slots[due.which]
-        good = (receivers < n) & (copy_slots >= 0)  # < n: not copies injected for strangers
         if errors:
             for k in np.flatnonzero((receivers < n) & (copy_slots < 0)).tolist():
                 self.stacks[receivers[k]].inbox.count_rejected(errors[int(due.which[k])])
         rec = self.recorder
         if rec is not None:
             before = table.rows.accepted.copy()
-        to, into = ((receivers, copy_slots) if good.all()
-                    else (receivers[good], copy_slots[good]))
+        # The rule passes over copies of unread bytes (slot −1) and to receivers past the
+        # rows (copies injected for strangers: the table has a row per stack).
         try:
             threads = thread_count()
-            if threads > 1 and to.shape[0] >= _THREADED_COPIES:
-                bound(accept_copies_threads)(table.rows, table.store, to, into,
+            if threads > 1 and receivers.shape[0] >= _THREADED_COPIES:
+                bound(accept_copies_threads)(table.rows, table.store, receivers, copy_slots,
                                              now + self.offsets_s, threads)
             else:
-                bound(accept_copies)(table.rows, table.store, to, into, now + self.offsets_s)
+                bound(accept_copies)(table.rows, table.store, receivers, copy_slots,
+                                     now + self.offsets_s)
         finally:
             table.unpin()
         if rec is not None:
+            good = (receivers < n) & (copy_slots >= 0)
             self._log_deliveries(now, receivers, copy_slots, good, before)
 
     def _log_deliveries(self, now: float, receivers: np.ndarray, slots: np.ndarray,
