@@ -47,6 +47,9 @@ def test_bench_world_rows_are_consistent() -> None:
             # benchmark prints both)
             assert math.isfinite(row["compiled_only_realtime_factor"])
             assert row["compiled_only_realtime_factor"] > 0
+            # the threads' wait for the tick's slowest block: none on one thread
+            wait = row["threads_wait_us_per_uav_tick"]
+            assert wait == 0.0 if row["threads"] == 1 else 0.0 <= wait < sum(stages.values())
     assert result["reference"]["compiled_share"] is None  # no phases UAV by UAV
     assert result["reference"]["compiled_us_per_uav_tick"] is None
     assert result["reference"]["path"] == "per-object" and result["reference"]["uavs"] == 2

@@ -332,6 +332,8 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool,
         "wall_s_by_phase": result.sections.get("timing", {}).get("wall_s_by_phase"),
         "compiled_us_per_uav_tick": result.sections.get("timing", {}).get(
             "compiled_us_per_uav_tick"),
+        "threads_wait_us_per_uav_tick": result.sections.get("timing", {}).get(
+            "threads_wait_us_per_uav_tick"),
         "ticks_per_s": 1.0 / world.period_s,
     }
 
@@ -394,6 +396,9 @@ def _world_row(child: dict[str, Any]) -> dict[str, Any]:
         # tracker's stages, the control, the plant, the traces; and the real-time factor the
         # world would have if nothing but the compiled tick ran on one thread.
         **_floor(child),
+        # The threads idle at the end of the compiled tick, waiting for its slowest block
+        # (CPU µs per UAV-tick, summed over the threads; 0 on one thread).
+        "threads_wait_us_per_uav_tick": child.get("threads_wait_us_per_uav_tick"),
     }
 
 
@@ -462,9 +467,12 @@ def _print_world_row(row: dict[str, Any], progress: Callable[[str], None],
     st = row["compiled_us_per_uav_tick"]
     if profile and st:
         stages = " + ".join(f"{k} {v:.2f}" for k, v in st.items())
+        wait = row.get("threads_wait_us_per_uav_tick")
+        idle = (f"; threads waiting for the slowest block {wait:.2f}"
+                if wait and row["threads"] > 1 else "")
         progress(f"{'':5s}       compiled tick, CPU µs per UAV-tick: {stages} = "
                  f"{sum(st.values()):.2f} ({row['compiled_only_realtime_factor']:.1f}× real "
-                 "time at most on one thread)")
+                 f"time at most on one thread){idle}")
     if profile and row["us_per_tick_by_phase"]:
         ph = row["us_per_tick_by_phase"]
         progress(f"{'':5s}       wall µs per tick: " + ", ".join(

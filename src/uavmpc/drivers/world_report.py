@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uavmpc.drivers.summary import Formation, Landing
-from uavmpc.drivers.world_tick import STAGES, pair_distances
+from uavmpc.drivers.world_tick import STAGES, WAIT, pair_distances
 from uavmpc.missions.formation import formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 
@@ -245,3 +245,7 @@ def _timing_extras(result: WorldResult, phase_wall_s: Sequence[float], cycles: n
         timing["compiled_us_per_uav_tick"] = {
             name: round(float(c[j] / c[-1] / cycles_per_s * 1e6), 3)
             for j, name in enumerate(STAGES)}
+        # The threads idle at the end of the compiled call, waiting for the slowest block
+        # (summed over the threads; not part of any UAV's work).
+        timing["threads_wait_us_per_uav_tick"] = round(
+            float(c[WAIT] / c[-1] / cycles_per_s * 1e6), 3)

@@ -23,8 +23,14 @@ from uavmpc.tracker.kernels import make_scratch
 #: (:func:`~uavmpc.tracker.kernels.tick_row`), the SE(3) control with the stack's bookkeeping,
 #: the plant's substeps, and the traces (once per tick, for every UAV).
 STAGES = ("prepare", "qp", "advance", "control", "plant", "trace")
-#: The length of a profile: a cycle count per stage, then the number of UAV-ticks.
-N_CYCLES = len(STAGES) + 1
+#: A profile's entry after the stages: the cycles the threads of
+#: :func:`world_tick_threads` waited at the end of their blocks for the slowest one (summed
+#: over the threads; 0 on one thread).
+WAIT = len(STAGES)
+#: A profile's last entry: the number of UAV-ticks.
+COUNT = WAIT + 1
+#: The length of a profile: a cycle count per stage, the threads' wait, the UAV-ticks.
+N_CYCLES = COUNT + 1
 
 
 @kernel(allocates=True)
@@ -40,8 +46,8 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     the run).
 
     ``cycles``: (:data:`N_CYCLES`,) int64 to profile the tick, or (0,) not to: adds the CPU
-    cycles of each of :data:`STAGES` and, last, the number of UAV-ticks
-    (:func:`cycle_count`).
+    cycles of each of :data:`STAGES`, the threads' wait (:data:`WAIT`) and, last, the
+    number of UAV-ticks (:func:`cycle_count`).
     ``est``: (N, 6) the estimated [p, v] the stacks fly on (attitude and rates stay the
     plants' own), or (0, 6) for the true state.
 
@@ -72,24 +78,31 @@ def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_o
     compiled function that asks numba itself cannot be cached), the traces' closest distance
     found over the threads likewise. A row reads and writes only its own rows of the records,
     with work arrays of its block's own, so the flight is bit-identical to
-    :func:`world_tick`'s for any thread count. ``cycles`` sums the CPU cycles over the threads."""
+    :func:`world_tick`'s for any thread count. ``cycles`` sums the CPU cycles over the
+    threads, and counts how long the threads done first waited for the last (:data:`WAIT`:
+    the tick's jitter, since blocks of equal rows cost about the same, docs/scale.md)."""
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     nb = max(1, min(n, blocks))
     bad = np.full(nb, -1, dtype=np.int64)
     spent = np.zeros((nb, N_CYCLES if timed else 0), dtype=np.int64)
+    done = np.zeros(nb, dtype=np.int64)
     for b in numba.prange(nb):
         bad[b] = _tick_rows(b * n // nb, (b + 1) * n // nb, trk, refs, consts, ctl,
                             stats, plant, n_sub, dt, est, spent[b])
+        if timed:
+            done[b] = cycle_count()
     for b in range(nb):
         if bad[b] >= 0:
             return bad[b]
     c0 = cycle_count() if timed else 0
     _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out)
     if timed:
+        last = done.max()
         for b in range(nb):
             for j in range(N_CYCLES):
                 cycles[j] += spent[b, j]
+            cycles[WAIT] += last - done[b]
         cycles[5] += cycle_count() - c0
     return -1
 
@@ -141,7 +154,7 @@ def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, est,
             return i
         if timed:
             spent[4] += cycle_count() - c0
-            spent[6] += 1
+            spent[COUNT] += 1
     return -1
 
 
