@@ -328,3 +328,15 @@ def test_another_encounter_strategy_decides_by_itself_and_flies_the_same() -> No
     _assert_same_flight(built_in, own)
     assert len(made) == 8 and sum(s.decided for s in made) > 0
     assert np.max(own.z_offset_m) > 0.0  # someone climbed: the decisions mattered
+
+
+def test_a_world_link_refuses_an_inbox_table_without_a_row_per_stack() -> None:
+    # The delivery's receiver rule passes over receivers past the table's rows (copies
+    # injected for members that are not the world's UAVs): that needs a row per stack.
+    from uavmpc.comms.inbox import InboxTable
+    from uavmpc.comms.link import SimulatedLink
+    from uavmpc.drivers.delivery import WorldLink
+
+    with pytest.raises(ValueError, match="1 stacks but 2 inbox rows"):
+        WorldLink(SimulatedLink(["a", "b"]), InboxTable(["a", "b"]), [object()],  # type: ignore[list-item]
+                  np.zeros(1), {}, None)
