@@ -64,6 +64,61 @@ def test_a_large_world_on_threads_takes_its_copies_and_broadcasts_bit_identicall
     assert out[0][3].sum() > 120 * 119  # every UAV took copies of every other
 
 
+@needs_two
+def test_the_link_steps_beside_the_threaded_tick_and_the_flight_is_the_same(
+        monkeypatch, restore_threads) -> None:
+    """On two threads the last broadcasts go onto the link and the copies due into the
+    inboxes while the tick runs (on the first thread, beside the others' rows). The flight,
+    the inboxes and the link are those of the same world with the steps in between the
+    ticks (a caller's hook on every log turns that off)."""
+    import uavmpc.drivers.world as world_mod
+
+    calls = []
+    beside = world_mod.World._beside_tick
+
+    def counted(self, now):
+        calls.append(now)
+        beside(self, now)
+
+    monkeypatch.setattr(world_mod.World, "_beside_tick", counted)
+    set_threads(2)
+    out = []
+    for hook in (None, lambda w: None):
+        w = World(random_walk(30, area_m=245.0, duration_s=4.0, seed=2), seed=2)
+        r = w.run(4.0, on_log=hook)
+        out.append((r.positions_m, r.z_offset_m, r.min_distance_m, w.inboxes.rows.held_slot,
+                    w.inboxes.rows.accepted, w.inboxes.store.holders,
+                    np.array(list(vars(w.link.stats).values()))))
+        assert w._deferred is None  # every broadcast is on the link when the run returns
+        if hook is None:
+            beside_ticks = len(calls)
+    assert 0.5 * 400 < beside_ticks == len(calls)  # most ticks; none with the hook
+    for a, b in zip(*out, strict=True):
+        assert np.array_equal(a, b)
+
+
+@needs_two
+def test_an_error_beside_the_tick_is_raised_after_it(monkeypatch, restore_threads) -> None:
+    """A step beside the tick that fails (here the delivery) fails the run with its own
+    error, once the tick's threads are done, not inside the compiled call."""
+    import uavmpc.drivers.delivery as delivery
+
+    deliver = delivery.WorldLink.deliver
+    count = [0]
+
+    def failing(self, now):
+        count[0] += 1
+        if count[0] == 60:
+            raise RuntimeError("the 60th delivery failed")
+        deliver(self, now)
+
+    monkeypatch.setattr(delivery.WorldLink, "deliver", failing)
+    set_threads(2)
+    w = World(random_walk(12, area_m=155.0, duration_s=2.0, seed=4), seed=4)
+    with pytest.raises(RuntimeError, match="the 60th delivery failed"):
+        w.run(2.0)
+
+
 @pytest.mark.parametrize("n", [0, -1, 10_000, 1.5, True])
 def test_set_threads_names_the_bad_count(n, restore_threads) -> None:
     with pytest.raises(ValueError, match="threads must be an integer from 1 to"):

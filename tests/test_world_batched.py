@@ -1,6 +1,7 @@
 """The world's batched tick against its UAVs ticked one by one: the same kernels, bit for bit."""
 
 import dataclasses
+import math
 
 import numpy as np
 import oracles
@@ -246,6 +247,33 @@ def test_every_ticks_closest_distance_and_contacts_are_the_pairs_own(threads: in
         got = [c.distance_m for c in r.collisions if (c.a, c.b) == (r.uav_ids[a[j]],
                                                                     r.uav_ids[b[j]])]
         assert min(got) == d[close[:, j], j].min()
+
+
+def test_the_sweep_finds_the_closest_pair_bit_for_bit() -> None:
+    """The tick's closest distance (a sweep along x that leaves pairs out) is the smallest
+    of every pair's distance, bit for bit: points spread over an area, in a cluster, on one
+    line of equal x, with duplicates, with ties in x, a point with a coordinate not a
+    number (passed over, as every pair's minimum passes it over), fewer than two points."""
+    from uavmpc.drivers.world_tick import closest_distance, pair_distances
+
+    def every_pair(pos: np.ndarray) -> float:
+        d = np.empty(pos.shape[0] * (pos.shape[0] - 1) // 2)
+        pair_distances(pos, d)
+        d = d[~np.isnan(d)]
+        return float(d.min()) if d.size else math.inf
+
+    rng = np.random.default_rng(3)
+    cases = [rng.uniform(-400.0, 400.0, (300, 3)), rng.normal(0.0, 2.0, (50, 3)),
+             np.column_stack([np.full(20, 5.0), rng.uniform(0, 9, (20, 2))]),
+             np.round(rng.uniform(0, 3, (40, 3))), np.zeros((2, 3)),
+             np.array([[0.0, 0.0, 0.0], [0.0, 3.0, 0.0], [1e-3, 7.0, 0.0]])]
+    with_nan = rng.uniform(-10.0, 10.0, (30, 3))
+    with_nan[4, 0] = with_nan[9, 1] = np.nan
+    cases.append(with_nan)
+    for pos in cases:
+        assert closest_distance(pos) == every_pair(pos)
+    assert closest_distance(np.zeros((1, 3))) == math.inf
+    assert closest_distance(np.zeros((0, 3))) == math.inf
 
 
 def test_a_kernel_compiled_mid_flight_is_left_out_of_the_phases_as_of_the_wall_time(

@@ -205,6 +205,22 @@ def using_threads(n: int | None) -> Iterator[int]:
         _threads.n = before
 
 
+@contextlib.contextmanager
+def serial_kernels() -> Iterator[None]:
+    """:func:`thread_count` is 1 in this thread of Python for the ``with`` block: the drivers
+    call their kernels' serial forms (a step run beside a threaded kernel, on one of its
+    threads, must not start parallel regions of its own)."""
+    before = getattr(_threads, "n", None)
+    _threads.n = 1
+    try:
+        yield
+    finally:
+        if before is None:
+            del _threads.n
+        else:
+            _threads.n = before
+
+
 def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
     """``dispatcher`` compiled for the types of ``args``, callable without numba's per-call
     type inference.

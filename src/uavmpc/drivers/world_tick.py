@@ -6,13 +6,15 @@ Python QP solver, in the same kernels around the solver (:func:`world_pre`,
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from typing import Any
 
 import numba
 import numpy as np
 
 from uavmpc.estimation.fleet import FleetEstimator
-from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel, thread_count
+from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel, serial_kernels, thread_count
 from uavmpc.onboard import OnboardBatch, onboard_post, onboard_pre, onboard_row
 from uavmpc.plant import PlantRows
 from uavmpc.plant.kernels import fly_target
@@ -58,11 +60,12 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     spent = np.zeros(N_CYCLES if timed else 0, dtype=np.int64)
-    bad = _tick_rows(n - n, n, trk, refs, consts, ctl, stats, plant, n_sub, dt, est, spent)
+    bad = _tick_rows(n - n, n, trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out,
+                     zoff_out, est, spent)
     if bad >= 0:
         return bad
     c0 = cycle_count() if timed else 0
-    _trace(trk, plant, k, pos_out, zoff_out, dmin_out)
+    dmin_out[k] = closest_distance(pos_out[k])
     if timed:
         for j in range(N_CYCLES):
             cycles[j] += spent[j]
@@ -70,33 +73,69 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     return -1
 
 
-@kernel(parallel=True)
+#: The Python steps that run beside a threaded tick (:func:`world_tick_threads`), by the
+#: token the tick is handed; :meth:`CompiledTick.__call__` registers each for one call.
+_BESIDE: dict[int, Callable[[], None]] = {}
+
+
+def _run_beside(token: int) -> None:
+    """The Python step registered as ``token`` (it catches its own exceptions: none may
+    cross the compiled tick)."""
+    _BESIDE[token]()
+
+
+@kernel(allocates=True)
+def _beside(token: int) -> None:
+    """Leave the compiled tick for the Python step ``token`` (:data:`_BESIDE`), holding the
+    interpreter's lock only meanwhile."""
+    with numba.objmode():
+        _run_beside(token)
+
+
+@kernel(parallel=True, nogil=True)
 def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out,
-                       dmin_out, cycles, est, blocks):
+                       dmin_out, cycles, est, blocks, beside, first_rows):
     """:func:`world_tick` with its rows in ``blocks`` ≥ 1 contiguous blocks, one per thread
     (the caller passes :func:`uavmpc.jit.thread_count`, see :func:`uavmpc.jit.set_threads`: a
-    compiled function that asks numba itself cannot be cached), the traces' closest distance
-    found over the threads likewise. A row reads and writes only its own rows of the records,
-    with work arrays of its block's own, so the flight is bit-identical to
-    :func:`world_tick`'s for any thread count. ``cycles`` sums the CPU cycles over the
-    threads, and counts how long the threads done first waited for the last (:data:`WAIT`:
-    the tick's jitter, since blocks of equal rows cost about the same, docs/scale.md)."""
+    compiled function that asks numba itself cannot be cached), the traces after them on
+    the calling thread (the closest distance is a sweep, :func:`closest_distance`).
+
+    ``beside`` ≥ 0: the first block first runs that Python step (:data:`_BESIDE`; the world's
+    bookkeeping of the link and the inboxes, which reads and writes none of the records the
+    tick does), then its ``first_rows`` rows, while the other blocks share the rest: the
+    serial step takes a core the tick would otherwise leave idle after it (docs/scale.md).
+    ``beside`` −1: blocks of equal rows (``first_rows`` unused). The interpreter's lock is
+    released for the call (taken again only for the step).
+
+    A row reads and writes only its own rows of the records, with work arrays of its
+    block's own, so the flight is bit-identical to :func:`world_tick`'s for any thread count
+    and any split. ``cycles`` sums the CPU cycles over the threads, and counts how long the
+    threads done first waited for the last (:data:`WAIT`: the tick's jitter, since blocks of
+    equal rows cost about the same, docs/scale.md)."""
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     nb = max(1, min(n, blocks))
+    r0 = n // nb if beside < 0 or nb == 1 else min(max(first_rows, 0), n)
     bad = np.full(nb, -1, dtype=np.int64)
     spent = np.zeros((nb, N_CYCLES if timed else 0), dtype=np.int64)
     done = np.zeros(nb, dtype=np.int64)
     for b in numba.prange(nb):
-        bad[b] = _tick_rows(b * n // nb, (b + 1) * n // nb, trk, refs, consts, ctl,
-                            stats, plant, n_sub, dt, est, spent[b])
+        if b == 0:
+            if beside >= 0:
+                _beside(beside)
+            lo, hi = 0, r0
+        else:
+            lo = r0 + (b - 1) * (n - r0) // (nb - 1)
+            hi = r0 + b * (n - r0) // (nb - 1)
+        bad[b] = _tick_rows(lo, hi, trk, refs, consts, ctl, stats, plant, n_sub, dt, k,
+                            pos_out, zoff_out, est, spent[b])
         if timed:
             done[b] = cycle_count()
     for b in range(nb):
         if bad[b] >= 0:
             return bad[b]
     c0 = cycle_count() if timed else 0
-    _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out)
+    dmin_out[k] = closest_distance(pos_out[k])
     if timed:
         last = done.max()
         for b in range(nb):
@@ -131,10 +170,13 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
 
 
 @kernel(allocates=True)
-def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, est, spent):
+def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out,
+               zoff_out, est, spent):
     """Rows ``first`` … ``end`` − 1 of :func:`world_tick`, with work arrays of their own
-    (one thread's block). Returns −1, or the first row whose target could not be flown (the
-    rows after it are not flown)."""
+    (one thread's block), each row's position and z offset written into row ``k`` of the
+    traces as soon as it is flown (its state still in this core's cache: gathered after the
+    tick, the 300 UAVs' positions cost 40 µs of cache misses, docs/scale.md). Returns −1, or
+    the first row whose target could not be flown (the rows after it are not flown)."""
     sc = make_scratch(consts.horizon_s.shape[0])
     qd = np.empty(4)
     ff = np.empty(3)
@@ -152,8 +194,13 @@ def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, est,
         c0 = cycle_count() if timed else 0
         if not fly_target(i, plant, n_sub, qd, thrust, ff):
             return i
+        c1 = cycle_count() if timed else 0
+        for j in range(3):
+            pos_out[k, i, j] = x[j]
+        zoff_out[k, i] = trk.z_offset_m[i]
         if timed:
-            spent[4] += cycle_count() - c0
+            spent[4] += c1 - c0
+            spent[5] += cycle_count() - c1
             spent[COUNT] += 1
     return -1
 
@@ -167,17 +214,33 @@ def _pair_d(pos: np.ndarray, a: int, b: int) -> float:
     return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
-@kernel
-def _row_closest(pos: np.ndarray, a: int) -> float:
-    """The distance from point ``a`` of ``pos`` (N, 3) to its nearest point b > a [m] (inf
-    for the last). The minimum of the squares, then its root: the root rounds correctly
-    and never decreases, so this is the smallest :func:`_pair_d`, bit for bit."""
+@kernel(allocates=True)
+def closest_distance(pos: np.ndarray) -> float:
+    """The smallest distance between two of the points ``pos`` (N, 3) [m] (inf for fewer
+    than two): the root of the smallest of the pairs' squared distances, bit for bit the
+    smallest :func:`pair_distances` (the root rounds correctly and never decreases).
+
+    A sweep along x instead of every pair: with the points in order of x, the pairs of a
+    point with those after it are tried only while their x difference alone, squared, is
+    below the best so far. Exact, not approximate: a difference of x grows (rounding is
+    monotone) and the sum of non-negative squares is at least its first term, so every
+    pair left out is at least the best; the squares are those of :func:`_pair_d` (a
+    difference's sign does not change its square). O(N log N) for UAVs spread over an
+    area (about 10 µs at 300 UAVs, where every pair cost about 70 µs: docs/scale.md). A
+    pair whose distance is not a number is passed over, as ``min`` passes it over."""
+    n = pos.shape[0]
+    order = np.argsort(pos[:, 0], kind="mergesort")
     best = math.inf
-    for b in range(a + 1, pos.shape[0]):
-        d0 = pos[a, 0] - pos[b, 0]
-        d1 = pos[a, 1] - pos[b, 1]
-        d2 = pos[a, 2] - pos[b, 2]
-        best = min(best, d0 * d0 + d1 * d1 + d2 * d2)
+    for i in range(n):
+        a = order[i]
+        for j in range(i + 1, n):
+            b = order[j]
+            d0 = pos[a, 0] - pos[b, 0]
+            if d0 * d0 >= best:
+                break
+            d1 = pos[a, 1] - pos[b, 1]
+            d2 = pos[a, 2] - pos[b, 2]
+            best = min(best, d0 * d0 + d1 * d1 + d2 * d2)
     return math.sqrt(best)
 
 
@@ -202,27 +265,11 @@ def _positions(trk, plant, k, pos_out, zoff_out):
         zoff_out[k, i] = trk.z_offset_m[i]
 
 
-@kernel
+@kernel(allocates=True)
 def _trace(trk, plant, k, pos_out, zoff_out, dmin_out):
     """Row ``k`` of the traces (see :func:`world_tick`)."""
     _positions(trk, plant, k, pos_out, zoff_out)
-    best = math.inf
-    for a in range(plant.x.shape[0]):
-        best = min(best, _row_closest(pos_out[k], a))
-    dmin_out[k] = best
-
-
-@kernel(parallel=True)
-def _trace_threads(trk, plant, k, pos_out, zoff_out, dmin_out):
-    """:func:`_trace` with the closest distance found over the threads: rows a and
-    N − 1 − a together (the pairs' triangle in equal shares), each row's minimum its own."""
-    _positions(trk, plant, k, pos_out, zoff_out)
-    n = plant.x.shape[0]
-    row_min = np.full(max(n, 1), math.inf)
-    for a in numba.prange((n + 1) // 2):
-        row_min[a] = _row_closest(pos_out[k], a)
-        row_min[n - 1 - a] = _row_closest(pos_out[k], n - 1 - a)
-    dmin_out[k] = row_min.min()
+    dmin_out[k] = closest_distance(pos_out[k])
 
 
 class CompiledTick:
@@ -248,10 +295,20 @@ class CompiledTick:
         #: The reference table, row blocks and bound tick of the current run (:meth:`start`).
         self._run: tuple[Any, int, Any] | None = None
         self._no_estimate = np.zeros((0, 6))
+        #: Running means of a step beside the tick [s] and of a row's share of a tick's wall
+        #: time [s] (0: not measured yet): how many rows the step's block leaves to the others.
+        self._beside_s = 0.0
+        self._row_s = 0.0
 
-    def __call__(self, traces: tuple[Any, ...]) -> int:
+    def __call__(self, traces: tuple[Any, ...], beside: Callable[[], None] | None = None
+                 ) -> int:
         """One tick of every UAV, writing ``traces`` (:func:`world_tick`'s ``k`` and
-        arrays). Returns −1, or the row whose attitude target could not be flown."""
+        arrays). Returns −1, or the row whose attitude target could not be flown.
+
+        ``beside``: a Python step that reads and writes none of the tick's records (the
+        world's link and inboxes), run before the tick's rows on the first thread while the
+        other threads tick theirs (:func:`world_tick_threads`), or simply first on one
+        thread. An exception it raises is raised here, after the tick."""
         for plant in self.windy:
             plant.hold_wind(self.period_s)
         ob = self.onboard
@@ -264,11 +321,59 @@ class CompiledTick:
             _, blocks, tick = run
             args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
                     self.period_s, *traces, self.cycles, self.estimates())
-            return tick(*args, blocks) if blocks else tick(*args)
+            if not blocks:
+                if beside is not None:
+                    beside()
+                return tick(*args)  # type: ignore[no-any-return]
+            return self._threaded(tick, args, blocks, beside)
+        if beside is not None:
+            beside()
         world_pre(trk.rows, ob.stats, self.plants)
         trk.step()
         return world_post(trk.rows, trk.consts, ob.control, ob.stats, self.plants,
                           self.n_sub, self.period_s, *traces)
+
+    def _threaded(self, tick: Any, args: tuple[Any, ...], blocks: int,
+                  beside: Callable[[], None] | None) -> int:
+        """:func:`world_tick_threads` with ``beside`` run on its first block: that block's
+        rows are the others' share less what the step costs (its running mean, in rows at
+        the running mean of a row's cost), so that the blocks end together."""
+        n = self.plants.x.shape[0]
+        nb = min(blocks, n)
+        clock = time.perf_counter
+        if beside is None:
+            t0 = clock()
+            bad: int = tick(*args, blocks, -1, 0)
+            self._row_s += 0.25 * ((clock() - t0) * nb / n - self._row_s)
+            return bad
+        first = n // nb
+        if self._row_s > 0.0:
+            first = round(n / nb - self._beside_s / self._row_s * (nb - 1) / nb)
+        failed: list[BaseException] = []
+        spent = [0.0]
+
+        def step() -> None:
+            s0 = clock()
+            try:
+                with serial_kernels():
+                    beside()
+            except BaseException as exc:  # raised again after the tick
+                failed.append(exc)
+            spent[0] = clock() - s0
+
+        token = id(step)
+        _BESIDE[token] = step
+        try:
+            t0 = clock()
+            bad = tick(*args, blocks, token, min(max(first, 0), n // nb))
+            wall = clock() - t0
+        finally:
+            del _BESIDE[token]
+        if failed:
+            raise failed[0]
+        self._beside_s += 0.25 * (spent[0] - self._beside_s)
+        self._row_s += 0.25 * ((wall * nb - spent[0]) / n - self._row_s)
+        return bad
 
     def start(self, traces: tuple[Any, ...]) -> tuple[Any, int, Any]:
         """Before a run (``traces``: its first tick's): the tick this thread count flies,
@@ -299,7 +404,7 @@ class CompiledTick:
             trk = ob.tracker
             args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
                     self.period_s, *traces, self.cycles, self.estimates(peek=True))
-            bound[threaded] = (bind(world_tick_threads, *args, 1) if threaded
+            bound[threaded] = (bind(world_tick_threads, *args, 1, -1, 0) if threaded
                                else bind(world_tick, *args))
         return bound[threaded]
 
