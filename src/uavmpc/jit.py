@@ -320,6 +320,26 @@ def cycle_count() -> int:
     return _read_cycle_counter()
 
 
+@intrinsic
+def _fetch_add(typingctx: Any, counters: Any, i: Any, value: Any) -> Any:
+    sig = types.int64(counters, types.intp, types.int64)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        arr = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], arr, [args[1]])
+        return builder.atomic_rmw("add", ptr, args[2], "seq_cst")
+
+    return sig, codegen
+
+
+@kernel
+def fetch_add(counters: np.ndarray, i: int, value: int) -> int:
+    """Add ``value`` to ``counters[i]`` (int64, C-contiguous) atomically, as one step for
+    every thread, and return what it held before (threads of one parallel loop sharing out
+    work)."""
+    return _fetch_add(counters, i, value)
+
+
 class CompileWatch:
     """What numba compiles while this watch is on (``with CompileWatch(show=print): …``).
 

@@ -14,7 +14,15 @@ import numba
 import numpy as np
 
 from uavmpc.estimation.fleet import FleetEstimator
-from uavmpc.jit import HAS_CYCLE_COUNTER, bind, cycle_count, kernel, serial_kernels, thread_count
+from uavmpc.jit import (
+    HAS_CYCLE_COUNTER,
+    bind,
+    cycle_count,
+    fetch_add,
+    kernel,
+    serial_kernels,
+    thread_count,
+)
 from uavmpc.onboard import OnboardBatch, onboard_post, onboard_pre, onboard_row
 from uavmpc.plant import PlantRows
 from uavmpc.plant.kernels import fly_target
@@ -33,6 +41,8 @@ WAIT = len(STAGES)
 COUNT = WAIT + 1
 #: The length of a profile: a cycle count per stage, the threads' wait, the UAV-ticks.
 N_CYCLES = COUNT + 1
+#: Counts (int64) left unused around each thread's profile in the threaded tick: 64 bytes.
+_PAD = 8
 
 
 @kernel(allocates=True)
@@ -60,8 +70,8 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     spent = np.zeros(N_CYCLES if timed else 0, dtype=np.int64)
-    bad = _tick_rows(n - n, n, trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out,
-                     zoff_out, est, spent)
+    bad = _tick_rows(n - n, n, 0, np.zeros(1, dtype=np.int64), trk, refs, consts, ctl, stats,
+                     plant, n_sub, dt, k, pos_out, zoff_out, est, spent)
     if bad >= 0:
         return bad
     c0 = cycle_count() if timed else 0
@@ -102,45 +112,59 @@ def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_o
 
     ``beside`` ≥ 0: the first block first runs that Python step (:data:`_BESIDE`; the world's
     bookkeeping of the link and the inboxes, which reads and writes none of the records the
-    tick does), then its ``first_rows`` rows, while the other blocks share the rest: the
-    serial step takes a core the tick would otherwise leave idle after it (docs/scale.md).
+    tick does) while the second starts on the rows: the serial step takes a core the tick
+    would otherwise leave idle after it (docs/scale.md). The two share their rows from both
+    ends, one at a time, so that they end together however long the step took; with more
+    blocks, they share the first ``first_rows`` rows, the others equal blocks of the rest.
     ``beside`` −1: blocks of equal rows (``first_rows`` unused). The interpreter's lock is
     released for the call (taken again only for the step).
 
     A row reads and writes only its own rows of the records, with work arrays of its
     block's own, so the flight is bit-identical to :func:`world_tick`'s for any thread count
-    and any split. ``cycles`` sums the CPU cycles over the threads, and counts how long the
+    and any split. A row whose target could not be flown stops its thread; the lowest such
+    row is returned. ``cycles`` sums the CPU cycles over the threads, and counts how long the
     threads done first waited for the last (:data:`WAIT`: the tick's jitter, since blocks of
     equal rows cost about the same, docs/scale.md)."""
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     nb = max(1, min(n, blocks))
-    r0 = n // nb if beside < 0 or nb == 1 else min(max(first_rows, 0), n)
+    # Rows the first two blocks share from both ends (beside a step), the others' after.
+    shared = n if beside < 0 or nb <= 2 else min(max(first_rows, 0), n)
+    claims = np.zeros(1, dtype=np.int64)
     bad = np.full(nb, -1, dtype=np.int64)
-    spent = np.zeros((nb, N_CYCLES if timed else 0), dtype=np.int64)
+    # Each thread's counts apart from the next one's by more than a cache line: counts
+    # two cores add to in one line cost a transfer between them at every row.
+    width = N_CYCLES if timed else 0
+    spent = np.zeros((nb, width + 2 * _PAD), dtype=np.int64)
     done = np.zeros(nb, dtype=np.int64)
     for b in numba.prange(nb):
-        if b == 0:
-            if beside >= 0:
+        claim = 0
+        if beside < 0:
+            lo, hi = b * n // nb, (b + 1) * n // nb
+        elif b < 2:
+            if b == 0:
                 _beside(beside)
-            lo, hi = 0, r0
+            lo, hi, claim = 0, shared, 1 - 2 * b
         else:
-            lo = r0 + (b - 1) * (n - r0) // (nb - 1)
-            hi = r0 + b * (n - r0) // (nb - 1)
-        bad[b] = _tick_rows(lo, hi, trk, refs, consts, ctl, stats, plant, n_sub, dt, k,
-                            pos_out, zoff_out, est, spent[b])
+            lo = shared + (b - 2) * (n - shared) // (nb - 2)
+            hi = shared + (b - 1) * (n - shared) // (nb - 2)
+        bad[b] = _tick_rows(lo, hi, claim, claims, trk, refs, consts, ctl, stats, plant, n_sub,
+                            dt, k, pos_out, zoff_out, est, spent[b, _PAD:_PAD + width])
         if timed:
             done[b] = cycle_count()
+    fail = -1
     for b in range(nb):
-        if bad[b] >= 0:
-            return bad[b]
+        if bad[b] >= 0 and (fail < 0 or bad[b] < fail):
+            fail = bad[b]
+    if fail >= 0:
+        return fail
     c0 = cycle_count() if timed else 0
     dmin_out[k] = closest_distance(pos_out[k])
     if timed:
         last = done.max()
         for b in range(nb):
             for j in range(N_CYCLES):
-                cycles[j] += spent[b, j]
+                cycles[j] += spent[b, _PAD + j]
             cycles[WAIT] += last - done[b]
         cycles[5] += cycle_count() - c0
     return -1
@@ -170,34 +194,53 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
 
 
 @kernel(allocates=True)
-def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out,
-               zoff_out, est, spent):
+def _tick_rows(first, end, claim, claims, trk, refs, consts, ctl, stats, plant, n_sub, dt, k,
+               pos_out, zoff_out, est, spent):
     """Rows ``first`` … ``end`` − 1 of :func:`world_tick`, with work arrays of their own
     (one thread's block), each row's position and z offset written into row ``k`` of the
     traces as soon as it is flown (its state still in this core's cache: gathered after the
-    tick, the 300 UAVs' positions cost 40 µs of cache misses, docs/scale.md). Returns −1, or
-    the first row whose target could not be flown (the rows after it are not flown)."""
+    tick, the 300 UAVs' positions cost 40 µs of cache misses, docs/scale.md).
+
+    ``claim`` 0: the rows in order. 1 or −1: the rows shared with another thread, this one
+    taking them one at a time from the front (1) or the back (−1) until they meet; ``claims``
+    (1,) int64 counts those taken, from the front in its low 32 bits and from the back in
+    its high ones (one atomic add per row: :func:`~uavmpc.jit.fetch_add`). Returns −1, or
+    the first row this thread could not fly the target of (it takes no more rows)."""
     sc = make_scratch(consts.horizon_s.shape[0])
     qd = np.empty(4)
     ff = np.empty(3)
     cmd = np.empty((3, 3))
     timed = spent.shape[0] > 0
     estimated = est.shape[0] > 0
-    for i in range(first, end):
-        x = plant.x[i]
-        if estimated:
-            thrust = onboard_row(i, trk, refs, consts, ctl, stats, est[i, 0:3], est[i, 3:6],
-                                 x[6:10], dt, sc, qd, ff, cmd, spent)
+    step = 1 if claim >= 0 else 1 << 32
+    i = first
+    while True:
+        if claim == 0:
+            if i >= end:
+                break
+            i += 1
+            row = i - 1
         else:
-            thrust = onboard_row(i, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10],
+            taken = fetch_add(claims, 0, step)
+            front = taken & 0xFFFFFFFF
+            back = taken >> 32
+            if first + front + back >= end:
+                break
+            row = first + front if claim > 0 else end - 1 - back
+        x = plant.x[row]
+        if estimated:
+            thrust = onboard_row(row, trk, refs, consts, ctl, stats, est[row, 0:3],
+                                 est[row, 3:6], x[6:10], dt, sc, qd, ff, cmd, spent)
+        else:
+            thrust = onboard_row(row, trk, refs, consts, ctl, stats, x[0:3], x[3:6], x[6:10],
                                  dt, sc, qd, ff, cmd, spent)
         c0 = cycle_count() if timed else 0
-        if not fly_target(i, plant, n_sub, qd, thrust, ff):
-            return i
+        if not fly_target(row, plant, n_sub, qd, thrust, ff):
+            return row
         c1 = cycle_count() if timed else 0
         for j in range(3):
-            pos_out[k, i, j] = x[j]
-        zoff_out[k, i] = trk.z_offset_m[i]
+            pos_out[k, row, j] = x[j]
+        zoff_out[k, row] = trk.z_offset_m[row]
         if timed:
             spent[4] += c1 - c0
             spent[5] += cycle_count() - c1
@@ -335,9 +378,10 @@ class CompiledTick:
 
     def _threaded(self, tick: Any, args: tuple[Any, ...], blocks: int,
                   beside: Callable[[], None] | None) -> int:
-        """:func:`world_tick_threads` with ``beside`` run on its first block: that block's
-        rows are the others' share less what the step costs (its running mean, in rows at
-        the running mean of a row's cost), so that the blocks end together."""
+        """:func:`world_tick_threads` with ``beside`` run on its first block. With more than
+        two blocks, the rows the first two share are two blocks' worth less what the step
+        costs (its running mean, in rows at the running mean of a row's cost), so that all
+        blocks end together."""
         n = self.plants.x.shape[0]
         nb = min(blocks, n)
         clock = time.perf_counter
@@ -346,9 +390,9 @@ class CompiledTick:
             bad: int = tick(*args, blocks, -1, 0)
             self._row_s += 0.25 * ((clock() - t0) * nb / n - self._row_s)
             return bad
-        first = n // nb
-        if self._row_s > 0.0:
-            first = round(n / nb - self._beside_s / self._row_s * (nb - 1) / nb)
+        shared = 2 * n // nb
+        if nb > 2 and self._row_s > 0.0:
+            shared = round((2 * n - self._beside_s / self._row_s * (nb - 2)) / nb)
         failed: list[BaseException] = []
         spent = [0.0]
 
@@ -365,7 +409,7 @@ class CompiledTick:
         _BESIDE[token] = step
         try:
             t0 = clock()
-            bad = tick(*args, blocks, token, min(max(first, 0), n // nb))
+            bad = tick(*args, blocks, token, min(max(shared, 0), n))
             wall = clock() - t0
         finally:
             del _BESIDE[token]
