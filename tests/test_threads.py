@@ -244,3 +244,40 @@ def test_one_thread_flies_the_plain_tick_and_two_the_threaded_one() -> None:
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout.split()
     assert out == ["1", "0", "1", "1"]
+
+
+def test_more_threads_than_two_beside_a_step_fly_the_same_flight() -> None:
+    """With more than two threads the first two share the rows beside the step and the
+    others take equal blocks of the rest (a split this 2-core machine never flies on its
+    own): at 3 and 4 threads (numba may run more threads than cores) the flight, the inboxes
+    and the link are those of one thread, and the step did run beside the tick."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np\n"
+        "import uavmpc.drivers.world as wm\n"
+        "from uavmpc.jit import set_threads\n"
+        "from uavmpc.scenarios.random_walk import random_walk\n"
+        "calls = []\n"
+        "step = wm.World._beside_tick\n"
+        "wm.World._beside_tick = lambda self, now: (calls.append(now), step(self, now))\n"
+        "def fly(threads):\n"
+        "    set_threads(threads)\n"
+        "    w = wm.World(random_walk(30, area_m=245.0, duration_s=3.0, seed=2), seed=2)\n"
+        "    r = w.run(3.0)\n"
+        "    return (r.positions_m, r.z_offset_m, r.min_distance_m, w.inboxes.rows.held_slot,\n"
+        "            w.inboxes.rows.accepted, np.array(list(vars(w.link.stats).values())))\n"
+        "one = fly(1)\n"
+        "assert not calls\n"
+        "for threads in (3, 4):\n"
+        "    before = len(calls)\n"
+        "    other = fly(threads)\n"
+        "    assert len(calls) - before > 150, len(calls) - before\n"
+        "    assert all(np.array_equal(a, b) for a, b in zip(one, other, strict=True))\n"
+        "print('same')\n")
+    env = {**os.environ, "UAVMPC_THREADS": "1", "NUMBA_NUM_THREADS": "4"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["same"]
