@@ -98,6 +98,40 @@ def test_the_link_steps_beside_the_threaded_tick_and_the_flight_is_the_same(
 
 
 @needs_two
+def test_a_world_with_every_fault_flies_the_same_with_the_step_beside_the_tick(
+        monkeypatch, restore_threads) -> None:
+    """Burst loss, latency and jitter, clock offsets, UAVs without avoidance, radios silent
+    from the start and from 2 s, controllers on a GNSS observer, the launch check: on two
+    threads (the link's step beside the tick on most ticks) the flight, the inboxes, the
+    link and the silenced broadcasts are those of one thread."""
+    import uavmpc.drivers.world as world_mod
+    from uavmpc.scenarios import LinkSettings
+
+    calls = []
+    beside = world_mod.World._beside_tick
+    monkeypatch.setattr(world_mod.World, "_beside_tick",
+                        lambda self, now: (calls.append(now), beside(self, now)))
+    out = []
+    for threads in (1, 2):
+        set_threads(threads)
+        sc = random_walk(30, area_m=245.0, duration_s=6.0, seed=7)
+        ids = [u.uav_id for u in sc.uavs]
+        w = World(sc, seed=7, link=LinkSettings(loss=0.3, burst_len=3.0, latency_s=0.05,
+                                                jitter_s=0.02),
+                  clock_offsets_s=list(np.linspace(-0.2, 0.2, 30)), non_cooperative=ids[:2],
+                  silent_from_s={ids[3]: 2.0, ids[4]: 0.0}, gnss="single",
+                  launch_check_s=1.0)
+        r = w.run(6.0)
+        out.append((r.positions_m, r.z_offset_m, r.min_distance_m, w.inboxes.rows.held_slot,
+                    w.inboxes.rows.accepted, np.array(list(vars(w.link.stats).values())),
+                    w.wire.silenced))
+    assert len(calls) > 300  # of 600 ticks, all on two threads
+    assert out[0][6] > 0  # the silent radios swallowed broadcasts
+    for a, b in zip(*out, strict=True):
+        assert np.array_equal(a, b)
+
+
+@needs_two
 def test_an_error_beside_the_tick_is_raised_after_it(monkeypatch, restore_threads) -> None:
     """A step beside the tick that fails (here the delivery) fails the run with its own
     error, once the tick's threads are done, not inside the compiled call."""
