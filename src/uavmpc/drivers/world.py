@@ -715,9 +715,7 @@ class World:
         if self.ground_vehicle is not None:
             self.plants.deck[:] = self.ground_vehicle.deck_row(now)
         if deliver:
-            self._publish_deferred()
-            if now >= self.link.next_due_s:
-                self.wire.deliver(now)
+            self._link_step(now)
         for u in self._missions:
             if u.supervisor.mission_due(now):
                 self._step_mission(u, now)
@@ -845,6 +843,10 @@ class World:
         of the last tick onto the link, then the deliveries due now. Neither reads nor writes
         the records the tick does (they are the link's and the inboxes'), and nobody reads
         the inboxes before the next round: the flight is the one without it."""
+        self._link_step(now)
+
+    def _link_step(self, now: float) -> None:
+        """The broadcasts left for later onto the link, then the deliveries due now."""
         self._publish_deferred()
         if now >= self.link.next_due_s:
             self.wire.deliver(now)

@@ -198,8 +198,8 @@ def _tick_rows(first, end, claim, claims, trk, refs, consts, ctl, stats, plant, 
                pos_out, zoff_out, est, spent):
     """Rows ``first`` … ``end`` − 1 of :func:`world_tick`, with work arrays of their own
     (one thread's block), each row's position and z offset written into row ``k`` of the
-    traces as soon as it is flown (its state still in this core's cache: gathered after the
-    tick, the 300 UAVs' positions cost 40 µs of cache misses, docs/scale.md).
+    traces as soon as it is flown (its state still in this core's cache; gathered from every
+    row after the tick they were most of the trace stage, docs/scale.md).
 
     ``claim`` 0: the rows in order. 1 or −1: the rows shared with another thread, this one
     taking them one at a time from the front (1) or the back (−1) until they meet; ``claims``
@@ -270,7 +270,7 @@ def closest_distance(pos: np.ndarray) -> float:
     pair left out is at least the best; the squares are those of :func:`_pair_d` (a
     difference's sign does not change its square). O(N log N) for UAVs spread over an
     area: about 5 µs at 300 UAVs and 50 µs at 1000 against their 45 000 and 500 000 pairs
-    (docs/scale.md). A pair whose distance is not a number is passed over, as ``min``
+    (``benchmarks/closest.py``). A pair whose distance is not a number is passed over, as ``min``
     passes it over."""
     n = pos.shape[0]
     order = np.argsort(pos[:, 0], kind="mergesort")
