@@ -5,12 +5,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from uavmpc import scenarios
+from uavmpc.config import ConfigError
 from uavmpc.drivers.launch import (
     LaunchError,
     NodeLaunch,
@@ -18,11 +22,36 @@ from uavmpc.drivers.launch import (
     SitlReport,
     launch_command,
     load_launch,
+    node_settings,
     read_report,
     write_report,
 )
 from uavmpc.drivers.node import NodeStats
 from uavmpc.drivers.swarm import free_ports
+
+
+def _ceiling_scenario(**changes: dict) -> dict:
+    """A scenario table with every safety setting a node must carry, and ``changes``."""
+    return {"name": "ceiling", "duration_s": 20.0,
+            "avoidance": {"radius_m": 4.0, "time_reference": "receive"},
+            "limits": {"horizontal_speed_mps": 5.0},
+            "geofence": {"box": [-30, -30, 30, 30], "min_altitude_m": 0.0,
+                         "max_altitude_m": 12.0},
+            "uavs": [{"id": "uav1", "priority": 1, "start": [0.0, 0.0, 8.0]}], **changes}
+
+
+def test_a_node_gets_the_scenario_s_settings_or_refuses_them_by_name() -> None:
+    sc = scenarios.from_dict(_ceiling_scenario())
+    node = NodeLaunch(uav_id="uav1", priority=1, **node_settings(sc))
+    params, fence, limits = node.settings()
+    assert params == sc.avoidance and limits == sc.limits
+    assert fence is not None and fence.max_altitude_m == 12.0
+    assert fence.offset_ceiling_m(np.array([8.0])) == sc.geofence.offset_ceiling_m(
+        np.array([8.0]))
+    for link, named in (({"loss": 0.3}, "[link].loss"), ({"range_m": 50.0}, "[link].range_m"),
+                        ({"latency_s": 0.2}, "[link].latency_s")):
+        with pytest.raises(ConfigError, match=re.escape(named)):
+            node_settings(scenarios.from_dict(_ceiling_scenario(link=link)))
 
 
 def _write(path: Path, data: dict) -> Path:
@@ -35,6 +64,8 @@ def test_a_spec_reads_back_as_it_was_written(tmp_path: Path) -> None:
                       start_m=(1.0, -2.5, 5.0), duration_s=12.5, goto=(3.0, 0.0, 5.0, 0.1),
                       mavlink="udp://:14540", geo_origin=(47.0, 8.0, 400.0), system_id=3,
                       report_file=str(tmp_path / "r.json"))
+    node = dataclasses.replace(node, **node_settings(scenarios.from_dict(_ceiling_scenario())))
+    assert node.geofence is not None and node.limits and node.avoidance_params
     sitl = SitlLaunch(position_m=(1.0, 2.0, 0.0), geo_origin=None, estimator_error=False)
     for spec in (node, sitl):
         path = tmp_path / f"{spec.KIND}.json"
@@ -53,6 +84,10 @@ def test_a_spec_reads_back_as_it_was_written(tmp_path: Path) -> None:
     ({"duration_s": 0}, "'duration_s' must be > 0"),
     ({"speed": 3.0}, "unknown field 'speed'"),
     ({"kind": "router"}, "'kind' must be one of"),
+    ({"avoidance_params": {"radius_m": -1.0}}, "avoidance.radius_m"),
+    ({"avoidance_params": {"radius": 5.0}}, "radius"),
+    ({"geofence": {"box": [0, 0, 10, 10], "min_altitude_m": 0}}, "geofence.max_altitude_m"),
+    ({"limits": {"speed": 3.0}}, "speed"),
 ])
 def test_a_bad_spec_is_refused_in_one_line_naming_its_field(tmp_path: Path, change: dict,
                                                            words: str) -> None:

@@ -105,3 +105,26 @@ def test_a_replaced_field_is_validated_again() -> None:
         spec.replace(seed=-3)
     with pytest.raises(ConfigError, match=r"link\.latency_s"):
         dataclasses.replace(spec, link=LinkSettings(latency_s=-1.0))
+
+
+CEILING_SCENARIO = Path(__file__).parent / "data" / "crossing_under_ceiling.toml"
+
+
+@pytest.mark.realtime
+def test_a_swarm_flies_the_scenario_s_geofence_and_offsets_as_the_world_does(
+        tmp_path: Path) -> None:
+    """Three UAVs cross above one point at 8 m under a 12 m ceiling: one 3 m layer fits under
+    it (12 − 1 m margin − 8 m). The node processes get the scenario's geofence and avoidance
+    settings, so they take the same offsets as the world and none climbs above it (before,
+    the nodes flew without the geofence and uav3 climbed to 14 m)."""
+    sc = scenarios.load(CEILING_SCENARIO)
+    assert sc.geofence is not None
+    ceiling = sc.geofence.offset_ceiling_m(np.array([8.0]))
+    assert ceiling == 3.0
+    world = World.from_spec(RunSpec(sc)).run()
+    swarm = run_swarm(RunSpec(sc), tmp_path)
+    offsets = {u: s.max_z_offset_m for u, s in world.per_uav.items()}
+    assert sorted(offsets.values()) == [0.0, 3.0, 3.0]  # two yield, one layer each
+    assert {u: s.max_z_offset_m for u, s in swarm.uavs.items()} == offsets
+    assert not world.collisions and not swarm.collisions
+    assert all(s.reached_goal for s in swarm.uavs.values())

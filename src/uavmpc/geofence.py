@@ -221,6 +221,14 @@ class Geofence:
         return cls(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float), altitude_m[0],
                    altitude_m[1], **kw)
 
+    def to_table(self) -> dict[str, Any]:
+        """The volume as a ``[geofence]`` table (the inverse of :meth:`from_dict`): what a
+        node process is handed so that it flies the scenario's volume."""
+        return {"polygon": self.polygon_xy_m.tolist(),
+                "min_altitude_m": float(self.min_altitude_m),
+                "max_altitude_m": float(self.max_altitude_m),
+                "margin_m": float(self.margin_m), "inset_m": float(self.inset_m)}
+
     @classmethod
     def from_dict(cls, t: Any, prefix: str = "geofence") -> Geofence:
         """From a TOML table: ``polygon = [[x, y], ...]`` or ``box = [x0, y0, x1, y1]``, and

@@ -328,19 +328,66 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _node(args: argparse.Namespace) -> int:
-    from uavmpc.drivers.launch import NodeLaunch, run_node
+    from uavmpc.drivers.launch import LaunchError, NodeLaunch, run_node
 
-    return run_node(NodeLaunch(
-        uav_id=args.id, priority=args.priority, airframe=args.airframe, swarm=args.swarm,
-        listen=tuple(args.listen or ()), connect=tuple(args.connect or ()),
-        start_m=tuple(args.start), heading_rad=args.heading, duration_s=args.duration,
-        goto=None if args.goto is None else tuple(args.goto), mission_file=args.mission_file,
-        formation_file=args.formation, avoidance=not args.no_avoidance,
-        key_file=args.key_file, identity_file=args.identity_file, roster_file=args.roster,
-        mavlink=args.mavlink, setpoints=args.setpoints, origin_m=tuple(args.origin),
-        geo_origin=None if args.geo_origin is None else tuple(args.geo_origin),
-        hover_thrust=args.hover_thrust, system_id=args.system_id, ros2=args.ros2,
-        ros2_commands=args.ros2_commands))
+    try:
+        own = _node_from_scenario(args) if args.scenario else _node_from_flags(args)
+        spec = NodeLaunch(
+            **own, swarm=args.swarm, listen=tuple(args.listen or ()),
+            connect=tuple(args.connect or ()), duration_s=args.duration,
+            formation_file=args.formation, key_file=args.key_file,
+            identity_file=args.identity_file, roster_file=args.roster, mavlink=args.mavlink,
+            setpoints=args.setpoints, origin_m=tuple(args.origin),
+            geo_origin=None if args.geo_origin is None else tuple(args.geo_origin),
+            hover_thrust=args.hover_thrust, system_id=args.system_id, ros2=args.ros2,
+            ros2_commands=args.ros2_commands)
+    except LaunchError as exc:
+        print(f"uavmpc node: {exc}", file=sys.stderr)
+        return 2
+    return run_node(spec)
+
+
+#: The flags of ``uavmpc node`` that ``--scenario`` gives from the UAV's own entry.
+_SCENARIO_GIVES = ("priority", "airframe", "start", "heading", "goto", "mission_file")
+
+
+def _node_from_flags(args: argparse.Namespace) -> dict[str, Any]:
+    """The UAV's own NodeLaunch fields from the flags (no scenario)."""
+    from uavmpc.drivers.launch import LaunchError
+
+    if args.priority is None:
+        raise LaunchError("--priority is required (or --scenario FILE gives it)")
+    return dict(uav_id=args.id, priority=args.priority, airframe=args.airframe or "f550",
+                start_m=tuple(args.start or (0.0, 0.0, 5.0)), heading_rad=args.heading or 0.0,
+                goto=None if args.goto is None else tuple(args.goto),
+                mission_file=args.mission_file, avoidance=not args.no_avoidance)
+
+
+def _node_from_scenario(args: argparse.Namespace) -> dict[str, Any]:
+    """The UAV's own NodeLaunch fields from its entry in ``--scenario`` and the scenario's
+    safety settings (avoidance parameters, geofence, limits), as the world flies them; its
+    mission starts at ``--epoch`` (default: now). ConfigError for what a node cannot
+    honour, LaunchError for a flag the scenario gives too."""
+    from uavmpc.drivers.launch import LaunchError, node_settings
+    from uavmpc.missions.format import mission_table
+    from uavmpc.reference import Reference
+    from uavmpc.scenarios import load
+
+    given = [f"--{name.replace('_', '-')}" for name in _SCENARIO_GIVES
+             if getattr(args, name) is not None]
+    if given:
+        raise LaunchError(f"--scenario gives the UAV's {', '.join(given)}: drop them")
+    scenario = load(args.scenario)
+    uav = next((u for u in scenario.uavs if u.uav_id == args.id), None)
+    if uav is None:
+        raise LaunchError(f"--id {args.id!r} is not a UAV of {scenario.name} "
+                          f"({', '.join(u.uav_id for u in scenario.uavs)})")
+    epoch = time.time() if args.epoch is None else float(args.epoch)
+    on_clock = Reference(uav.mission.times_s + epoch, uav.mission.points, uav.mission.loop)
+    return dict(uav_id=uav.uav_id, priority=uav.priority, airframe=uav.airframe,
+                start_m=uav.start_m, heading_rad=uav.heading_rad,
+                mission=mission_table(on_clock),
+                avoidance=uav.avoidance and not args.no_avoidance, **node_settings(scenario))
 
 
 def _sitl(args: argparse.Namespace) -> int:
@@ -740,14 +787,24 @@ def _add_node_parser(sub: Any) -> None:
     """Add ``uavmpc node``: one UAV's identity, peers, mission, keys and autopilot link."""
     node = sub.add_parser("node", help="one UAV's onboard stack in real time over Zenoh")
     node.add_argument("--id", required=True, help="UAV id ([A-Za-z0-9_-], ≤ 32)")
-    node.add_argument("--priority", type=int, required=True, help="lower = higher priority")
-    node.add_argument("--airframe", default="f550", help="f550, x500 or a TOML file")
+    node.add_argument("--scenario", metavar="NAME_OR_FILE",
+                      help="fly the UAV --id of this scenario: its priority, airframe, start, "
+                           "mission, and the scenario's avoidance parameters, geofence and "
+                           "limits, as `uavmpc run` flies them (a part a node cannot fly is "
+                           "refused by name)")
+    node.add_argument("--epoch", type=float, default=None,
+                      help="--scenario: Unix time of the scenario's t = 0 (default: now); "
+                           "give every node of a swarm the same")
+    node.add_argument("--priority", type=int, default=None,
+                      help="lower = higher priority (required without --scenario)")
+    node.add_argument("--airframe", default=None, help="f550 (default), x500 or a TOML file")
     node.add_argument("--connect", action="append", help="peer endpoint, e.g. tcp/10.0.0.2:7447")
     node.add_argument("--listen", action="append", help="own endpoint, e.g. tcp/0.0.0.0:7447")
     node.add_argument("--swarm", default="default", help="swarm name (key prefix)")
-    node.add_argument("--start", type=float, nargs=3, default=[0.0, 0.0, 5.0],
-                      metavar=("X", "Y", "Z"), help="start position [m] (simulated plant)")
-    node.add_argument("--heading", type=float, default=0.0, help="start heading [rad]")
+    node.add_argument("--start", type=float, nargs=3, default=None,
+                      metavar=("X", "Y", "Z"),
+                      help="start position [m] (simulated plant; default 0 0 5)")
+    node.add_argument("--heading", type=float, default=None, help="start heading [rad]")
     node.add_argument("--goto", type=float, nargs=4, metavar=("X", "Y", "Z", "HEADING"),
                       help="initial mission: fly to this point")
     node.add_argument("--mission-file", help="initial mission: a TOML or JSON file with one of "

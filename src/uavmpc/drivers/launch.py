@@ -31,14 +31,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar, Union
 
+from uavmpc.avoidance import AvoidanceParams
+from uavmpc.config import ConfigError
 from uavmpc.drivers.node import NodeStats
+from uavmpc.geofence import Geofence
+from uavmpc.scenarios import (
+    LimitOverrides,
+    LinkSettings,
+    Scenario,
+    avoidance_params,
+    changed_fields,
+)
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 __all__ = ["LaunchError", "NodeLaunch", "SitlLaunch", "SitlReport", "launch_command",
-           "load_credentials", "load_launch", "read_report", "run_node", "run_sitl",
-           "write_report"]
+           "load_credentials", "load_launch", "node_settings", "read_report", "run_node",
+           "run_sitl", "write_report"]
 
 #: The module a launch runs (``python -m`` this).
 MODULE = "uavmpc.drivers.launch"
@@ -71,8 +81,17 @@ class NodeLaunch:
     #: Initial mission: fly to (x, y, z, heading), or the trajectory in this JSON file.
     goto: tuple[float, float, float, float] | None = None
     mission_file: str | None = None
+    #: ... or this mission table (one of goto, trajectory or path; times on Unix time).
+    mission: dict[str, Any] | None = None
     formation_file: str | None = None
     avoidance: bool = True
+    #: The run's safety settings, as the scenario gives them to every UAV of a world: the
+    #: ``[avoidance]`` fields that differ from the defaults, the ``[geofence]`` table (None:
+    #: no volume) and the ``[limits]`` (:func:`node_settings`). Checked on load, naming the
+    #: field: a node flies what the world flies, or refuses.
+    avoidance_params: dict[str, Any] = field(default_factory=dict)
+    geofence: dict[str, Any] | None = None
+    limits: dict[str, float] = field(default_factory=dict)
     key_file: str | None = None
     identity_file: str | None = None
     roster_file: str | None = None
@@ -98,9 +117,48 @@ class NodeLaunch:
         if self.duration_s is not None and not self.duration_s > 0:
             raise LaunchError(f"{self.KIND} launch: 'duration_s' must be > 0, "
                               f"not {self.duration_s!r}")
+        self.settings()
+
+    def settings(self) -> tuple[AvoidanceParams, Geofence | None, LimitOverrides]:
+        """The avoidance parameters, the operational volume and the limit overrides this
+        node flies, validated.
+
+        Raises:
+            LaunchError: a field that does not hold (the message names it)."""
+        try:
+            params = avoidance_params(dict(self.avoidance_params))
+            fence = None if self.geofence is None else Geofence.from_dict(dict(self.geofence))
+            limits = LimitOverrides.from_dict(dict(self.limits))
+        except (ConfigError, ValueError, TypeError) as exc:
+            raise LaunchError(f"{self.KIND} launch: {exc}") from None
+        return params, fence, limits
 
     def to_json(self) -> str:
         return _to_json(self)
+
+
+def node_settings(scenario: Scenario) -> dict[str, Any]:
+    """The :class:`NodeLaunch` fields that carry ``scenario``'s safety settings to a node
+    process (its avoidance parameters, geofence and limits), exactly as the world flies them.
+
+    Raises:
+        ConfigError: the scenario asks for what a node process cannot honour, named: a
+            ``[landing]`` on a ``[ground_vehicle]`` (the world's car), or a ``[link]`` other
+            than the real network a node flies over (loss, range, bursts, or a latency or
+            jitter other than the defaults the world simulates for a real link)."""
+    what = [k for k, v in (("[landing]", scenario.landing),
+                           ("[ground_vehicle]", scenario.ground_vehicle)) if v]
+    default = LinkSettings()
+    what += [f"[link].{name}" for name in ("latency_s", "jitter_s", "loss", "range_m",
+                                           "burst_len")
+             if getattr(scenario.link, name) != getattr(default, name)]
+    if what:
+        raise ConfigError(f"{scenario.name}: {', '.join(what)} need the simulated world; node "
+                          "processes fly the real network and no car (fly it with: uavmpc run "
+                          f"{scenario.name})")
+    return {"avoidance_params": changed_fields(scenario.avoidance),
+            "geofence": None if scenario.geofence is None else scenario.geofence.to_table(),
+            "limits": scenario.limits.as_dict()}
 
 
 @dataclass(frozen=True)
@@ -350,6 +408,7 @@ def run_node(spec: NodeLaunch) -> int:
     from uavmpc.plant import Airframe
 
     airframe = Airframe.named(spec.airframe)
+    params, fence, limits = spec.settings()
     creds = load_credentials("uavmpc node", key_file=spec.key_file,
                              identity_file=spec.identity_file, roster_file=spec.roster_file,
                              need_roster=True)
@@ -372,7 +431,8 @@ def run_node(spec: NodeLaunch) -> int:
     with ZenohTransport(spec.uav_id, swarm=spec.swarm, listen=list(spec.listen),
                         connect=list(spec.connect)) as transport:
         node = Node(spec.uav_id, spec.priority, airframe, transport, start_m=spec.start_m,
-                    heading_rad=spec.heading_rad, avoidance=spec.avoidance, key=key,
+                    heading_rad=spec.heading_rad, avoidance=spec.avoidance, params=params,
+                    geofence=fence, tracker_config=limits.over(None), key=key,
                     identity=identity, roster=roster, vehicle=vehicle, ros2=topics,
                     mission=formation_mission, pair_radius_m=pair_radius)
         if mission is not None:
@@ -395,8 +455,12 @@ def _node_mission(spec: NodeLaunch) -> Any:
     from uavmpc.reference import InvalidReferenceError
 
     try:
+        if sum(x is not None for x in (spec.mission_file, spec.mission, spec.goto)) > 1:
+            raise _Refused("one initial mission: --goto, --mission-file or the scenario's")
         if spec.mission_file:
             return read_mission(spec.mission_file, time.time())[1]
+        if spec.mission is not None:
+            return mission_from_table(spec.mission, "mission", time.time())
         if spec.goto:
             return mission_from_table({"goto": spec.goto}, "--goto", time.time())
     except InvalidReferenceError as exc:

@@ -46,6 +46,7 @@ from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import InvalidReferenceError, Reference
 from uavmpc.supervisor import FenceGuard, Supervisor
+from uavmpc.tracker import TrackerConfig
 
 PERIOD_S = 0.01
 #: Most messages taken from the transport per tick: a flood is dropped, not queued forever.
@@ -238,6 +239,7 @@ class Node:
         identity: Identity | None = None,
         roster: Roster | None = None,
         geofence: Geofence | None = None,
+        tracker_config: TrackerConfig | None = None,
         state_rate_hz: float = 50.0,
         phase_s: float = 0.0,
         vehicle: VehicleDriver | None = None,
@@ -270,6 +272,8 @@ class Node:
         self.heading_rad = float(heading_rad)
         self.avoidance = avoidance
         self.params = params if params is not None else AvoidanceParams()
+        #: The tracker's set-up (its limits: a scenario's over the packaged ones).
+        self.tracker_config = tracker_config
         self.vehicle: VehicleDriver | None = vehicle
         #: The UAV's ROS 2 topics (:class:`uavmpc.comms.ros2.UavTopics`), or None.
         self.ros2 = ros2
@@ -312,7 +316,8 @@ class Node:
         now = time.time()
         heading = float(heading_of(first.attitude_wxyz))
         self.stack = OnboardStack(
-            self.airframe, position_m=first.position_m, heading_rad=heading, t0_s=now,
+            self.airframe, self.tracker_config, position_m=first.position_m,
+            heading_rad=heading, t0_s=now,
             uav_id=self.uav_id, priority=self.priority,
             avoidance=(HeightOffsetStrategy(self.params, pair_radius_m=self.pair_radius_m)
                        if self.avoidance else None),

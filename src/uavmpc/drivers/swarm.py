@@ -60,6 +60,7 @@ from uavmpc.drivers.launch import (
     SitlLaunch,
     SitlReport,
     launch_command,
+    node_settings,
     read_report,
 )
 from uavmpc.drivers.node import NodeStats, warm_up
@@ -146,7 +147,8 @@ def free_ports(n: int) -> list[int]:
     return ports
 
 
-def node_launch(spec: Any, *, swarm: str, listen: str, connect: list[str],
+def node_launch(spec: Any, settings: dict[str, Any], *, swarm: str, listen: str,
+                connect: list[str],
                 mission_file: Path | None, avoidance: bool, duration_s: float,
                 key_file: str | None = None, mavlink: str | None = None,
                 setpoints: str = "attitude", ros2: str | None = None,
@@ -156,7 +158,8 @@ def node_launch(spec: Any, *, swarm: str, listen: str, connect: list[str],
                 report_file: Path | None = None) -> NodeLaunch:
     """The node process of one UAV of a scenario. ``geo_origin`` (lat [deg], lon [deg], alt
     [m AMSL] of the world's ENU origin): the autopilot's frame is placed from its
-    GPS_GLOBAL_ORIGIN instead of the ground below the start (``origin_m``)."""
+    GPS_GLOBAL_ORIGIN instead of the ground below the start (``origin_m``). ``settings``:
+    the scenario's safety settings (:func:`~uavmpc.drivers.launch.node_settings`)."""
     origin = (0.0, 0.0, 0.0)
     if mavlink and geo_origin is None:
         origin = (float(spec.start_m[0]), float(spec.start_m[1]), 0.0)
@@ -167,7 +170,7 @@ def node_launch(spec: Any, *, swarm: str, listen: str, connect: list[str],
         duration_s=float(duration_s),
         mission_file=None if mission_file is None else str(mission_file),
         formation_file=None if formation_file is None else str(formation_file),
-        avoidance=avoidance, key_file=key_file or None, ros2=ros2 or None,
+        avoidance=avoidance, **settings, key_file=key_file or None, ros2=ros2 or None,
         mavlink=mavlink or None, setpoints=setpoints, origin_m=origin,
         geo_origin=(None if not mavlink or geo_origin is None
                     else tuple(float(v) for v in geo_origin)),
@@ -310,12 +313,7 @@ def swarm_flyable(spec: RunSpec, mavlink: bool, px4_sitl: Px4SitlBuild | None) -
         raise ConfigError(f"{scenario.name}: {', '.join(simulated)} are the simulated world's; "
                           "node processes fly over the real network (fly it with: uavmpc run "
                           f"{scenario.name})")
-    if scenario.landing is not None or scenario.ground_vehicle is not None or scenario.limits:
-        what = ", ".join(k for k, v in (("[landing]", scenario.landing),
-                                         ("[ground_vehicle]", scenario.ground_vehicle),
-                                         ("[limits]", scenario.limits)) if v)
-        raise ConfigError(f"{scenario.name}: {what} need the simulated world; node processes "
-                          f"do not run them yet (fly it with: uavmpc run {scenario.name})")
+    node_settings(scenario)  # what a node process cannot honour is refused by name
     if mavlink and px4_sitl is not None:
         raise ConfigError("--px4-sitl and --mavlink are exclusive: --px4-sitl flies real PX4 "
                           "instances, --mavlink the stand-ins")
@@ -449,6 +447,7 @@ def _start_fleet(fleet: _Fleet, scenario: Scenario, opts: _Options, *, swarm: st
     """Start every UAV's node, each after its stand-in PX4 when it flies one."""
     formation = scenario.formation
     formation_file = _formation_file(scenario, fleet.work, opts.epoch)
+    settings = node_settings(scenario)
     for i, spec in enumerate(scenario.uavs):
         follower = formation is not None and spec.uav_id in formation.followers
         mission = _mission_file(spec, fleet.work, opts.epoch, follower)
@@ -459,7 +458,7 @@ def _start_fleet(fleet: _Fleet, scenario: Scenario, opts: _Options, *, swarm: st
             address = fleet.start_standin(spec, mav_ports[i])
         member = formation is not None and spec.uav_id in formation.members
         fleet.start_node(node_launch(
-            spec, swarm=swarm, listen=endpoints[i],
+            spec, settings, swarm=swarm, listen=endpoints[i],
             connect=[] if i == 0 else [endpoints[0]], mission_file=mission,
             avoidance=opts.avoidance and spec.avoidance,
             duration_s=opts.duration + (opts.epoch - time.time()) + 1.0,

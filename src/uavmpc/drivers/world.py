@@ -251,16 +251,6 @@ def _flying_alone(scenario: Scenario, avoidance: bool,
                  if not (avoidance and u.avoidance and u.uav_id not in listed))
 
 
-def _with_scenario_limits(config: TrackerConfig | None,
-                          scenario: Scenario) -> TrackerConfig | None:
-    """``config`` (default: the packaged one) with the scenario's limits over its own; as
-    given when the scenario sets none."""
-    if not scenario.limits:
-        return config
-    base = config if config is not None else TrackerConfig.from_toml()
-    return dataclasses.replace(base, limits=scenario.limits.apply(base.limits))
-
-
 def _strategy_of(uav_id: str, strategy: Callable[[AvoidanceParams], ResolutionStrategy],
                  params: AvoidanceParams, formation: Any) -> ResolutionStrategy:
     """A new strategy for ``uav_id``; a formation member's flies the members' pair radii."""
@@ -491,7 +481,7 @@ class World:
         n = len(scenario.uavs)
         offsets = _clock_offsets(clock_offsets_s, n)
         #: The records of every UAV's numbers, one row each: their stacks' and their plants'.
-        self.onboard = OnboardBatch(_with_scenario_limits(tracker_config, scenario), n)
+        self.onboard = OnboardBatch(scenario.limits.over(tracker_config), n)
         #: The ground vehicle carrying the landing deck, when the scenario has one.
         self.ground_vehicle = scenario.ground_vehicle
         #: The scenario's operational volume: each UAV's failsafe, and its avoidance's

@@ -48,7 +48,7 @@ from uavmpc.missions.formation import FormationSpec
 from uavmpc.missions.landing import LandingParams
 from uavmpc.plant.ground_vehicle import KMH, FigureEightTrack, GroundVehicle
 from uavmpc.reference import InvalidReferenceError, Reference
-from uavmpc.tracker.params import DynamicLimits
+from uavmpc.tracker.params import DynamicLimits, TrackerConfig
 
 #: The built-in conflicts: UAVs whose paths collide without avoidance, which the avoidance
 #: resolves, every UAV but the highest priority climbing over another (SPEC §6). The last is
@@ -138,6 +138,14 @@ class LimitOverrides:
     def apply(self, base: DynamicLimits) -> DynamicLimits:
         """``base`` with these fields replaced."""
         return DynamicLimits(**{**dataclasses.asdict(base), **dict(self.values)})
+
+    def over(self, config: TrackerConfig | None) -> TrackerConfig | None:
+        """``config`` (None: the packaged one) with these limits over its own; ``config`` as
+        given when they set none. Every driver takes a scenario's limits through this."""
+        if not self.values:
+            return config
+        base = config if config is not None else TrackerConfig.from_toml()
+        return dataclasses.replace(base, limits=self.apply(base.limits))
 
 
 @dataclass(frozen=True)
