@@ -164,6 +164,9 @@ class Px4Report:
     heartbeats_behind_ack: int = 0
     #: The clock map: our seconds per autopilot second, the shortest TIMESYNC round trip.
     clock_rate: float = 1.0
+    #: ... and our time [s, Unix] at the autopilot's time 0 (its boot): an autopilot stamp
+    #: t [s] (a ULog's ``timestamp`` / 1e6) is ours at clock_offset_s + clock_rate · t.
+    clock_offset_s: float | None = None
     clock_round_trip_ms: float | None = None
     clock_source: str = ""
     #: PX4's local-frame origin in the world (ENU) and where it came from.
@@ -449,6 +452,8 @@ class Px4Vehicle:
         r.garbage = self.link.garbage
         r.unknown_ids = {str(k): v for k, v in sorted(self.link.unknown_ids.items())}
         r.clock_rate = round(self.clock.rate, 6)
+        if self.clock.synced:
+            r.clock_offset_s = self.clock.to_local(0.0)
         if math.isfinite(self.clock.round_trip_s):
             r.clock_round_trip_ms = round(self.clock.round_trip_s * 1e3, 3)
         r.clock_source = ("TIMESYNC round trips" if math.isfinite(self.clock.round_trip_s)
