@@ -380,6 +380,16 @@ def test_nodes_flying_stand_ins_avoid_each_other_and_without_avoidance_collide(
     assert closest["b1-b2"] < 1.5, closest
     assert {(c.a, c.b) for c in s.collisions} <= {("b1", "b2")}, s.collisions
     assert all(u.reached_goal for u in s.uavs.values()), s.uavs
+    # Judged by the truth each stand-in sends as PX4's SIH does (HIL_STATE_QUATERNION), the
+    # estimates' figures beside it: the stand-in's estimator drifts as EKF2's does, so the
+    # two differ, and each UAV's estimator error is kept.
+    assert s.sections["judged_by"].startswith("the simulator's ground truth")
+    est = s.sections["estimate"]["closest_by_pair_m"]
+    assert est.keys() == closest.keys() and est != closest
+    for uav, u in s.uavs.items():
+        err = u.details["estimator_error"]
+        assert err["samples"] > 100 and 0.0 < err["horizontal_rms_m"] < 1.5, (uav, err)
+        assert u.details["mission_end_estimate_m"] != u.details["mission_end_position_m"]
     for uav, u in s.uavs.items():  # a node without a report says why (exit code, errors)
         node = u.details["node"]
         assert node.get("vehicle", {}).get("phase") == "landed", (uav, node)

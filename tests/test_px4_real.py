@@ -242,7 +242,19 @@ def test_two_real_px4_vehicles_head_on_keep_2_m_with_avoidance_and_not_without(
     closest = s.sections["closest_by_pair_m"]
     assert closest["a1-a2"] >= 2.0, closest
     assert closest["b1-b2"] < 1.5, closest
+    # Judged by SIH's ground truth (its HIL_STATE_QUATERNION stream, live); PX4's own flight
+    # logs, read independently (pyulog) and put on our clock by each node's clock map, give
+    # the same closest approaches within 0.15 m (the issue's bound; the logs are at 50 Hz,
+    # the stream at 25 Hz, a pair closing at 4 m/s moves 0.16 m in 40 ms).
+    from uavmpc.drivers.px4.ulog import swarm_truth
+
+    assert s.sections["judged_by"].startswith("the simulator's ground truth")
+    logged = swarm_truth(tmp_path / "run")
+    for pair, d in closest.items():
+        assert logged["closest_by_pair_m"][pair] is not None, (pair, logged)
+        assert abs(logged["closest_by_pair_m"][pair] - d) <= 0.15, (pair, d, logged)
     for uav, u in s.uavs.items():
+        assert u.details["estimator_error"]["samples"] > 100, (uav, u.details)
         px4 = u.details["node"].get("vehicle", {})
         assert px4.get("phase") == "landed", (uav, px4.get("stop_reason"), px4.get("phases"))
         assert px4["origin_source"].startswith("GPS_GLOBAL_ORIGIN"), px4["origin_source"]

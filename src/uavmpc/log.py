@@ -93,6 +93,8 @@ class FlightRecorder:
             for topic, schema in (("state", "foxglove.PoseInFrame"),
                                   ("command", "foxglove.PoseInFrame"),
                                   ("reference", "foxglove.PoseInFrame"),
+                                  # where a simulator says the vehicle truly is
+                                  ("truth", "foxglove.PoseInFrame"),
                                   ("prediction", "foxglove.PosesInFrame"),
                                   ("status", "uavmpc.UavStatus")):
                 name = f"/{uav}/{topic}"

@@ -176,6 +176,8 @@ class SitlLaunch:
     estimator_error: bool = True
     #: The world's ENU origin on the globe; None: no global position at all.
     geo_origin: Vec3 | None = PX4_SITL_HOME
+    #: Send the plant's ground truth to UDP 127.0.0.1:truth_port as PX4's SIH SITL does.
+    truth_port: int | None = None
     duration_s: float | None = None
     report_file: str | None = None
 
@@ -538,7 +540,7 @@ def run_sitl(spec: SitlLaunch) -> int:
                           heading_rad=spec.heading_rad, system_id=spec.system_id,
                           odometry_rate_hz=spec.odometry_rate_hz, clock_rate=spec.clock_rate,
                           seed=spec.seed, estimator_error=spec.estimator_error,
-                          geo_origin_deg=spec.geo_origin)
+                          geo_origin_deg=spec.geo_origin, truth_port=spec.truth_port)
     except (ValueError, OSError) as exc:
         print(f"uavmpc sitl: {exc}", file=sys.stderr)
         return 2

@@ -55,6 +55,7 @@ from uavmpc.comms.message import InvalidMessageError, decode
 from uavmpc.comms.state import InvalidStateError, NodeState
 from uavmpc.config import ConfigError
 from uavmpc.drivers.launch import (
+    PX4_SITL_HOME,
     LaunchError,
     NodeLaunch,
     SitlLaunch,
@@ -71,6 +72,7 @@ from uavmpc.drivers.px4.firmware import (
     Px4SitlBuild,
 )
 from uavmpc.drivers.px4.frames import enu_to_geodetic
+from uavmpc.drivers.px4.truth import TRUTH_PORT_BASE, TRUTH_RATE_HZ, TruthListener
 from uavmpc.drivers.summary import (
     Contact,
     Formation,
@@ -198,11 +200,13 @@ def px4_instances(scenario: Scenario, build: Px4SitlBuild, out: Path, *,
         for i, spec in enumerate(scenario.uavs)}
 
 
-def sitl_launch(spec: Any, address: str, report_file: Path | None = None) -> SitlLaunch:
-    """The stand-in autopilot process of one UAV: on the ground below its start."""
+def sitl_launch(spec: Any, address: str, report_file: Path | None = None,
+                truth_port: int | None = None) -> SitlLaunch:
+    """The stand-in autopilot process of one UAV: on the ground below its start, sending its
+    ground truth to ``truth_port`` (as PX4's SIH SITL does)."""
     return SitlLaunch(connect=address, airframe=spec.airframe,
                       position_m=(float(spec.start_m[0]), float(spec.start_m[1]), 0.0),
-                      heading_rad=float(spec.heading_rad),
+                      heading_rad=float(spec.heading_rad), truth_port=truth_port,
                       report_file=None if report_file is None else str(report_file))
 
 
@@ -301,6 +305,18 @@ def _report_of(p: subprocess.Popen[bytes], report_file: Path, cls: type[R],
     return None, why
 
 
+def _truth_ports(scenario: Scenario, first_instance: int, real_px4: bool,
+                 mavlink: bool) -> dict[str, int]:
+    """Per UAV, the UDP port its vehicle's ground truth arrives on: PX4 SIH SITL's own
+    (19410 + instance), a free one for each stand-in; none for simulated-plant nodes."""
+    ids = [u.uav_id for u in scenario.uavs]
+    if real_px4:
+        return {u: TRUTH_PORT_BASE + first_instance + i for i, u in enumerate(ids)}
+    if mavlink:
+        return dict(zip(ids, free_ports(len(ids)), strict=True))
+    return {}
+
+
 def swarm_flyable(spec: RunSpec, mavlink: bool, px4_sitl: Px4SitlBuild | None) -> None:
     """Refuse what node processes cannot fly (a :class:`ConfigError` naming it), and the two
     kinds of vehicle at once."""
@@ -383,11 +399,12 @@ class _Fleet:
     nodes: dict[str, subprocess.Popen[bytes]] = dataclasses.field(default_factory=dict)
     sitls: dict[str, subprocess.Popen[bytes]] = dataclasses.field(default_factory=dict)
 
-    def start_standin(self, spec: Any, port: int) -> str:
-        """Start the stand-in PX4 of ``spec`` on UDP ``port``; its address for the node."""
+    def start_standin(self, spec: Any, port: int, truth_port: int | None) -> str:
+        """Start the stand-in PX4 of ``spec`` on UDP ``port`` (its truth to ``truth_port``);
+        its address for the node."""
         self.sitls[spec.uav_id] = start_process(
             sitl_launch(spec, f"udpout://127.0.0.1:{port}",
-                        self.work / f"{spec.uav_id}.sitl.report.json"),
+                        self.work / f"{spec.uav_id}.sitl.report.json", truth_port),
             self.work / f"{spec.uav_id}.sitl.json")
         return f"udp://127.0.0.1:{port}"
 
@@ -443,7 +460,8 @@ def _formation_file(scenario: Scenario, work: Path, epoch: float) -> Path | None
 
 
 def _start_fleet(fleet: _Fleet, scenario: Scenario, opts: _Options, *, swarm: str,
-                 endpoints: list[str], mav_ports: list[int]) -> None:
+                 endpoints: list[str], mav_ports: list[int],
+                 truth_ports: dict[str, int]) -> None:
     """Start every UAV's node, each after its stand-in PX4 when it flies one."""
     formation = scenario.formation
     formation_file = _formation_file(scenario, fleet.work, opts.epoch)
@@ -455,7 +473,7 @@ def _start_fleet(fleet: _Fleet, scenario: Scenario, opts: _Options, *, swarm: st
         if opts.real_px4:
             address = fleet.px4s[spec.uav_id].mavlink_address
         elif opts.mavlink:
-            address = fleet.start_standin(spec, mav_ports[i])
+            address = fleet.start_standin(spec, mav_ports[i], truth_ports.get(spec.uav_id))
         member = formation is not None and spec.uav_id in formation.members
         fleet.start_node(node_launch(
             spec, settings, swarm=swarm, listen=endpoints[i],
@@ -471,11 +489,16 @@ def _start_fleet(fleet: _Fleet, scenario: Scenario, opts: _Options, *, swarm: st
 
 class _Monitor:
     """What the monitor hears from the nodes and measures: every state and plan recorded,
-    collisions and each pair's closest approach, the scene for the live view."""
+    collisions and each pair's closest approach, the scene for the live view.
+
+    Separation is judged by the truth where a simulator gives it (``truth``: a listener per
+    UAV for its vehicle's ground truth, :mod:`uavmpc.drivers.px4.truth`); the same figures
+    from the nodes' estimates are kept beside it. A simulated-plant node's state is its
+    plant's truth. A vehicle whose node was killed is still followed by its truth."""
 
     def __init__(self, transport: ZenohTransport, scenario: Scenario, epoch: float,
                  auth_key: bytes | None, kill_at_s: dict[str, float] | None,
-                 live: LiveSink | None) -> None:
+                 live: LiveSink | None, truth: dict[str, TruthListener] | None = None) -> None:
         """Subscribe to every state and prediction on ``transport``."""
         self.states = transport.subscribe("*/state", maxlen=100_000)
         self.predictions = transport.subscribe("*/prediction", maxlen=10_000)
@@ -483,23 +506,43 @@ class _Monitor:
         self.epoch = epoch
         self.auth_key = auth_key
         self.kills = dict(kill_at_s or {})
+        self.killed: dict[str, float] = {}  # id → when its node was killed [s, Unix]
         self.live = live
-        self.latest: dict[str, np.ndarray] = {}
+        self.truth_in = dict(truth or {})
+        self.latest: dict[str, np.ndarray] = {}  # each node's estimate, as it said last
+        self.truth: dict[str, np.ndarray] = {}  # each vehicle's truth, last sample
         self.last_state: dict[str, NodeState] = {}
         self.states_refused = 0  # malformed state messages (not drawn, not judged)
         self.at_end: dict[str, np.ndarray] = {}
+        self.truth_at_end: dict[str, np.ndarray] = {}
         self.offsets: dict[str, float] = dict.fromkeys(self.ids, 0.0)
+        #: Each UAV's highest altitude from the epoch on [m]: by its truth where a simulator
+        #: gives it, else its state.
+        self.top: dict[str, float] = {}
         self.collisions: list[dict[str, Any]] = []
         self.in_contact: set[tuple[str, str]] = set()
         self.closest: dict[tuple[str, str], float] = {}  # each pair's closest approach [m]
+        self.closest_est: dict[tuple[str, str], float] = {}  # ... by the estimates [m]
+        self.collisions_est = 0
+        self._contact_est: set[tuple[str, str]] = set()
         self.min_d = math.inf
+        self.min_d_est = math.inf
+        self.window: list[float] = []  # first and last time judged [s, Unix]
         self.trace_t: list[float] = []
         self.trace_d: list[float] = []
         self.tracks: dict[str, list[tuple[float, np.ndarray]]] = {u: [] for u in self.ids}
+        self.truth_tracks: dict[str, list[tuple[float, np.ndarray]]] = {
+            u: [] for u in self.truth_in}
         self.plans: dict[str, tuple[float, np.ndarray]] = {}  # id → (wall time heard, plan)
         self.prm = scenario.avoidance
         self.ground = ground_around(scenario.points_m())
         self.next_scene = -math.inf
+
+    @property
+    def by_truth(self) -> bool:
+        """Separation is judged by a simulator's truth of every vehicle (else: the nodes'
+        states, which are their plants' truth)."""
+        return bool(self.truth_in)
 
     def watch(self, rec: FlightRecorder, nodes: dict[str, subprocess.Popen[bytes]],
               end: float, landing_end: float) -> None:
@@ -508,7 +551,9 @@ class _Monitor:
                 time.time() < landing_end and any(p.poll() is None for p in nodes.values())):
             if time.time() >= end and not self.at_end:
                 self.at_end.update({u: p.copy() for u, p in self.latest.items()})
+                self.truth_at_end.update({u: p.copy() for u, p in self.truth.items()})
             self.hear_states(rec)
+            self.hear_truth(rec)
             self.hear_predictions(rec)
             now = time.time()
             self.kill_due(nodes, now)
@@ -535,10 +580,23 @@ class _Monitor:
             self.last_state[uav] = s
             self.tracks[uav].append((s.t_s, p))
             self.offsets[uav] = max(self.offsets[uav], s.z_offset_m)
+            if not self.by_truth and s.t_s >= self.epoch:
+                self.top[uav] = max(self.top.get(uav, -math.inf), float(p[2]))
             rec.pose(uav, "state", s.t_s, p, s.heading_rad)
             rec.pose(uav, "command", s.t_s, np.array(s.command_m), 0.0)
             rec.status(uav, s.t_s, z_offset_m=s.z_offset_m, avoiding=s.avoiding,
                        conflicts=list(s.conflicts), yielding_to=list(s.yielding_to))
+
+    def hear_truth(self, rec: FlightRecorder) -> None:
+        """Record every ground-truth sample received since the last call."""
+        for uav, listener in self.truth_in.items():
+            for sample in listener.poll():
+                self.truth[uav] = sample.position_m
+                self.truth_tracks[uav].append((sample.t_s, sample.position_m))
+                if sample.t_s >= self.epoch:
+                    self.top[uav] = max(self.top.get(uav, -math.inf),
+                                        float(sample.position_m[2]))
+                rec.pose(uav, "truth", sample.t_s, sample.position_m, 0.0)
 
     def hear_predictions(self, rec: FlightRecorder) -> None:
         """Record every plan received since the last call (unverifiable ones are skipped)."""
@@ -553,35 +611,83 @@ class _Monitor:
             self.plans[msg.uav_id] = (time.time(), msg.positions_m)
 
     def kill_due(self, nodes: dict[str, subprocess.Popen[bytes]], now: float) -> None:
-        """SIGKILL every node whose time in ``kill_at_s`` has come."""
+        """SIGKILL every node whose time in ``kill_at_s`` has come. A simulated plant dies
+        with its node (no longer watched); a vehicle with an autopilot flies on, followed by
+        its truth."""
         for uav, t_kill in list(self.kills.items()):
             if now >= self.epoch + t_kill:
                 nodes[uav].kill()
-                self.latest.pop(uav, None)  # a dead UAV is no longer watched for collisions
+                self.killed[uav] = now
+                self.latest.pop(uav, None)
                 del self.kills[uav]
 
+    def _pairs(self, where: dict[str, np.ndarray], closest: dict[tuple[str, str], float],
+               contact: set[tuple[str, str]], now: float,
+               collisions: list[dict[str, Any]] | None) -> float:
+        """Every pair's distance at ``where``: closest approaches and contacts; returns the
+        smallest."""
+        d_now = math.inf
+        watched = [u for u in self.ids if u in where]
+        for a in range(len(watched)):
+            for b in range(a + 1, len(watched)):
+                d = float(np.linalg.norm(where[watched[a]] - where[watched[b]]))
+                d_now = min(d_now, d)
+                pair = (watched[a], watched[b])
+                closest[pair] = min(closest.get(pair, math.inf), d)
+                if d < COLLISION_DISTANCE_M and pair not in contact:
+                    contact.add(pair)
+                    if collisions is not None:
+                        collisions.append({"t": now - self.epoch, "a": pair[0],
+                                           "b": pair[1], "distance_m": d})
+                    else:
+                        self.collisions_est += 1
+                elif d >= COLLISION_DISTANCE_M:
+                    contact.discard(pair)
+        return d_now
+
     def measure(self, nodes: dict[str, subprocess.Popen[bytes]], now: float) -> None:
-        """Pairwise distances once every live UAV has been heard: collisions, closest."""
+        """Pairwise distances once every vehicle has been heard: collisions and closest
+        approaches by the truth (where a simulator gives it), and by the estimates beside."""
         alive = [u for u in self.ids if nodes[u].poll() is None or u in self.latest]
         if not (now >= self.epoch and all(u in self.latest for u in alive) and len(alive) > 1):
             return
-        d_now = math.inf
-        watched = [u for u in self.ids if u in self.latest]
-        for a in range(len(watched)):
-            for b in range(a + 1, len(watched)):
-                d = float(np.linalg.norm(self.latest[watched[a]] - self.latest[watched[b]]))
-                d_now = min(d_now, d)
-                pair = (watched[a], watched[b])
-                self.closest[pair] = min(self.closest.get(pair, math.inf), d)
-                if d < COLLISION_DISTANCE_M and pair not in self.in_contact:
-                    self.in_contact.add(pair)
-                    self.collisions.append({"t": now - self.epoch, "a": pair[0],
-                                            "b": pair[1], "distance_m": d})
-                elif d >= COLLISION_DISTANCE_M:
-                    self.in_contact.discard(pair)
+        if self.by_truth and not all(u in self.truth for u in self.ids):
+            return
+        self._pairs(self.latest, self.closest_est, self._contact_est, now, None)
+        self.min_d_est = min(self.min_d_est, min(
+            (self.closest_est[p] for p in self.closest_est), default=math.inf))
+        judged = self.truth if self.by_truth else self.latest
+        d_now = self._pairs(judged, self.closest, self.in_contact, now, self.collisions)
         self.min_d = min(self.min_d, d_now)
+        self.window = [self.window[0] if self.window else now, now]
         self.trace_t.append(now - self.epoch)
         self.trace_d.append(d_now)
+
+    def estimator_errors(self, until_s: float) -> dict[str, dict[str, float]]:
+        """Per UAV with a truth, its estimate against it from the epoch to ``until_s`` [s,
+        Unix] (before the landing: after touchdown SIH's ground lets a vehicle sink):
+        horizontal RMS, mean and largest vertical error (estimate − truth) [m]."""
+        out: dict[str, dict[str, float]] = {}
+        for uav, track in self.truth_tracks.items():
+            est = [(t, p) for t, p in self.tracks[uav] if self.epoch <= t <= until_s]
+            if len(track) < 2 or not est:
+                continue
+            tt = np.array([t for t, _ in track])
+            tp = np.array([p for _, p in track])
+            te = np.array([t for t, _ in est])
+            pe = np.array([p for _, p in est])
+            inside = (te >= tt[0]) & (te <= tt[-1])
+            if not inside.any():
+                continue
+            te, pe = te[inside], pe[inside]
+            truth = np.column_stack([np.interp(te, tt, tp[:, k]) for k in range(3)])
+            err = pe - truth
+            out[uav] = {"horizontal_rms_m": round(float(np.sqrt(np.mean(
+                            np.sum(err[:, :2] ** 2, axis=1)))), 3),
+                        "vertical_mean_m": round(float(np.mean(err[:, 2])), 3),
+                        "vertical_max_m": round(float(np.max(np.abs(err[:, 2]))), 3),
+                        "samples": int(te.size)}
+        return out
 
     def show(self, rec: FlightRecorder, now: float) -> None:
         """Record the scene and the metrics, and send them to the live view."""
@@ -599,12 +705,14 @@ class _Monitor:
 
 def _uav_summary(uav: str, goal: np.ndarray, follower: bool, monitor: _Monitor,
                  ended: _Ended, px4_reports: dict[str, dict[str, Any]],
-                 opts: _Options) -> UavSummary:
+                 opts: _Options, errors: dict[str, dict[str, float]]) -> UavSummary:
     """One UAV's entry of the summary, from its node's report and what the monitor heard."""
     st = ended.nodes[uav][0] if uav in ended.nodes else None
     final = np.array((st.final_position_m if st is not None else None)
                      or monitor.latest.get(uav, [np.nan] * 3))
-    judged = monitor.at_end.get(uav, final) if opts.mavlink else final
+    estimated = monitor.at_end.get(uav, final) if opts.mavlink else final
+    # The goal is judged where the vehicle truly was when the mission ended, where known.
+    judged = monitor.truth_at_end.get(uav, estimated) if monitor.by_truth else estimated
     details: dict[str, Any] = {
         "mission_end_position_m": (np.asarray(judged).tolist()
                                    if np.isfinite(judged).all() else None),
@@ -612,6 +720,16 @@ def _uav_summary(uav: str, goal: np.ndarray, follower: bool, monitor: _Monitor,
                        if uav in monitor.last_state else {}),
         "node": ended.nodes[uav][1] if uav in ended.nodes else {},
     }
+    if monitor.by_truth:
+        details["mission_end_estimate_m"] = (np.asarray(estimated).tolist()
+                                             if np.isfinite(estimated).all() else None)
+        details["estimator_error"] = errors.get(uav)
+        if uav in monitor.truth:
+            details["last_truth_m"] = monitor.truth[uav].round(3).tolist()
+    if uav in monitor.top:
+        details["max_altitude_m"] = round(monitor.top[uav], 3)
+    if uav in monitor.killed:
+        details["node_killed_at_s"] = round(monitor.killed[uav] - monitor.epoch, 3)
     if opts.real_px4:
         details["px4"] = px4_reports.get(uav, {})
     elif opts.mavlink:
@@ -642,10 +760,11 @@ def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ende
     sent = sum(st.predictions_sent for st in stats) * (len(scenario.uavs) - 1)
     delivered = sum(st.accepted for st in stats)
     formation = scenario.formation
+    errors = monitor.estimator_errors(opts.epoch + opts.duration)
     uavs = {u.uav_id: _uav_summary(
         u.uav_id, np.array(u.goal_m),
         formation is not None and u.uav_id in formation.followers,
-        monitor, ended, px4_reports, opts) for u in scenario.uavs}
+        monitor, ended, px4_reports, opts, errors) for u in scenario.uavs}
     contacts = tuple(Contact(c["t"], c["a"], c["b"], c["distance_m"])
                      for c in monitor.collisions)
     sections: dict[str, Any] = {
@@ -654,9 +773,22 @@ def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ende
                      "setpoints" if opts.real_px4 else
                      f"PX4 stand-ins over MAVLink/UDP, {opts.setpoints} setpoints"
                      if opts.mavlink else "simulated plants in the nodes"),
+        "judged_by": (f"the simulator's ground truth (HIL_STATE_QUATERNION, "
+                      f"{TRUTH_RATE_HZ:g} Hz)" if monitor.by_truth
+                      else "the nodes' states (each its own plant's truth)"),
         "closest_by_pair_m": {f"{a}-{b}": round(d, 3)
                               for (a, b), d in sorted(monitor.closest.items())},
     }
+    if monitor.by_truth:  # the same figures as the autopilots' estimates tell them
+        sections["estimate"] = {
+            "min_distance_m": (round(monitor.min_d_est, 3) if math.isfinite(monitor.min_d_est)
+                               else None),
+            "collisions": monitor.collisions_est,
+            "closest_by_pair_m": {f"{a}-{b}": round(d, 3)
+                                  for (a, b), d in sorted(monitor.closest_est.items())}}
+        sections["truth"] = {"window_unix_s": [round(t, 3) for t in monitor.window]}
+    if monitor.killed:
+        sections["killed"] = {u: round(t - monitor.epoch, 3) for u, t in monitor.killed.items()}
     if px4_sitl is not None:
         sections["px4_sitl"] = {"build": str(px4_sitl.root),
                                 "geo_origin": list(opts.geo_origin)}
@@ -715,10 +847,14 @@ def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
     mav_ports = free_ports(n) if mavlink and not real_px4 else []
     endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
     ids = [u.uav_id for u in scenario.uavs]
+    truth_ports = _truth_ports(scenario, px4_first_instance, real_px4, mavlink)
+    truth: dict[str, TruthListener] = {}
     with tempfile.TemporaryDirectory(prefix="uavmpc-swarm-") as tmp:
         fleet = _Fleet(Path(tmp), {u: out / f"{u}.node.log" for u in ids}, {})
         transport: ZenohTransport | None = None
         try:
+            truth = {u: TruthListener(port, geo_origin if real_px4 else PX4_SITL_HOME)
+                     for u, port in truth_ports.items()}
             if px4_sitl is not None:  # they boot while the kernels load
                 fleet.px4s = _start_px4s(scenario, px4_sitl, out, geo_origin,
                                          px4_first_instance)
@@ -730,9 +866,10 @@ def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
                             ros2=ros2, geo_origin=geo_origin)
             transport = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
                                        connect=[endpoints[0]], max_pending=4096)
-            monitor = _Monitor(transport, scenario, opts.epoch, auth_key, kill_at_s, live)
+            monitor = _Monitor(transport, scenario, opts.epoch, auth_key, kill_at_s, live,
+                               truth)
             _start_fleet(fleet, scenario, opts, swarm=swarm, endpoints=endpoints,
-                         mav_ports=mav_ports)
+                         mav_ports=mav_ports, truth_ports=truth_ports)
             meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
                     "vehicle": ("PX4 SITL (SIH) over MAVLink" if real_px4
                                 else "PX4 stand-in over MAVLink" if mavlink
@@ -745,6 +882,8 @@ def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
             ended = fleet.stop()
             if transport is not None:
                 transport.close()
+            for listener in truth.values():
+                listener.close()
     px4_reports = {uav: inst.report() for uav, inst in fleet.px4s.items()}
     summary = _summary(scenario, opts, monitor, ended, px4_sitl, px4_reports)
     summary.write(out / "summary.json")

@@ -122,6 +122,7 @@ from uavmpc.drivers.px4.frames import (
     ned_frd_quat_to_enu_flu,
     ned_to_enu,
 )
+from uavmpc.drivers.px4.truth import TRUTH_RATE_HZ, truth_message
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of, yaw_quat
 from uavmpc.plant.multirotor import Multirotor
@@ -322,6 +323,10 @@ class StandInPx4:
         estimator_error: False reports (and controls on) the true state.
         geo_origin_deg: (lat [deg], lon [deg], alt AMSL [m]) of the world's ENU origin, or
             None for no global position (no GPS_GLOBAL_ORIGIN, GLOBAL_POSITION_INT, ...).
+        truth_port: send the plant's ground truth as PX4's SIH SITL does
+            (``HIL_STATE_QUATERNION`` at 25 Hz, ``time_usec`` 0, from a port of its own) to
+            UDP 127.0.0.1:``truth_port`` (:mod:`uavmpc.drivers.px4.truth`); None: not at all.
+            Needs ``geo_origin_deg``.
     """
 
     def __init__(self, airframe: Airframe, address: str, *,
@@ -331,7 +336,8 @@ class StandInPx4:
                  offboard_loss_s: float = COM_OF_LOSS_T_S,
                  clock_rate: float = CLOCK_RATE, seed: int | None = 0,
                  estimator_error: bool = True,
-                 geo_origin_deg: tuple[float, float, float] | None = PX4_SITL_HOME) -> None:
+                 geo_origin_deg: tuple[float, float, float] | None = PX4_SITL_HOME,
+                 truth_port: int | None = None) -> None:
         if not 1 <= int(system_id) <= 255:
             raise ValueError(f"system_id: must be in 1..255, got {system_id!r}")
         if not 1.0 <= float(odometry_rate_hz) <= 1.0 / PERIOD_S:
@@ -350,7 +356,12 @@ class StandInPx4:
         #: The estimator's origin (this boot position) on the globe: (lat, lon, alt AMSL).
         self.boot_geodetic = (None if self.geo_origin_deg is None
                               else enu_to_geodetic(self.origin_m, self.geo_origin_deg))
+        if truth_port is not None and self.geo_origin_deg is None:
+            raise ValueError("truth_port: the truth is sent on the globe; it needs a geo origin")
         self.link = MavlinkEndpoint(address, system_id=self.system_id, component_id=1)
+        self.truth_link = (None if truth_port is None else MavlinkEndpoint(
+            f"udpout://127.0.0.1:{int(truth_port)}", system_id=self.system_id,
+            component_id=1))
         self.plant = Multirotor(airframe, position_m=self.origin_m, yaw_rad=heading_rad)
         self.controller = Se3Controller(airframe, period_s=PERIOD_S)
         self.hover_thrust = airframe.mass_kg * G / airframe.max_thrust_n
@@ -389,7 +400,8 @@ class StandInPx4:
                        "LNDMC_Z_VEL_MAX": LNDMC_Z_VEL_MAX_MPS,
                        "LNDMC_XY_VEL_MAX": LNDMC_XY_VEL_MAX_MPS,
                        "LNDMC_ROT_MAX": LNDMC_ROT_MAX_DEGPS, "LNDMC_TRIG_TIME": LNDMC_TRIG_TIME_S}
-        self._periods = dict(STREAMS_S, odometry=self.odometry_period_s)
+        self._periods = dict(STREAMS_S, odometry=self.odometry_period_s,
+                             truth=1.0 / TRUTH_RATE_HZ)
         self._next = dict.fromkeys(self._periods, 0.0)
         self._stop = False
 
@@ -806,6 +818,10 @@ class StandInPx4:
             send(_M.MAVLink_attitude_message(ms, roll, pitch, yaw, *map(float, w)))
         if self._due("odometry", t):
             send(self.odometry_message(t, truth, est))
+        if self.truth_link is not None and self._due("truth", t):
+            assert self.geo_origin_deg is not None
+            self.truth_link.send(truth_message(truth.position_m, truth.velocity_mps, q,
+                                               self.geo_origin_deg))
         if self._due("local", t):
             send(_M.MAVLink_local_position_ned_message(ms, *map(float, p), *map(float, v)))
         if self._due("attitude_q", t):
@@ -969,3 +985,5 @@ def run_sitl(sitl: StandInPx4, duration_s: float | None = None) -> None:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         sitl.link.close()
+        if sitl.truth_link is not None:
+            sitl.truth_link.close()
