@@ -853,11 +853,12 @@ def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
         fleet = _Fleet(Path(tmp), {u: out / f"{u}.node.log" for u in ids}, {})
         transport: ZenohTransport | None = None
         try:
-            truth = {u: TruthListener(port, geo_origin if real_px4 else PX4_SITL_HOME)
-                     for u, port in truth_ports.items()}
             if px4_sitl is not None:  # they boot while the kernels load
                 fleet.px4s = _start_px4s(scenario, px4_sitl, out, geo_origin,
                                          px4_first_instance)
+            # After the instances are checked and started: their truth starts with them.
+            truth = {u: TruthListener(port, geo_origin if real_px4 else PX4_SITL_HOME)
+                     for u, port in truth_ports.items()}
             _warm_up(scenario, fleet.px4s)
             takeoff = PX4_TAKEOFF_S if real_px4 else TAKEOFF_S if mavlink else 0.0
             opts = _Options(avoidance=avoidance, duration=duration,
