@@ -54,6 +54,8 @@ _STATUS_SCHEMA = {
         "position_sigma_vertical_m": {"type": "number"},
         "limit_excess": {"type": "number"},
         "braking": {"type": "boolean"},
+        # the safety argument's assumptions broken now (uavmpc.assumptions)
+        "broken": {"type": "array", "items": {"type": "string"}},
     },
 }
 _LINK_SCHEMA = {

@@ -941,6 +941,17 @@ class OnboardStack:
         """When the next broadcast is due, on this stack's clock [s]."""
         return float(self.batch.schedule.next_broadcast_s[self.row])
 
+    def state_uncertainty(self, sigma_h_m: float, sigma_v_m: float) -> None:
+        """State this (horizontal, vertical) 1σ of its position [m] from now on: in its
+        broadcasts, which every receiver widens the pair's cylinder by, and in its own
+        encounters (docs/safety.md, A3; :mod:`uavmpc.assumptions`)."""
+        if not (math.isfinite(sigma_h_m) and math.isfinite(sigma_v_m)
+                and sigma_h_m >= 0.0 and sigma_v_m >= 0.0):
+            raise ValueError(f"state_uncertainty: 1σ must be finite and ≥ 0, got "
+                             f"({sigma_h_m}, {sigma_v_m})")
+        self.batch.position_sigma_m[self.row, 0] = sigma_h_m
+        self.batch.position_sigma_m[self.row, 1] = sigma_v_m
+
     # ------------------------------------------------------------------ views
     @property
     def position_sigma_m(self) -> tuple[float, float]:

@@ -105,6 +105,8 @@ class Supervisor:
         self.next_mission_s = 0.0
         #: The mission cut the motors (the UAV rests; its stack follows it).
         self.motors_cut = False
+        #: Paused (:meth:`pause`): the trajectory that waits for :meth:`resume`.
+        self.paused: Reference | None = None
 
     # ------------------------------------------------------------------ launch hold
     def hold(self, mission: Reference, hover: Reference) -> None:
@@ -160,11 +162,30 @@ class Supervisor:
             self.stack.set_mission(out.reference)
         return False
 
+    # ------------------------------------------------------------------ an assumption broke
+    def pause(self, hover: Reference) -> None:
+        """Hold at ``hover`` (an assumption of the safety argument broke,
+        :mod:`uavmpc.assumptions`); the trajectory flown until now waits for :meth:`resume`,
+        and so does any mission commanded meanwhile."""
+        if self.paused is None:
+            self.paused = self.stack.tracker.reference
+        self.stack.set_mission(hover)
+
+    def resume(self) -> None:
+        """Fly the trajectory that waited since :meth:`pause` (on its own clock: a path
+        resumes where it would be now)."""
+        ref, self.paused = self.paused, None
+        if ref is not None:
+            self.stack.set_mission(ref)
+
     # ------------------------------------------------------------------ geofence
     def fly(self, reference: Reference) -> None:
         """Fly a commanded mission (checked against the geofence already): the avoidance's
-        ceiling over it, then the trajectory."""
+        ceiling over it, then the trajectory (or, paused, after :meth:`resume`)."""
         self.limit_ceiling(reference.points[:, 2])
+        if self.paused is not None:
+            self.paused = reference
+            return
         self.stack.set_mission(reference)
 
     def limit_ceiling(self, z_m: np.ndarray) -> None:
@@ -188,6 +209,8 @@ class Supervisor:
 
     def failsafe(self, recovery: Reference) -> None:
         """Fly ``recovery`` (back inside the geofence, :meth:`FenceGuard.recovery`) and hold:
-        its mission, if one steps beside it, stops."""
+        its mission, if one steps beside it, stops; a pause ends (the way back in comes
+        first)."""
         self.mission = None
+        self.paused = None
         self.fly(recovery)

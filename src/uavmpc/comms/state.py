@@ -52,6 +52,8 @@ class NodeState:
     conflicts: tuple[str, ...] = ()
     yielding_to: tuple[str, ...] = ()
     waiting_for: tuple[str, ...] = ()
+    #: The assumptions of the safety argument broken now, one line each (it holds meanwhile).
+    broken: tuple[str, ...] = ()
 
     def encode(self) -> bytes:
         """The message's bytes (compact JSON)."""
@@ -90,6 +92,7 @@ class NodeState:
             conflicts=_ids(data.get("conflicts", []), "conflicts"),
             yielding_to=_ids(data.get("yielding_to", []), "yielding_to"),
             waiting_for=_ids(data.get("waiting_for", []), "waiting_for"),
+            broken=_texts(data.get("broken", []), "broken"),
         )
 
 
@@ -117,4 +120,11 @@ def _ids(value: Any, name: str) -> tuple[str, ...]:
     if not isinstance(value, list) or len(value) > _MAX_IDS or not all(
             isinstance(v, str) and _ID.fullmatch(v) for v in value):
         raise InvalidStateError(f"state.{name}: must be a list of UAV ids")
+    return tuple(value)
+
+
+def _texts(value: Any, name: str) -> tuple[str, ...]:
+    if not isinstance(value, list) or len(value) > _MAX_IDS or not all(
+            isinstance(v, str) and len(v) <= 200 for v in value):
+        raise InvalidStateError(f"state.{name}: must be a list of short texts")
     return tuple(value)

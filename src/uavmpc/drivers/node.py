@@ -31,6 +31,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from uavmpc.assumptions import AssumptionWatch
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
@@ -105,6 +106,9 @@ class NodeStats:
     wall_s: float = 0.0
     #: The vehicle driver's report (the MAVLink link's phases, commands, rates), if any.
     vehicle: dict[str, Any] = field(default_factory=dict)
+    #: What it measured of the safety argument's assumptions while flying: the worst of each
+    #: measure, how often each broke, the link per peer (:mod:`uavmpc.assumptions`).
+    assumptions: dict[str, Any] = field(default_factory=dict)
     #: How the run ended as far as the node knows, a :class:`~uavmpc.drivers.summary.RunStatus`
     #: value: ``complete`` (its time ran out), ``interrupted`` (stopped before it, SIGINT or
     #: SIGTERM), ``vehicle_stopped`` (the vehicle stopped being ours to fly before the
@@ -144,6 +148,12 @@ class VehicleDriver(Protocol):
         """Height of the ground it started from [m]."""
         ...
 
+    @property
+    def position_sigma_m(self) -> tuple[float, float]:
+        """The estimate's (horizontal, vertical) 1σ as the autopilot states it [m]; NaN:
+        not stated."""
+        ...
+
     def start(self, timeout_s: float = 20.0) -> VehicleState: ...
 
     def update(self, now_s: float) -> VehicleState | None: ...
@@ -165,6 +175,7 @@ class SimulatedVehicle:
     commanding = True
     flying = True
     ground_z_m = 0.0
+    position_sigma_m = (0.0, 0.0)  # its state is its plant's
 
     def __init__(self, airframe: Airframe, start_m: Sequence[float], heading_rad: float) -> None:
         self.plant = Multirotor(airframe, position_m=start_m, yaw_rad=heading_rad,
@@ -298,6 +309,10 @@ class Node:
         self._flew = False  # the vehicle has been ours to fly
         self._vehicle_stopped = False  # ... and stopped being so before the landing
         self._interrupted = False  # stopped before its time
+        #: Its measures of the safety argument's assumptions (:mod:`uavmpc.assumptions`),
+        #: and the ones broken now (said in its state; it holds while any is).
+        self.watch = AssumptionWatch(self.params.uncertainty_k)
+        self.broken: tuple[str, ...] = ()
         self.stack: OnboardStack | None = None
         #: The stack's supervisor (its mission, launch hold, geofence), built with it.
         self.supervisor: Supervisor | None = None
@@ -386,6 +401,8 @@ class Node:
                     state = fresh
                 self._note_vehicle(landing=landing_until is not None)
                 self._supervise(now, state, ticks, landing=landing_until is not None)
+                if ticks % 10 == 0:  # the avoidance's rate
+                    self._watch_assumptions(now, state, landing=landing_until is not None)
                 if commanded and not vehicle.commanding and fresh is not None \
                         and ticks % 10 == 0:
                     stack.follow(now, fresh)  # no longer ours: say what it really does
@@ -432,10 +449,42 @@ class Node:
         self._take_missions(now)
         if not (sup.launched and flying and not landing):
             return
-        if sup.mission_due(now):
+        if sup.mission_due(now) and sup.paused is None:
             self._step_mission(now, state)
         if self._fence is not None and ticks % 10 == 0:
             self._watch_fence(state)
+
+    def _watch_assumptions(self, now: float, state: VehicleState, landing: bool) -> None:
+        """The measures of the assumptions (:mod:`uavmpc.assumptions`): the uncertainty the
+        UAV states from its autopilot's and its tracking error, and a hold where its plan is
+        while one is beyond its bound (the mission resumes when all are back)."""
+        stack, sup, vehicle = self.stack, self.supervisor, self.vehicle
+        assert stack is not None and sup is not None and vehicle is not None
+        w = self.watch
+        w.estimate(*vehicle.position_sigma_m)
+        for msg in stack.inbox.latest.values():
+            if msg.received_s is not None:
+                w.heard(msg.uav_id, msg.stamp_s, msg.received_s)
+        if not (sup.launched and vehicle.flying and vehicle.commanding and not landing):
+            return  # on the ground, landing, or no longer ours: nothing to hold
+        w.tracking(now, state.position_m, stack.command().position_m)
+        stack.state_uncertainty(*w.stated_sigma_m())
+        self.broken = w.broken(now)
+        if self.broken and sup.paused is None:
+            # Hold where the virtual UAV comes to rest braking at its limits from now (a
+            # hold at where it is now would overshoot and fly back).
+            cmd = stack.command()
+            lim = stack.tracker.limits
+            v = cmd.velocity_mps
+            here = cmd.position_m.copy()
+            here[:2] += v[:2] * float(np.hypot(v[0], v[1])) / (2.0 * lim.horizontal_accel_mps2)
+            brake_z = lim.ascend_accel_mps2 if v[2] < 0.0 else lim.descend_accel_mps2
+            here[2] += v[2] * abs(float(v[2])) / (2.0 * brake_z)
+            here[2] -= stack.tracker.z_offset_m  # the mission's frame: the offset stays
+            sup.pause(Reference.goto(*here, float(heading_of(state.attitude_wxyz)),
+                                     start_s=now))
+        elif not self.broken and sup.paused is not None:
+            sup.resume()
 
     def _tick(self, now: float, state: VehicleState) -> bool:
         """The stack's tick on what the transport delivered, the vehicle actuated, the
@@ -474,6 +523,7 @@ class Node:
         s.avoidance_active_s = rep.avoidance_active_s
         s.final_position_m = state.position_m.tolist()
         s.vehicle = self.vehicle.report()
+        s.assumptions = self.watch.report()
         s.status = run_status(collisions=0, reached_goal=(),
                               stopped=[self.uav_id] if self._vehicle_stopped else (),
                               interrupted=self._interrupted).value
@@ -601,6 +651,7 @@ class Node:
             conflicts=tuple(decision.conflicts) if decision is not None else (),
             yielding_to=tuple(decision.yielding_to) if decision is not None else (),
             waiting_for=tuple(decision.waiting_for) if decision is not None else (),
+            broken=self.broken,
         ).encode())
 
 

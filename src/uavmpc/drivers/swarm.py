@@ -585,7 +585,8 @@ class _Monitor:
             rec.pose(uav, "state", s.t_s, p, s.heading_rad)
             rec.pose(uav, "command", s.t_s, np.array(s.command_m), 0.0)
             rec.status(uav, s.t_s, z_offset_m=s.z_offset_m, avoiding=s.avoiding,
-                       conflicts=list(s.conflicts), yielding_to=list(s.yielding_to))
+                       conflicts=list(s.conflicts), yielding_to=list(s.yielding_to),
+                       broken=list(s.broken))
 
     def hear_truth(self, rec: FlightRecorder) -> None:
         """Record every ground-truth sample received since the last call."""

@@ -184,6 +184,21 @@ class Px4Report:
     status_texts: list[str] = field(default_factory=list)
 
 
+def _position_sigma(pose_covariance: Any) -> tuple[float, float]:
+    """(horizontal, vertical) 1σ [m] from ODOMETRY's ``pose_covariance`` (the upper triangle
+    of a 6×6, row-major: x, y, z variances at 0, 6, 11; PX4's ``streams/ODOMETRY.hpp``); NaN
+    where it states none (NaN, negative, or absurd)."""
+    try:
+        var_x, var_y, var_z = (float(pose_covariance[i]) for i in (0, 6, 11))
+    except (TypeError, IndexError, ValueError):
+        return math.nan, math.nan
+
+    def sigma(var: float) -> float:
+        return math.sqrt(var) if math.isfinite(var) and 0.0 <= var < 1e6 else math.nan
+
+    return sigma(max(var_x, var_y)), sigma(var_z)
+
+
 class Px4Vehicle:
     """One PX4 vehicle over MAVLink, as the node sees it.
 
@@ -251,6 +266,9 @@ class Px4Vehicle:
         self.last_heartbeat_s = -math.inf
         self.clock = ClockMap()
         self._odom: tuple[float, VehicleState] | None = None  # (receipt wall time, state)
+        #: The estimate's (horizontal, vertical) 1σ from ODOMETRY's covariances [m]; NaN
+        #: until an ODOMETRY states them (PX4 fills the diagonal with EKF2's variances).
+        self.position_sigma_m = (math.nan, math.nan)
         self._lpn: Any = None
         self._att: Any = None
         self._origin_known = geo_origin is None
@@ -551,6 +569,7 @@ class Px4Vehicle:
         if not math.isfinite(t) or not self._origin_known:
             return  # an estimate placed before its frame's origin is known would be wrong
         self.report_data.odometry_received += 1
+        self.position_sigma_m = _position_sigma(msg.pose_covariance)
         self._odom = (now_s, VehicleState(
             t_s=t, position_m=self.origin_m + ned_to_enu(vals[0:3]),
             velocity_mps=ned_to_enu(v_ned), attitude_wxyz=ned_frd_quat_to_enu_flu(q_ned),
