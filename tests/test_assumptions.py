@@ -11,14 +11,22 @@ import numpy as np
 import pytest
 from waiting import wait_until
 
-from uavmpc.assumptions import TRACKING_WINDOW_S, AssumptionWatch, Bounds
+from uavmpc.assumptions import (
+    DEAD_AFTER_S,
+    TRACKING_WINDOW_S,
+    AssumptionWatch,
+    Bounds,
+    failsafe_prediction,
+)
+from uavmpc.avoidance import HeightOffsetStrategy
+from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage
 from uavmpc.comms.state import NodeState
 from uavmpc.comms.zenoh_link import ZenohTransport
 from uavmpc.drivers.node import Node, SimulatedVehicle
 from uavmpc.drivers.px4.vehicle import _position_sigma
 from uavmpc.drivers.swarm import free_ports
 from uavmpc.onboard import OnboardStack
-from uavmpc.plant import Airframe
+from uavmpc.plant import Airframe, VehicleState
 from uavmpc.reference import Reference
 from uavmpc.supervisor import Supervisor
 
@@ -150,3 +158,53 @@ def test_a_node_holds_while_its_estimate_is_too_uncertain_and_says_so() -> None:
     rep = node.stats.assumptions
     assert rep["breaks"] == {"A3 estimate": 1} and rep["worst"]["sigma_v_m"] == 2.5
     assert np.isfinite(rep["worst"]["tracking_m"])
+
+
+# ---------------------------------------------------------------------------- a dead peer
+
+def _last(stamp: float, start: tuple[float, float, float],
+          velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> PredictionMessage:
+    rel = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
+    pos = np.asarray(start) + rel[:, None] * np.asarray(velocity)
+    return PredictionMessage(SCHEMA_VERSION, "uav2", 2, stamp, stamp + rel, pos, True, stamp,
+                             ("uav1",), (0.2, 0.3))
+
+
+def test_a_dead_peer_is_where_its_failsafe_can_take_it_and_everyone_gives_way() -> None:
+    last = _last(100.0, (10.0, 0.0, 6.4), velocity=(2.0, 0.0, 0.0))
+    now = 100.0 + DEAD_AFTER_S + 0.5
+    p = failsafe_prediction(last, now, uncertainty_k=2.0)
+    assert p is not None and not p.avoiding and p.stamp_s == now and p.priority == 2
+    age = now - 100.0
+    # drifting level at its last velocity, descending at the slower failsafe rate
+    assert p.positions_m[0, 0] == pytest.approx(10.0 + 2.0 * age, abs=1e-6)
+    assert p.positions_m[0, 2] == pytest.approx(6.4 - 0.6 * (age - 0.01 - 1.0), abs=1e-6)
+    assert p.positions_m[-1, 2] == pytest.approx(6.4 - 0.6 * (age - 0.01 + 7.8 - 1.0))
+    # its reach beyond that, as a 1σ that k σ covers: the speed its last setpoint may add
+    assert 2.0 * p.position_sigma_m[0] >= 2.5 * (age + 1.0 - 0.5) - 1e-9
+    # from 6.4 m at 0.6 m/s it is down after 1 + 10.7 s; two seconds later, no longer assumed
+    assert failsafe_prediction(last, 100.0 + 1.0 + 6.4 / 0.6 + 2.1, 2.0) is None
+
+
+def test_a_higher_priority_gives_way_to_a_peer_taken_for_dead() -> None:
+    """Before, a UAV that outranked a silent peer flew on through where its vehicle was: its
+    last plan, silent, counts, but only those it outranks yield to it."""
+
+    def climbed(held: PredictionMessage) -> float:
+        stack = OnboardStack(Airframe.packaged("f550"), position_m=(0.0, 0.0, 5.0),
+                             t0_s=100.0, uav_id="uav1", priority=1,
+                             avoidance=HeightOffsetStrategy())
+        stack.set_mission(Reference.goto(30.0, 0.0, 5.0))
+        here = VehicleState(100.0, np.array([0.0, 0.0, 5.0]), np.zeros(3),
+                            np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))
+        stack.tick(100.0, here)
+        assert stack.inbox.assume(held, held.stamp_s)  # held since it was sent
+        for k in range(1, 30):
+            stack.tick(100.0 + 0.01 * k, here)
+        return stack.tracker.z_offset_m
+
+    last = _last(97.0, (12.0, 0.0, 5.0))  # hovering in its path, unheard for 3 s
+    assert climbed(last) == 0.0  # silent: it outranks uav2 and flies on
+    assumed = failsafe_prediction(last, 100.0, 2.0)
+    assert assumed is not None
+    assert climbed(assumed) >= 3.0  # taken for dead: it gives way

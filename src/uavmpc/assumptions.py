@@ -29,6 +29,10 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from uavmpc.comms.message import MAX_SIGMA_M, SCHEMA_VERSION, PredictionMessage
+
 #: How long a tracking error counts towards the stated uncertainty [s]: the avoidance decides
 #: every 0.1 s and a broadcast lives 0.5 s; a lag seen within the last second still matters.
 TRACKING_WINDOW_S = 1.0
@@ -110,6 +114,8 @@ class AssumptionWatch:
         self.worst = {"sigma_h_m": 0.0, "sigma_v_m": 0.0, "tracking_m": 0.0, "age_s": 0.0}
         self.breaks: dict[str, int] = {}
         self._was: tuple[str, ...] = ()
+        #: Peers taken for dead (A7), and when [s, the node's clock].
+        self.dead_peers: dict[str, float] = {}
 
     # ---------------------------------------------------------------- measures in
     def estimate(self, sigma_h_m: float, sigma_v_m: float) -> None:
@@ -184,4 +190,63 @@ class AssumptionWatch:
                            "sigma_v_m": self.bounds.sigma_v_m,
                            "tracking_m": self.bounds.tracking_m, "age_s": self.bounds.age_s},
                 "breaks": dict(self.breaks), "broken_now": list(self._was),
+                "dead_peers": {p: round(t, 3) for p, t in sorted(self.dead_peers.items())},
                 "peers": {p: v.report() for p, v in sorted(self.peers.items())}}
+
+
+# ---------------------------------------------------------------------------- a dead peer
+#: A peer unheard this long past its last prediction's stamp [s] is taken for a node that
+#: died (A7): its vehicle flies on uncommanded, under its autopilot's failsafe. Past the
+#: message timeout (1 s) and the acknowledgement's grace (2 s), so that a lossy link's
+#: silences of a second or two do not count (30 % i.i.d. loss at 2 Hz: six losses in a row).
+DEAD_AFTER_S = 3.0
+#: What PX4 v1.16 (no RC) does when its offboard setpoints stop, as measured against its
+#: SITL (a node killed mid-flight): it flies its last setpoint for ``COM_OF_LOSS_T`` (1 s), then
+#: fails safe to a descent that stays level (``FlightTaskDescend``: no horizontal position
+#: hold) at ``MPC_LAND_SPEED`` — 0.6–0.8 m/s by the truth — and disarms on the ground.
+FAILSAFE_DELAY_S = 1.0
+FAILSAFE_DESCENT_MPS = (0.6, 0.8)
+#: The speed its last setpoint can add during that delay: the horizontal acceleration limit.
+FAILSAFE_ACCEL_MPS2 = 2.5
+#: How long past the latest it can have touched down it is still assumed flying [s].
+FAILSAFE_LANDED_MARGIN_S = 2.0
+
+
+def failsafe_prediction(last: PredictionMessage, now_s: float, uncertainty_k: float,
+                        ground_z_m: float = 0.0) -> PredictionMessage | None:
+    """Where a peer whose node died can be, as a prediction of our own making: from its last
+    state (the first point of its ``last`` plan, its velocity from the plan's first step), it
+    drifts level at that velocity and, after :data:`FAILSAFE_DELAY_S`, descends at the slower
+    failsafe rate (the higher path); its flag is down (it avoids no one), so every UAV, of
+    any priority, gives way to it. Its stated 1σ covers the rest of its reach one second
+    ahead, divided by ``uncertainty_k`` (receivers widen by k σ): the speed its last setpoint
+    can add horizontally, the spread of the descent rates vertically. None once it can only
+    be on the ground (``ground_z_m``)."""
+    t0 = float(last.times_s[0])  # when it was at its plan's first point
+    p0 = np.asarray(last.positions_m[0], dtype=float)
+    dt_plan = float(last.times_s[1] - last.times_s[0]) if last.points > 1 else 0.0
+    v0 = ((np.asarray(last.positions_m[1], dtype=float) - p0) / dt_plan if dt_plan > 0.0
+          else np.zeros(3))
+    slow, fast = FAILSAFE_DESCENT_MPS
+    climb = max(float(v0[2]), 0.0) * FAILSAFE_DELAY_S
+    t_down = FAILSAFE_DELAY_S + max(p0[2] + climb - ground_z_m, 0.0) / slow
+    age = now_s - float(last.stamp_s)
+    if age > t_down + FAILSAFE_LANDED_MARGIN_S:
+        return None
+    horizon = np.asarray(last.times_s, dtype=float) - float(last.times_s[0])
+    times = now_s + horizon
+    dt = times - t0
+    pos = np.empty((times.size, 3))
+    pos[:, 0] = p0[0] + v0[0] * dt
+    pos[:, 1] = p0[1] + v0[1] * dt
+    pos[:, 2] = np.maximum(p0[2] + np.minimum(dt, FAILSAFE_DELAY_S) * max(float(v0[2]), 0.0)
+                           - slow * np.maximum(dt - FAILSAFE_DELAY_S, 0.0), ground_z_m)
+    reach_s = age + 1.0
+    gained = FAILSAFE_ACCEL_MPS2 * FAILSAFE_DELAY_S  # speed its last setpoint may add
+    reach_h = gained * max(reach_s - 0.5 * FAILSAFE_DELAY_S, 0.0)
+    reach_v = (fast - slow) * max(reach_s - FAILSAFE_DELAY_S, 0.0)
+    k = uncertainty_k if uncertainty_k > 0.0 else 1.0
+    return PredictionMessage(
+        SCHEMA_VERSION, last.uav_id, last.priority, now_s, times, pos, False, now_s, (),
+        (min(float(math.hypot(last.position_sigma_m[0], reach_h / k)), MAX_SIGMA_M),
+         min(float(math.hypot(last.position_sigma_m[1], reach_v / k)), MAX_SIGMA_M)))

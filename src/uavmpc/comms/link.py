@@ -939,6 +939,20 @@ class Inbox:
         msg = self._latest[table.ids[col]]
         return msg
 
+    def assume(self, msg: PredictionMessage, now_s: float) -> bool:
+        """Hold ``msg`` as its sender's newest, a prediction this UAV made itself (never on
+        the link, so not verified): what it assumes of a peer
+        whose node died (:func:`uavmpc.assumptions.failsafe_prediction`). A message the
+        sender sends later supersedes it as any newer message does. Returns whether it is
+        held (False: the inbox holds a newer one)."""
+        table = self.table
+        try:
+            slot = table.put(msg)
+            outcome = accept_copy(table.rows, table.store, self.row, slot, float(now_s))
+        finally:
+            table.unpin()
+        return outcome == KEPT
+
     def count_rejected(self, error: str) -> None:
         """Count one rejection by its reason (the error text up to the first ':')."""
         reasons = self.table.reasons[self.row]

@@ -31,10 +31,11 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from uavmpc.assumptions import AssumptionWatch
+from uavmpc.assumptions import DEAD_AFTER_S, AssumptionWatch, failsafe_prediction
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
 from uavmpc.comms.link import Transport
+from uavmpc.comms.message import PredictionMessage
 from uavmpc.comms.state import NodeState
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
 from uavmpc.drivers.summary import RunStatus, run_status
@@ -313,6 +314,9 @@ class Node:
         #: and the ones broken now (said in its state; it holds while any is).
         self.watch = AssumptionWatch(self.params.uncertainty_k)
         self.broken: tuple[str, ...] = ()
+        #: Peers taken for dead (A7): id → (their last prediction, the stamp of the failsafe
+        #: prediction we hold for them last, or None before the first).
+        self._dead: dict[str, tuple[PredictionMessage, float | None]] = {}
         self.stack: OnboardStack | None = None
         #: The stack's supervisor (its mission, launch hold, geofence), built with it.
         self.supervisor: Supervisor | None = None
@@ -462,8 +466,9 @@ class Node:
         assert stack is not None and sup is not None and vehicle is not None
         w = self.watch
         w.estimate(*vehicle.position_sigma_m)
+        self._assume_dead_peers(now)
         for msg in stack.inbox.latest.values():
-            if msg.received_s is not None:
+            if msg.received_s is not None and msg.uav_id not in self._dead:
                 w.heard(msg.uav_id, msg.stamp_s, msg.received_s)
         if not (sup.launched and vehicle.flying and vehicle.commanding and not landing):
             return  # on the ground, landing, or no longer ours: nothing to hold
@@ -485,6 +490,34 @@ class Node:
                                      start_s=now))
         elif not self.broken and sup.paused is not None:
             sup.resume()
+
+    def _assume_dead_peers(self, now: float) -> None:
+        """A peer unheard for :data:`~uavmpc.assumptions.DEAD_AFTER_S` is a node that died,
+        its vehicle flying on under its autopilot's failsafe: we hold, in its place, where
+        that failsafe can take it (:func:`~uavmpc.assumptions.failsafe_prediction`, flag
+        down: every UAV gives way to it), renewed every round, until it can only have landed
+        or it speaks again."""
+        stack = self.stack
+        assert stack is not None
+        latest = stack.inbox.latest
+        for peer in list(latest):
+            msg = latest[peer]
+            dead = self._dead.get(peer)
+            if dead is not None and msg.stamp_s != dead[1]:
+                if dead[1] is not None or msg.stamp_s != dead[0].stamp_s:
+                    self._dead.pop(peer)  # it spoke again
+                    dead = None
+            if dead is None:
+                if now - msg.stamp_s <= DEAD_AFTER_S:
+                    continue
+                dead = (msg, None)
+                self.watch.dead_peers.setdefault(peer, now)
+            assumed = failsafe_prediction(dead[0], now, self.params.uncertainty_k)
+            if assumed is None:  # it can only be on the ground by now
+                self._dead[peer] = dead
+                continue
+            stack.inbox.assume(assumed, now)
+            self._dead[peer] = (dead[0], assumed.stamp_s)
 
     def _tick(self, now: float, state: VehicleState) -> bool:
         """The stack's tick on what the transport delivered, the vehicle actuated, the
