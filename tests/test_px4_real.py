@@ -285,3 +285,32 @@ def test_four_real_px4_vehicles_swapping_keep_2_m_by_truth_under_the_ceiling(
         assert u.max_z_offset_m <= 6.0, (uav, u.max_z_offset_m)
         assert u.details["max_altitude_m"] <= sc.geofence.max_altitude_m, (uav, u.details)
         assert u.details["node"].get("vehicle", {}).get("phase") == "landed", uav
+
+
+def test_a_killed_node_s_vehicle_is_given_way_to_by_everyone_and_followed_by_its_truth(
+        px4_sitl_build, tmp_path) -> None:
+    """uav1 (priority 1) flies through where uav2 flies; uav2's node is killed 3 s in. PX4
+    fails safe (its last setpoint for 1 s, then a level descent) and the vehicle flies on
+    uncommanded. uav1 takes it for dead after 3 s unheard and gives way to where PX4's
+    failsafe can take it, although it outranks it: nobody comes within 2 m of it by SIH's
+    truth. The swarm keeps following the vehicle by its truth, and says what happened."""
+    from pathlib import Path
+
+    from uavmpc import scenarios
+    from uavmpc.drivers.swarm import run_swarm
+    from uavmpc.scenarios.run import RunSpec
+
+    sc = scenarios.load(Path(__file__).parent / "data" / "killed_node_px4.toml")
+    s = run_swarm(RunSpec(sc), tmp_path / "run", px4_sitl=px4_sitl_build,
+                  kill_at_s={"uav2": 3.0}, px4_first_instance=6)
+    assert s.sections["killed"]["uav2"] >= 3.0
+    window = s.sections["truth"]["window_unix_s"]
+    assert window[1] - window[0] > 20.0  # judged by the truth long after the kill
+    assert s.min_distance_m is not None and s.min_distance_m >= 2.0, s.sections
+    uav1, uav2 = s.uavs["uav1"], s.uavs["uav2"]
+    assert "uav2" in uav1.details["node"]["assumptions"]["dead_peers"]
+    assert uav1.reached_goal, uav1.details
+    assert uav2.details["node"]["exit_code"] == -9
+    assert uav2.details["node_killed_at_s"] >= 3.0
+    # followed by its truth after its node died: it came down under PX4's failsafe
+    assert uav2.details["last_truth_m"][2] < 1.0, uav2.details["last_truth_m"]

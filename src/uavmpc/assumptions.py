@@ -206,8 +206,10 @@ DEAD_AFTER_S = 3.0
 #: hold) at ``MPC_LAND_SPEED`` — 0.6–0.8 m/s by the truth — and disarms on the ground.
 FAILSAFE_DELAY_S = 1.0
 FAILSAFE_DESCENT_MPS = (0.6, 0.8)
-#: The speed its last setpoint can add during that delay: the horizontal acceleration limit.
-FAILSAFE_ACCEL_MPS2 = 2.5
+#: How far the vehicle's velocity can be from its last plan's when the failsafe levels it
+#: [m/s]: its last plan's acceleration over the delay, plus this (the controller's tracking
+#: error; measured: a vehicle killed in a hover drifted 0.3 m in 19 s by the truth).
+FAILSAFE_SPEED_MARGIN_MPS = 0.5
 #: How long past the latest it can have touched down it is still assumed flying [s].
 FAILSAFE_LANDED_MARGIN_S = 2.0
 
@@ -219,14 +221,19 @@ def failsafe_prediction(last: PredictionMessage, now_s: float, uncertainty_k: fl
     drifts level at that velocity and, after :data:`FAILSAFE_DELAY_S`, descends at the slower
     failsafe rate (the higher path); its flag is down (it avoids no one), so every UAV, of
     any priority, gives way to it. Its stated 1σ covers the rest of its reach one second
-    ahead, divided by ``uncertainty_k`` (receivers widen by k σ): the speed its last setpoint
-    can add horizontally, the spread of the descent rates vertically. None once it can only
-    be on the ground (``ground_z_m``)."""
+    ahead, divided by ``uncertainty_k`` (receivers widen by k σ): horizontally, a velocity
+    off its plan's by its plan's acceleration over the delay plus
+    :data:`FAILSAFE_SPEED_MARGIN_MPS`; vertically, the spread of the descent rates. None once
+    it can only be on the ground (``ground_z_m``)."""
     t0 = float(last.times_s[0])  # when it was at its plan's first point
     p0 = np.asarray(last.positions_m[0], dtype=float)
     dt_plan = float(last.times_s[1] - last.times_s[0]) if last.points > 1 else 0.0
     v0 = ((np.asarray(last.positions_m[1], dtype=float) - p0) / dt_plan if dt_plan > 0.0
           else np.zeros(3))
+    a0 = np.zeros(3)
+    if last.points > 2 and dt_plan > 0.0:  # its plan's acceleration at the first point
+        a0 = (np.asarray(last.positions_m[2], dtype=float)
+              - 2.0 * np.asarray(last.positions_m[1], dtype=float) + p0) / dt_plan ** 2
     slow, fast = FAILSAFE_DESCENT_MPS
     climb = max(float(v0[2]), 0.0) * FAILSAFE_DELAY_S
     t_down = FAILSAFE_DELAY_S + max(p0[2] + climb - ground_z_m, 0.0) / slow
@@ -242,8 +249,9 @@ def failsafe_prediction(last: PredictionMessage, now_s: float, uncertainty_k: fl
     pos[:, 2] = np.maximum(p0[2] + np.minimum(dt, FAILSAFE_DELAY_S) * max(float(v0[2]), 0.0)
                            - slow * np.maximum(dt - FAILSAFE_DELAY_S, 0.0), ground_z_m)
     reach_s = age + 1.0
-    gained = FAILSAFE_ACCEL_MPS2 * FAILSAFE_DELAY_S  # speed its last setpoint may add
-    reach_h = gained * max(reach_s - 0.5 * FAILSAFE_DELAY_S, 0.0)
+    # the speed it may have beside its plan's once levelled, times the time since
+    gained = float(np.hypot(a0[0], a0[1])) * FAILSAFE_DELAY_S + FAILSAFE_SPEED_MARGIN_MPS
+    reach_h = gained * max(reach_s, 0.0)
     reach_v = (fast - slow) * max(reach_s - FAILSAFE_DELAY_S, 0.0)
     k = uncertainty_k if uncertainty_k > 0.0 else 1.0
     return PredictionMessage(

@@ -649,11 +649,15 @@ class _Monitor:
     def measure(self, nodes: dict[str, subprocess.Popen[bytes]], now: float) -> None:
         """Pairwise distances once every vehicle has been heard: collisions and closest
         approaches by the truth (where a simulator gives it), and by the estimates beside."""
-        alive = [u for u in self.ids if nodes[u].poll() is None or u in self.latest]
-        if not (now >= self.epoch and all(u in self.latest for u in alive) and len(alive) > 1):
+        if now < self.epoch:
             return
-        if self.by_truth and not all(u in self.truth for u in self.ids):
-            return
+        if self.by_truth:  # every vehicle, its node alive or not, once its truth came
+            if not all(u in self.truth for u in self.ids):
+                return
+        else:  # a simulated plant dies with its node
+            alive = [u for u in self.ids if nodes[u].poll() is None or u in self.latest]
+            if not (all(u in self.latest for u in alive) and len(alive) > 1):
+                return
         self._pairs(self.latest, self.closest_est, self._contact_est, now, None)
         self.min_d_est = min(self.min_d_est, min(
             (self.closest_est[p] for p in self.closest_est), default=math.inf))
