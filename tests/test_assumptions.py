@@ -50,6 +50,9 @@ def test_the_stated_uncertainty_covers_the_estimate_and_the_tracking_lag() -> No
 def test_each_broken_assumption_is_named_with_its_numbers_and_counted_once() -> None:
     w = AssumptionWatch(2.0, Bounds(sigma_h_m=1.0, sigma_v_m=1.0, tracking_m=2.0, age_s=0.3))
     w.estimate(0.5, 1.4)
+    w.tracking(0.0, (0.0, 0.0, 2.0), (0.0, 0.0, 5.0))  # taking off: lagging by design
+    assert w.broken(0.0) == ("A3 estimate: vertical σ 1.40 m > 1 m",)
+    w.tracking(0.5, (0.0, 0.0, 5.0), (0.5, 0.0, 5.0))  # caught up: A4 is judged from now on
     w.tracking(1.0, (0.0, 0.0, 5.0), (3.0, 0.0, 5.0))
     w.heard("uav2", stamp_s=0.0, received_s=0.05)
     w.heard("uav2", stamp_s=0.5, received_s=0.95)  # arrived 0.45 s old

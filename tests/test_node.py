@@ -86,15 +86,18 @@ def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
     assert s.status is RunStatus.COLLISION
 
 
-def test_a_killed_node_is_no_longer_avoided_once_its_predictions_go_stale(tmp_path,
-                                                                          hover_pair) -> None:
-    # 19 s: uav1 is killed at 5 s, and silence is not absence for silent_hold_s = 10 s
-    s = run_swarm(RunSpec(scenarios.load(hover_pair), duration_s=19.0), tmp_path / "out",
+def test_a_killed_node_is_no_longer_avoided_once_its_vehicle_can_only_have_landed(
+        tmp_path, hover_pair) -> None:
+    # uav1 is killed at 5 s. uav2 counts it silent, then (3 s unheard) dead: where a PX4
+    # failsafe could take it, descending from 5 m at ≥ 0.6 m/s, on the ground by about 1 +
+    # 8.3 s later; it is then no obstacle to a UAV at 5 m.
+    s = run_swarm(RunSpec(scenarios.load(hover_pair), duration_s=26.0), tmp_path / "out",
                   kill_at_s={"uav1": 5.0})
     uav2 = s.uavs["uav2"]
     assert uav2.max_z_offset_m >= 3.0  # it yielded while uav1 was there
-    # …held it while uav1 was silent (10 s after its last message), then released it at
-    # 2 m/s: back down by about 16.5 s
+    assert "uav1" in uav2.details["node"]["assumptions"]["dead_peers"]
+    # …held it until uav1's vehicle could only be on the ground, then released it at
+    # 2 m/s
     last = uav2.details["last_state"]
     assert last["z_offset_m"] == 0.0 and not last["avoiding"]
     assert uav2.reached_goal

@@ -114,6 +114,10 @@ class AssumptionWatch:
         self.worst = {"sigma_h_m": 0.0, "sigma_v_m": 0.0, "tracking_m": 0.0, "age_s": 0.0}
         self.breaks: dict[str, int] = {}
         self._was: tuple[str, ...] = ()
+        #: The vehicle has come near its virtual UAV since it set off: A4's bound is judged
+        #: from then on (an autopilot's take-off, spooling up and ramping, lags the plan by
+        #: design; the stated σ covers that lag meanwhile).
+        self._caught_up = False
         #: Peers taken for dead (A7), and when [s, the node's clock].
         self.dead_peers: dict[str, float] = {}
 
@@ -135,6 +139,8 @@ class AssumptionWatch:
         while self._errors and self._errors[0][0] < now_s - TRACKING_WINDOW_S:
             self._errors.popleft()
         self.worst["tracking_m"] = max(self.worst["tracking_m"], math.hypot(e_h, e_v))
+        if math.hypot(e_h, e_v) < 0.5 * self.bounds.tracking_m:
+            self._caught_up = True
 
     def heard(self, peer: str, stamp_s: float, received_s: float) -> None:
         """A prediction of ``peer`` stamped ``stamp_s`` arrived at ``received_s`` [s]."""
@@ -164,7 +170,7 @@ class AssumptionWatch:
         if self.sigma_m[1] > b.sigma_v_m:
             out.append(f"A3 estimate: vertical σ {self.sigma_m[1]:.2f} m > {b.sigma_v_m:g} m")
         e_h, e_v = self.tracking_error_m()
-        if math.hypot(e_h, e_v) > b.tracking_m:
+        if self._caught_up and math.hypot(e_h, e_v) > b.tracking_m:
             out.append(f"A4 vehicle: {math.hypot(e_h, e_v):.2f} m from its virtual UAV > "
                        f"{b.tracking_m:g} m")
         for peer, p in sorted(self.peers.items()):
@@ -252,7 +258,9 @@ def failsafe_prediction(last: PredictionMessage, now_s: float, uncertainty_k: fl
     # the speed it may have beside its plan's once levelled, times the time since
     gained = float(np.hypot(a0[0], a0[1])) * FAILSAFE_DELAY_S + FAILSAFE_SPEED_MARGIN_MPS
     reach_h = gained * max(reach_s, 0.0)
-    reach_v = (fast - slow) * max(reach_s - FAILSAFE_DELAY_S, 0.0)
+    # the spread of the descent rates, until even the slower one is on the ground
+    reach_v = 0.0 if reach_s >= t_down else (fast - slow) * max(reach_s - FAILSAFE_DELAY_S,
+                                                                0.0)
     k = uncertainty_k if uncertainty_k > 0.0 else 1.0
     return PredictionMessage(
         SCHEMA_VERSION, last.uav_id, last.priority, now_s, times, pos, False, now_s, (),

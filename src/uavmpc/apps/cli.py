@@ -437,8 +437,12 @@ def _print_swarm_summary(s: RunSummary, out: Path, *, build: Any, mavlink: bool)
     closest = s.min_distance_m
     via = (" each flying a real PX4 SITL (SIH) over MAVLink" if build is not None
            else " each flying a PX4 stand-in over MAVLink" if mavlink else "")
+    est = s.sections.get("estimate")
+    by = ""
+    if est is not None:  # judged by a simulator's truth: the estimates' figure beside it
+        by = f" by the truth ({est['min_distance_m']} m by the estimates)"
     print(f"{s.scenario} as {len(s.uavs)} node processes over Zenoh{via}: {_verdict(s)}; "
-          f"closest approach {closest if closest is None else round(closest, 2)} m")
+          f"closest approach {closest if closest is None else round(closest, 2)} m{by}")
     for uav, u in s.uavs.items():
         node = u.details.get("node", {})
         line = (f"  {uav}: climbed {u.max_z_offset_m:.0f} m, "
@@ -453,6 +457,12 @@ def _print_swarm_summary(s: RunSummary, out: Path, *, build: Any, mavlink: bool)
                      + f", setpoints p99 {px4.get('setpoint_period_p99_ms', 0.0):.2f} ms")
         if u.details.get("px4"):
             line += f"; PX4 log {u.details['px4'].get('ulog') or u.details['px4'].get('log')}"
+        watch = node.get("assumptions") or {}
+        if watch.get("breaks") or watch.get("dead_peers"):
+            line += (f"; assumptions broken {watch.get('breaks')}, peers taken for dead "
+                     f"{sorted(watch.get('dead_peers', {}))}")
+        if "node_killed_at_s" in u.details:
+            line += f"; its node was killed {u.details['node_killed_at_s']:.1f} s in"
         print(line)
     if s.formation is not None:
         _print_formation(s.formation)
