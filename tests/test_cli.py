@@ -59,3 +59,12 @@ def test_bench_loop_reports_realtime_factor_and_stages(capsys) -> None:
     assert math.isfinite(result["realtime_factor"]) and result["realtime_factor"] > 0
     assert set(result["stage_us"]) == {"tracker", "se3", "attitude_and_plant"}
     assert result["tracking_rmse_m"] < 0.3
+
+
+@pytest.mark.parametrize("kill", [["uav9", "3"], ["uav1", "soon"], ["uav1", "-1"]])
+def test_swarm_kill_node_mistakes_are_one_line(kill: list[str], capsys, tmp_path) -> None:
+    argv = ["swarm", "swap_through_static", "--out", str(tmp_path / "run"), "--kill-node", *kill]
+    assert main(argv) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"uavmpc swarm: --kill-node {kill[0]} {kill[1]}")
+    assert not (tmp_path / "run").exists()  # refused before anything flew

@@ -579,6 +579,7 @@ def test_a_contract_change_is_noticed_here() -> None:
     assert members(CommandedMission) == {"command"}
     assert members(Plant) == {"state", "step"}
     assert members(Transport) == {"publish", "receive"}
-    assert members(VehicleDriver) == {"commanding", "flying", "done", "ground_z_m", "start",
-                                      "update", "actuate", "land", "abort", "report", "close"}
+    assert members(VehicleDriver) == {"commanding", "flying", "done", "ground_z_m",
+                                      "position_sigma_m", "start", "update", "actuate", "land",
+                                      "abort", "report", "close"}
     assert dataclasses.is_dataclass(AvoidanceDecision)

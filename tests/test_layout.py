@@ -25,7 +25,7 @@ TIERS: dict[str, int] = {
     "reference": 1, "solvers": 1, "plant": 1, "estimation": 1,
     "tracker": 2, "control": 2, "comms": 2, "missions": 2, "geofence": 2,
     "avoidance": 3,
-    "onboard": 4, "supervisor": 4,
+    "onboard": 4, "supervisor": 4, "assumptions": 4,
     "scenarios": 5, "log": 5, "view": 5,
     "drivers": 6,
     "apps": 7,

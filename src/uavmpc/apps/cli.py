@@ -469,6 +469,24 @@ def _print_swarm_summary(s: RunSummary, out: Path, *, build: Any, mavlink: bool)
     print(f"wrote {out}/summary.json, flight.mcap, min_distance.png, <id>.node.log")
 
 
+def _kills(given: list[list[str]] | None, spec: Any) -> dict[str, float] | None:
+    """``--kill-node ID S`` pairs as {id: seconds}, checked; None after saying what is
+    wrong."""
+    kills: dict[str, float] = {}
+    ids = {u.uav_id for u in spec.scenario.uavs}
+    for uav, when in given or []:
+        try:
+            t = float(when)
+        except ValueError:
+            t = math.nan
+        if uav not in ids or not (math.isfinite(t) and t >= 0.0):
+            print(f"uavmpc swarm: --kill-node {uav} {when}: needs a UAV of the scenario "
+                  f"({', '.join(sorted(ids))}) and a time ≥ 0 [s]", file=sys.stderr)
+            return None
+        kills[uav] = t
+    return kills
+
+
 def _swarm(args: argparse.Namespace) -> int:
     """``uavmpc swarm``: fly a scenario as one node process per UAV and print the outcome."""
     import contextlib
@@ -503,7 +521,10 @@ def _swarm(args: argparse.Namespace) -> int:
             print(f"live view on {live.url} (Foxglove: Open connection)", flush=True)
         spec = RunSpec(scenarios.load(args.scenario), avoidance=not args.no_avoidance,
                        duration_s=args.duration)
-        s = run_swarm(spec, out, key_file=args.key_file, on_trace=draw,
+        kills = _kills(args.kill_node, spec)
+        if kills is None:
+            return 2
+        s = run_swarm(spec, out, key_file=args.key_file, on_trace=draw, kill_at_s=kills,
                       mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2,
                       live=live, px4_sitl=build, px4_first_instance=args.px4_first_instance,
                       **({"geo_origin": geo_origin} if build is not None else {}))
@@ -898,6 +919,9 @@ def _add_swarm_parser(sub: Any) -> None:
     swarm.add_argument("scenario", help="swap_through_static, converge_center or a TOML file")
     swarm.add_argument("--out", default="out/swarm", help="output folder (default out/swarm)")
     swarm.add_argument("--no-avoidance", action="store_true")
+    swarm.add_argument("--kill-node", nargs=2, action="append", metavar=("ID", "S"),
+                       help="SIGKILL the node of UAV ID S seconds after the mission starts "
+                            "(its vehicle, with an autopilot, flies on under its failsafe)")
     swarm.add_argument("--duration", type=float, default=None, help="seconds after the start")
     swarm.add_argument("--key-file", help="shared key file given to every node")
     swarm.add_argument("--mavlink", action="store_true",
