@@ -22,7 +22,7 @@ from uavmpc.avoidance import HeightOffsetStrategy
 from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage
 from uavmpc.comms.state import NodeState
 from uavmpc.comms.zenoh_link import ZenohTransport
-from uavmpc.drivers.node import Node, SimulatedVehicle
+from uavmpc.drivers.node import Node, SimulatedVehicle, warm_up
 from uavmpc.drivers.px4.vehicle import _position_sigma
 from uavmpc.drivers.swarm import free_ports
 from uavmpc.onboard import OnboardStack
@@ -50,9 +50,10 @@ def test_the_stated_uncertainty_covers_the_estimate_and_the_tracking_lag() -> No
 def test_each_broken_assumption_is_named_with_its_numbers_and_counted_once() -> None:
     w = AssumptionWatch(2.0, Bounds(sigma_h_m=1.0, sigma_v_m=1.0, tracking_m=2.0, age_s=0.3))
     w.estimate(0.5, 1.4)
-    w.tracking(0.0, (0.0, 0.0, 2.0), (0.0, 0.0, 5.0))  # taking off: lagging by design
-    assert w.broken(0.0) == ("A3 estimate: vertical σ 1.40 m > 1 m",)
-    w.tracking(0.5, (0.0, 0.0, 5.0), (0.5, 0.0, 5.0))  # caught up: A4 is judged from now on
+    w.tracking(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), airborne=False)  # on the ground
+    w.tracking(0.1, (0.0, 0.0, 2.0), (0.0, 0.0, 5.0))  # taking off: lagging by design
+    assert w.broken(0.1) == ("A3 estimate: vertical σ 1.40 m > 1 m",)
+    w.tracking(0.5, (0.0, 0.0, 5.0), (0.3, 0.0, 5.0))  # caught up: A4 is judged from now on
     w.tracking(1.0, (0.0, 0.0, 5.0), (3.0, 0.0, 5.0))
     w.heard("uav2", stamp_s=0.0, received_s=0.05)
     w.heard("uav2", stamp_s=0.5, received_s=0.95)  # arrived 0.45 s old
@@ -120,6 +121,7 @@ def test_a_node_holds_while_its_estimate_is_too_uncertain_and_says_so() -> None:
     swarm = f"t{ports[0]}"
     eps = [f"tcp/127.0.0.1:{p}" for p in ports]
     af = Airframe.packaged("f550")
+    warm_up(af)  # cold, the node's first tick would compile for a minute
     vehicle = _VehicleWithSigma(af, (0.0, 0.0, 5.0), 0.0)
     with ZenohTransport("uav1", swarm=swarm, listen=[eps[0]]) as tx, \
             ZenohTransport("obs", swarm=swarm, listen=[eps[1]], connect=[eps[0]]) as obs:

@@ -130,16 +130,18 @@ class AssumptionWatch:
         self.worst["sigma_h_m"] = max(self.worst["sigma_h_m"], self.sigma_m[0])
         self.worst["sigma_v_m"] = max(self.worst["sigma_v_m"], self.sigma_m[1])
 
-    def tracking(self, now_s: float, vehicle_m: Any, virtual_m: Any) -> None:
+    def tracking(self, now_s: float, vehicle_m: Any, virtual_m: Any,
+                 airborne: bool = True) -> None:
         """The vehicle's estimate ``vehicle_m`` (3,) against its virtual UAV ``virtual_m``
-        (3,) at ``now_s`` [s]."""
+        (3,) at ``now_s`` [s]; ``airborne``: clear of the ground (a vehicle still on it has
+        not begun to track)."""
         dx, dy, dz = (float(vehicle_m[a]) - float(virtual_m[a]) for a in range(3))
         e_h, e_v = math.hypot(dx, dy), abs(dz)
         self._errors.append((now_s, e_h, e_v))
         while self._errors and self._errors[0][0] < now_s - TRACKING_WINDOW_S:
             self._errors.popleft()
         self.worst["tracking_m"] = max(self.worst["tracking_m"], math.hypot(e_h, e_v))
-        if math.hypot(e_h, e_v) < 0.5 * self.bounds.tracking_m:
+        if airborne and math.hypot(e_h, e_v) < 0.25 * self.bounds.tracking_m:
             self._caught_up = True
 
     def heard(self, peer: str, stamp_s: float, received_s: float) -> None:

@@ -472,7 +472,8 @@ class Node:
                 w.heard(msg.uav_id, msg.stamp_s, msg.received_s)
         if not (sup.launched and vehicle.flying and vehicle.commanding and not landing):
             return  # on the ground, landing, or no longer ours: nothing to hold
-        w.tracking(now, state.position_m, stack.command().position_m)
+        w.tracking(now, state.position_m, stack.command().position_m,
+                   airborne=bool(state.position_m[2] - vehicle.ground_z_m > TAKEOFF_BELOW_M))
         stack.state_uncertainty(*w.stated_sigma_m())
         self.broken = w.broken(now)
         if self.broken and sup.paused is None:

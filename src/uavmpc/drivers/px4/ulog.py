@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from uavmpc.drivers.px4.frames import enu_to_geodetic, geodetic_to_enu, ned_to_enu
+from uavmpc.drivers.px4.truth import Track, closest_by_pair, resample, time_grid
 
 __all__ = ["ESTIMATE_TOPIC", "TRUTH_TOPIC", "Track", "ULogError", "closest_by_pair",
            "on_wall_clock", "read_estimate", "read_truth", "swarm_truth"]
@@ -43,44 +43,6 @@ class ULogError(ValueError):
     """A file that is not a readable PX4 flight log, or lacks what was asked of it; the
     message is one line naming the file."""
 
-
-@dataclass(frozen=True)
-class Track:
-    """One vehicle's positions over time.
-
-    Attributes:
-        t_s: (K,) sample times [s], strictly increasing: PX4's boot clock as read from a log,
-            Unix time after :func:`on_wall_clock`.
-        position_m: (K, 3) positions [m], world ENU about the world's geodetic origin.
-    """
-
-    t_s: np.ndarray
-    position_m: np.ndarray
-
-    def __post_init__(self) -> None:
-        t = np.array(self.t_s, dtype=float)  # copies: the caller's arrays stay writable
-        p = np.array(self.position_m, dtype=float)
-        if t.ndim != 1 or p.shape != (t.size, 3):
-            raise ValueError(f"Track: t_s must be (K,) and position_m (K, 3), got {t.shape} "
-                             f"and {p.shape}")
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p))):
-            raise ValueError("Track: times and positions must be finite")
-        if np.any(np.diff(t) <= 0.0):
-            raise ValueError("Track: t_s must be strictly increasing")
-        t.setflags(write=False)
-        p.setflags(write=False)
-        object.__setattr__(self, "t_s", t)
-        object.__setattr__(self, "position_m", p)
-
-    @property
-    def span_s(self) -> tuple[float, float]:
-        """First and last sample time [s]; (nan, nan) for an empty track."""
-        if self.t_s.size == 0:
-            return math.nan, math.nan
-        return float(self.t_s[0]), float(self.t_s[-1])
-
-
-# --- reading ---------------------------------------------------------------------------------
 
 def _datasets(path: str | Path, topics: tuple[str, ...]) -> dict[str, dict[str, np.ndarray]]:
     """The fields of each of ``topics`` (its first instance) in the ULog at ``path``."""
@@ -184,48 +146,6 @@ def on_wall_clock(track: Track, clock_offset_s: float, clock_rate: float) -> Tra
     return Track(offset + rate * track.t_s, track.position_m)
 
 
-def _grid(t0: float, t1: float, step_s: float) -> np.ndarray:
-    if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
-        raise ValueError(f"time window must be finite with t1 >= t0, got [{t0!r}, {t1!r}]")
-    if not (math.isfinite(step_s) and step_s > 0.0):
-        raise ValueError(f"step_s must be positive, got {step_s!r}")
-    n = math.floor((t1 - t0) / step_s) + 1
-    grid = t0 + step_s * np.arange(n)
-    return grid if grid[-1] >= t1 else np.append(grid, t1)
-
-
-def _resample(track: Track, grid: np.ndarray) -> np.ndarray:
-    """(G, 3) positions on ``grid``, linear between samples, NaN outside the track's span."""
-    out = np.full((grid.size, 3), np.nan)
-    if track.t_s.size == 0:
-        return out
-    inside = (grid >= track.t_s[0]) & (grid <= track.t_s[-1])
-    for k in range(3):
-        out[inside, k] = np.interp(grid[inside], track.t_s, track.position_m[:, k])
-    return out
-
-
-def closest_by_pair(tracks: dict[str, Track], t0: float, t1: float,
-                    step_s: float = 0.02) -> dict[tuple[str, str], float]:
-    """Each pair's closest approach [m, 3-D] over ``[t0, t1]`` (the tracks' clock, s).
-
-    Every track is resampled linearly on one grid (``step_s`` apart, both ends included); a
-    pair is judged where both tracks have samples. Pairs ``(a, b)`` with ``a`` before ``b`` in
-    ``tracks``' order, sorted like a swarm summary's ``closest_by_pair_m``; a pair whose spans
-    do not meet inside the window is left out."""
-    grid = _grid(float(t0), float(t1), float(step_s))
-    ids = list(tracks)
-    on_grid = {u: _resample(tracks[u], grid) for u in ids}
-    out: dict[tuple[str, str], float] = {}
-    for i, a in enumerate(ids):
-        for b in ids[i + 1:]:
-            d = np.linalg.norm(on_grid[a] - on_grid[b], axis=1)
-            d = d[np.isfinite(d)]
-            if d.size:
-                out[(a, b)] = float(d.min())
-    return dict(sorted(out.items()))
-
-
 # --- a swarm run -----------------------------------------------------------------------------
 
 def swarm_truth(run_dir: str | Path, step_s: float = 0.02) -> dict[str, Any]:
@@ -305,7 +225,7 @@ def swarm_truth(run_dir: str | Path, step_s: float = 0.02) -> dict[str, Any]:
     closest: dict[tuple[str, str], float] = {}
     if truth and math.isfinite(t0) and math.isfinite(t1) and t1 >= t0:
         closest = closest_by_pair(truth, t0, t1, step_s)
-        grid = _grid(t0, t1, step_s)
+        grid = time_grid(t0, t1, step_s)
         for uav, tr in truth.items():
             per_uav[uav].update(_estimate_error(tr, estimate[uav], grid))
     by_pair = {f"{a}-{b}": (round(closest[(a, b)], 3) if (a, b) in closest else None)
@@ -323,7 +243,7 @@ def swarm_truth(run_dir: str | Path, step_s: float = 0.02) -> dict[str, Any]:
 def _estimate_error(truth: Track, estimate: Track, grid: np.ndarray) -> dict[str, Any]:
     """EKF2 against the truth on ``grid`` where both have samples: horizontal RMS, largest
     vertical error [m]."""
-    err = _resample(estimate, grid) - _resample(truth, grid)
+    err = resample(estimate, grid) - resample(truth, grid)
     both = np.all(np.isfinite(err), axis=1)
     if not both.any():
         return {"estimate_compared_s": 0.0, "horizontal_rms_m": None, "vertical_max_m": None}
