@@ -88,27 +88,31 @@ def test_the_avoidance_status_carries_what_the_prediction_messages_do() -> None:
               if line.strip() and not line.startswith("#")]
     assert fields == ["header", "active", "z_offset_m", "yielding_to", "heard",
                       "position_sigma_horizontal_m", "position_sigma_vertical_m", "holding",
-                      "deaf"]
+                      "deaf", "broken"]
     independent = generate_dynamic(kind, codec.definition(kind))[kind]  # mcap-ros2-support
     cdr = codec.avoidance_status(12.5, True, 1.5, ["uav2"], heard=("uav2", "uav3"),
                                  position_sigma_horizontal_m=0.8, position_sigma_vertical_m=1.2,
-                                 holding=True, deaf=("uav3",))
+                                 holding=True, deaf=("uav3",),
+                                 broken=("A3 estimate: vertical σ 2.50 m > 1.5 m",))
     for msg in (codec.decode(cdr, kind), independent(cdr)):
         assert (msg.active, msg.z_offset_m, list(msg.yielding_to)) == (True, 1.5, ["uav2"])
         assert list(msg.heard) == ["uav2", "uav3"] and list(msg.deaf) == ["uav3"]
         assert (msg.position_sigma_horizontal_m, msg.position_sigma_vertical_m) == (0.8, 1.2)
         assert msg.holding is True
+        assert list(msg.broken) == ["A3 estimate: vertical σ 2.50 m > 1.5 m"]
         assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (12, 500_000_000)
     assert codec.encode(codec.decode(cdr, kind), kind) == cdr
     # the callers of before: nothing heard, no uncertainty stated, not holding, none deaf
     old = codec.decode(codec.avoidance_status(0.0, False, 0.0, []), kind)
     assert (list(old.heard), old.position_sigma_horizontal_m, old.position_sigma_vertical_m,
-            old.holding, list(old.deaf)) == ([], 0.0, 0.0, False, [])
+            old.holding, list(old.deaf), list(old.broken)) == ([], 0.0, 0.0, False, [], [])
     # an id list given as one string would go out letter by letter: refused by name
-    with pytest.raises(TypeError, match="heard: a sequence of ids"):
+    with pytest.raises(TypeError, match="heard: a sequence of strings"):
         codec.avoidance_status(0.0, False, 0.0, [], heard="uav2")
-    with pytest.raises(TypeError, match="deaf: a sequence of ids"):
+    with pytest.raises(TypeError, match="deaf: a sequence of strings"):
         codec.avoidance_status(0.0, False, 0.0, [], deaf=b"uav2")
+    with pytest.raises(TypeError, match="broken: a sequence of strings"):
+        codec.avoidance_status(0.0, False, 0.0, [], broken="A4 vehicle")
     with pytest.raises(ValueError, match="could not convert"):
         codec.avoidance_status(0.0, False, 0.0, [], position_sigma_vertical_m="high")
 
@@ -131,13 +135,13 @@ def test_the_avoidance_status_carries_what_the_prediction_messages_do() -> None:
     stack = SimpleNamespace(decision=decision, heard=("uav1", "uav4"),
                             position_sigma_m=(0.5, 0.9),
                             tracker=SimpleNamespace(z_offset_m=2.0))
-    publish_status(topics, 3.0, stack)
+    publish_status(topics, 3.0, stack, ("A4 vehicle: tracking 3.40 m > 3 m",))
     stack.decision, stack.heard = None, ()  # before its first decision and broadcast
     publish_status(topics, 3.1, stack)
     first, before = (codec.decode(c, kind) for c in topics.sent)
     assert (first.active, first.z_offset_m, list(first.yielding_to)) == (True, 2.0, ["uav1"])
     assert list(first.heard) == ["uav1", "uav4"] and list(first.deaf) == ["uav4"]
-    assert first.holding is True
+    assert first.holding is True and list(first.broken) == ["A4 vehicle: tracking 3.40 m > 3 m"]
     assert (first.position_sigma_horizontal_m, first.position_sigma_vertical_m) == (0.5, 0.9)
     assert (before.active, list(before.heard), before.holding, list(before.deaf)) == (
         False, [], False, [])

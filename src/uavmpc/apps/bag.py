@@ -107,4 +107,5 @@ def _convert(codec: Ros2Codec, kind: str, data: dict[str, Any], t_s: float,
                                   position_sigma_vertical_m=float(
                                       data.get("position_sigma_vertical_m", 0.0)),
                                   holding=bool(data.get("holding", False)),
-                                  deaf=list(data.get("deaf", [])))
+                                  deaf=list(data.get("deaf", [])),
+                                  broken=list(data.get("broken", [])))

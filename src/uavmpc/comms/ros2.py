@@ -176,10 +176,10 @@ class Ros2Codec:
                          yielding_to: Sequence[str], *, heard: Sequence[str] = (),
                          position_sigma_horizontal_m: float = 0.0,
                          position_sigma_vertical_m: float = 0.0, holding: bool = False,
-                         deaf: Sequence[str] = ()) -> bytes:
+                         deaf: Sequence[str] = (), broken: Sequence[str] = ()) -> bytes:
         """uavmpc_msgs/AvoidanceStatus: what the avoidance does (``active``, ``z_offset_m``,
-        ``yielding_to``, ``holding``, ``deaf``) and what its prediction messages carry
-        (``heard``, the stated position 1 sigma).
+        ``yielding_to``, ``holding``, ``deaf``), what its prediction messages carry (``heard``,
+        the stated position 1 sigma) and the assumptions broken now (``broken``).
 
         Raises:
             TypeError: an id list given as one string (it would be sent letter by letter).
@@ -189,7 +189,7 @@ class Ros2Codec:
             yielding_to=_ids("yielding_to", yielding_to), heard=_ids("heard", heard),
             position_sigma_horizontal_m=float(position_sigma_horizontal_m),
             position_sigma_vertical_m=float(position_sigma_vertical_m), holding=bool(holding),
-            deaf=_ids("deaf", deaf))
+            deaf=_ids("deaf", deaf), broken=_ids("broken", broken))
         return self.encode(msg, AVOIDANCE_STATUS)
 
     # ------------------------------------------------------------------ missions
@@ -233,9 +233,9 @@ class Ros2Codec:
 
 
 def _ids(field: str, ids: Sequence[str]) -> list[str]:
-    """A message's list of UAV ids, each as a string; one string alone is refused."""
+    """A message's list of strings (UAV ids, assumptions); one string alone is refused."""
     if isinstance(ids, str | bytes):
-        raise TypeError(f"{field}: a sequence of ids, got one {type(ids).__name__} {ids!r}")
+        raise TypeError(f"{field}: a sequence of strings, got one {type(ids).__name__} {ids!r}")
     return [str(u) for u in ids]
 
 
@@ -477,13 +477,13 @@ class UavTopics:
                           yielding_to: Sequence[str], *, heard: Sequence[str] = (),
                           position_sigma_horizontal_m: float = 0.0,
                           position_sigma_vertical_m: float = 0.0, holding: bool = False,
-                          deaf: Sequence[str] = ()) -> None:
+                          deaf: Sequence[str] = (), broken: Sequence[str] = ()) -> None:
         """``/<id>/avoidance``: :meth:`Ros2Codec.avoidance_status` of these values."""
         self.avoidance.put(self.codec.avoidance_status(
             t_s, active, z_offset_m, yielding_to, heard=heard,
             position_sigma_horizontal_m=position_sigma_horizontal_m,
-            position_sigma_vertical_m=position_sigma_vertical_m, holding=holding, deaf=deaf),
-            round(t_s * 1e9))
+            position_sigma_vertical_m=position_sigma_vertical_m, holding=holding, deaf=deaf,
+            broken=broken), round(t_s * 1e9))
 
     def missions(self, now_s: float, build: Callable[[np.ndarray | None, np.ndarray], Any],
                  most: int = 4) -> tuple[list[Any], list[str]]:

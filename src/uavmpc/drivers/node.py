@@ -667,7 +667,7 @@ class Node:
                                 state.body_rates_radps)
         self._ros2_ticks += 1
         if self._ros2_ticks % 5 == 0:  # the avoidance's own rate, 10 Hz
-            publish_status(self.ros2, now, self.stack)
+            publish_status(self.ros2, now, self.stack, self.broken)
 
     def _publish_state(self, now: float, state: VehicleState) -> None:
         stack = self.stack

@@ -86,9 +86,11 @@ def ros2_mission(times: np.ndarray | None, points: np.ndarray, now_s: float) -> 
     return mission_from_table(table, "ros2 mission", now_s)
 
 
-def publish_status(topics: UavTopics, stamp_s: float, stack: OnboardStack) -> None:
-    """The avoidance's state of ``stack`` on ``/<id>/avoidance``: its decision's, and what its
-    prediction messages carry (the ids heard, the stated position uncertainty)."""
+def publish_status(topics: UavTopics, stamp_s: float, stack: OnboardStack,
+                   broken: Sequence[str] = ()) -> None:
+    """The avoidance's state of ``stack`` on ``/<id>/avoidance``: its decision's, what its
+    prediction messages carry (the ids heard, the stated position uncertainty), and the
+    assumptions its driver finds ``broken`` now (:mod:`uavmpc.assumptions`)."""
     d = stack.decision
     sigma_h, sigma_v = stack.position_sigma_m
     topics.publish_avoidance(stamp_s, bool(d is not None and d.avoiding),
@@ -97,7 +99,7 @@ def publish_status(topics: UavTopics, stamp_s: float, stack: OnboardStack) -> No
                              heard=list(stack.heard), position_sigma_horizontal_m=sigma_h,
                              position_sigma_vertical_m=sigma_v,
                              holding=bool(d is not None and d.holding),
-                             deaf=list(d.deaf) if d is not None else [])
+                             deaf=list(d.deaf) if d is not None else [], broken=list(broken))
 
 
 def publish_plan(topics: UavTopics, stamp_s: float, stack: OnboardStack,
