@@ -11,9 +11,12 @@ node ``uavmpc node`` builds) and starts ``python -m uavmpc.drivers.launch SPEC``
 statistics come back as a checked report (:class:`~uavmpc.drivers.node.NodeStats`) in a file
 of its own, not on its standard output.
 
-Topology: node 0 listens first; every other node and the monitor connect to it (Zenoh's gossip
-completes the mesh). All missions start at a common epoch a few seconds after launch, once the
-peers have found each other.
+Topology: the monitor listens first, node 0 next; every node connects to the monitor and every
+other node to node 0 as well (Zenoh's gossip completes the mesh). The monitor is listening before
+any node starts, so it hears each from its first message: connecting to a node not up yet, it
+would wait out Zenoh's retry back-off and miss the first seconds of a loaded machine's flight.
+All missions start at a common epoch a few seconds after launch, once the peers have found each
+other.
 
 With ``mavlink=True`` every UAV is a pair of processes: a stand-in PX4 (a
 :class:`~uavmpc.drivers.launch.SitlLaunch`, as ``uavmpc sitl``) booted
@@ -483,7 +486,7 @@ def _start_fleet(fleet: _Fleet, scenario: Scenario, opts: _Options, *, swarm: st
         member = formation is not None and spec.uav_id in formation.members
         fleet.start_node(node_launch(
             spec, settings, swarm=swarm, listen=endpoints[i],
-            connect=[] if i == 0 else [endpoints[0]], mission_file=mission,
+            connect=[endpoints[-1]] + ([endpoints[0]] if i else []), mission_file=mission,
             avoidance=opts.avoidance and spec.avoidance,
             duration_s=opts.duration + (opts.epoch - time.time()) + 1.0,
             key_file=opts.key_file, mavlink=address, setpoints=opts.setpoints,
@@ -518,6 +521,7 @@ class _Monitor:
         self.latest: dict[str, np.ndarray] = {}  # each node's estimate, as it said last
         self.truth: dict[str, np.ndarray] = {}  # each vehicle's truth, last sample
         self.last_state: dict[str, NodeState] = {}
+        self.first_heard: dict[str, float] = {}  # each node's first state [s, Unix]
         self.states_refused = 0  # malformed state messages (not drawn, not judged)
         self.at_end: dict[str, np.ndarray] = {}
         self.truth_at_end: dict[str, np.ndarray] = {}
@@ -584,6 +588,7 @@ class _Monitor:
             p = np.array(s.position_m)
             self.latest[uav] = p
             self.last_state[uav] = s
+            self.first_heard.setdefault(uav, s.t_s)
             self.tracks[uav].append((s.t_s, p))
             self.offsets[uav] = max(self.offsets[uav], s.z_offset_m)
             if not self.by_truth and s.t_s >= self.epoch:
@@ -746,6 +751,9 @@ def _uav_summary(uav: str, goal: np.ndarray, follower: bool, monitor: _Monitor,
         "last_state": (dataclasses.asdict(monitor.last_state[uav])
                        if uav in monitor.last_state else {}),
         "node": ended.nodes[uav][1] if uav in ended.nodes else {},
+        # from the mission's start (positive: the node's first seconds went unwatched)
+        "first_heard_s": (round(monitor.first_heard[uav] - monitor.epoch, 3)
+                          if uav in monitor.first_heard else None),
     }
     if monitor.by_truth:
         details["mission_end_estimate_m"] = (np.asarray(estimated).tolist()
@@ -762,7 +770,8 @@ def _uav_summary(uav: str, goal: np.ndarray, follower: bool, monitor: _Monitor,
     elif opts.mavlink:
         details["sitl"] = ended.sitls.get(uav, {})
     return UavSummary(
-        max_z_offset_m=monitor.offsets[uav],
+        # the node's own report covers its whole flight, the monitor only what it heard
+        max_z_offset_m=max(monitor.offsets[uav], st.max_z_offset_m if st is not None else 0.0),
         avoidance_active_s=st.avoidance_active_s if st is not None else None,
         tracking_rmse_m=st.tracking_rmse_m if st is not None else None,
         reached_goal=(None if follower
@@ -897,7 +906,7 @@ def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
                             mavlink=mavlink, real_px4=real_px4, setpoints=setpoints,
                             ros2=ros2, geo_origin=geo_origin)
             transport = ZenohTransport("monitor", swarm=swarm, listen=[endpoints[n]],
-                                       connect=[endpoints[0]], max_pending=4096)
+                                       max_pending=4096)
             monitor = _Monitor(transport, scenario, opts.epoch, auth_key, kill_at_s, live,
                                truth)
             _start_fleet(fleet, scenario, opts, swarm=swarm, endpoints=endpoints,
