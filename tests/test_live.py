@@ -133,6 +133,7 @@ def _yielding(scene: dict, entity: str) -> bool:
                for e in scene["entities"] if e["cylinders"])
 
 
+@pytest.mark.fleet
 def test_a_swap_of_three_node_processes_is_collision_free_and_watched_live(tmp_path) -> None:
     """``uavmpc swarm --live``: three node processes swap through one point over Zenoh,
     without collision, each to its goal, and the live view shows what the monitor hears."""
