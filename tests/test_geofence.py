@@ -226,3 +226,48 @@ def test_in_the_world_a_uav_outside_flies_back_in_and_offsets_respect_the_ceilin
     free = World(scenarios.from_dict(_swap(None, start1=(-40.0, 0.0, 5.0))), seed=1).run(50.0)
     assert "geofence" not in free.sections
     assert np.linalg.norm(free.positions_m[-1, 0] - [25.0, 0.0, 5.0]) < 0.5
+
+
+def test_the_way_back_is_where_the_uav_is_to_be_with_its_offset_under_the_ceiling() -> None:
+    """The way back is a point for the UAV, offset included: its trajectory (the mission's
+    frame) lies the offset below, and the point no higher than the inset below the ceiling
+    less how far above its estimate the UAV may be. (Before, the offset went on top of a point
+    at the ceiling: under every fault at once UAVs held up to 30 m above a 40 m ceiling.)"""
+    from uavmpc.supervisor import FenceGuard
+
+    fence = Geofence.box((-30.0, 30.0), (-30.0, 30.0), (0.0, 40.0))
+    guard = FenceGuard(fence)
+    back = guard.recovery(3.0, np.array([0.0, 0.0, 41.0]), 0.5, offset_m=28.5)
+    assert back is not None
+    assert back.points[0].tolist() == [0.0, 0.0, 40.0 - fence.inset_m - 28.5, 0.5]
+    assert back.times_s[0] == 3.0
+    again = FenceGuard(fence).recovery(3.0, np.array([0.0, 0.0, 41.0]), 0.5, offset_m=28.5,
+                                       sigma_above_m=4.0)
+    assert again is not None and again.points[0, 2] == 40.0 - fence.inset_m - 4.0 - 28.5
+    # the trajectory never goes below the floor's inset, whatever the offset
+    low = FenceGuard(fence).recovery(0.0, np.array([0.0, 0.0, 41.0]), 0.0, offset_m=60.0)
+    assert low is not None and low.points[0, 2] == fence.min_altitude_m + fence.inset_m
+    # a UAV inside needs no way back
+    assert FenceGuard(fence).recovery(0.0, np.array([0.0, 0.0, 20.0]), 0.0) is None
+
+
+def test_a_uav_on_single_band_gnss_stays_under_the_ceiling_by_its_truth() -> None:
+    """A3 at the ceiling: where its estimate is at the top, a UAV may truly be uncertainty_k σ
+    above; its offsets keep that much more room (swap_through_static under a 10 m ceiling,
+    seed 0: a layer of 3 m on 5 m took it to 15 m by its truth before). No room left for a
+    layer, the UAVs hold instead of climbing."""
+    from uavmpc import scenarios
+    from uavmpc.drivers.world import World
+    from uavmpc.scenarios.faults import FaultSpec
+    from uavmpc.scenarios.run import RunSpec
+
+    fence = {"box": [-30, -10, 30, 10], "min_altitude_m": 1.0, "max_altitude_m": 10.0}
+    sc = scenarios.from_dict(_swap(fence))
+    world = World.from_spec(RunSpec(sc, seed=0, faults=FaultSpec(gnss="single")))
+    sigma_v = world.uavs[0].stack.position_sigma_m[1]
+    assert sigma_v > 1.0  # single-band GNSS states metres
+    res = world.run(50.0)
+    assert res.positions_m[:, :, 2].max() <= 10.0
+    room = 10.0 - 1.0 - 5.0 - sc.avoidance.uncertainty_k * sigma_v
+    assert all(o.max_z_offset_m <= max(room, 0.0) + 1e-9 for o in res.per_uav.values())
+    assert not res.collisions

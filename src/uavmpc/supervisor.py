@@ -64,14 +64,26 @@ class FenceGuard:
         return not (margin_m >= 0.0) or not self.watch.entered
 
     def recovery(self, own_s: float, position_m: np.ndarray, heading_rad: float,
-                 margin_m: float | None = None) -> Reference | None:
+                 margin_m: float | None = None, *, offset_m: float = 0.0,
+                 sigma_above_m: float = 0.0) -> Reference | None:
         """The failsafe's trajectory when ``position_m`` (3,) is a new exit: back to a point
         inside from ``own_s`` (the UAV's clock) on, holding ``heading_rad``; else None.
-        ``margin_m``: the position's margin, if the caller computed it in a batch."""
+        ``margin_m``: the position's margin, if the caller computed it in a batch.
+
+        The point is where the UAV is to be, avoidance offset ``offset_m`` [m] included: the
+        trajectory (the mission's frame, under the offset) is that far below it, and no
+        higher than the inset below the ceiling less ``sigma_above_m`` (how far above its
+        estimate it may truly be). Found under every fault at once: the way back put the
+        offset on top of a point at the ceiling, and UAVs held 30 m above it."""
         back = self.watch.check(position_m, margin_m)
         if back is None:
             return None
-        return Reference.goto(*back, heading_rad, start_s=own_s)
+        fence = self.geofence
+        low = fence.min_altitude_m + fence.inset_m
+        total = max(low, min(float(back[2]), fence.max_altitude_m - fence.inset_m
+                             - sigma_above_m))
+        return Reference.goto(back[0], back[1], max(low, total - offset_m), heading_rad,
+                              start_s=own_s)
 
     def ceiling_m(self, z_m: np.ndarray) -> float:
         """The avoidance's ceiling [m] over a mission at heights ``z_m`` (K,)."""
@@ -113,7 +125,7 @@ class Supervisor:
         """Hold: fly ``hover`` (where it starts) while ``mission`` waits for :meth:`launch`."""
         self.launched = False
         self.held = mission
-        self.stack.set_mission(hover)
+        self._steer(hover)
 
     def heard_from(self, own_s: float, peers: Sequence[int] | np.ndarray) -> bool:
         """Its inbox holds a prediction from every column of ``peers`` of its table that its
@@ -134,7 +146,7 @@ class Supervisor:
         self.launched = True
         ref, self.held = (self.held if self.held is not None else reference), None
         if ref is not None:
-            self.stack.set_mission(ref)
+            self._steer(ref)
 
     # ------------------------------------------------------------------ mission
     def mission_due(self, now_s: float) -> bool:
@@ -159,7 +171,7 @@ class Supervisor:
             self.stack.follow(own_s, estimate)
             return first
         if out.reference is not None:
-            self.stack.set_mission(out.reference)
+            self._steer(out.reference)
         return False
 
     # ------------------------------------------------------------------ an assumption broke
@@ -169,30 +181,43 @@ class Supervisor:
         and so does any mission commanded meanwhile."""
         if self.paused is None:
             self.paused = self.stack.tracker.reference
-        self.stack.set_mission(hover)
+        self._steer(hover)
 
     def resume(self) -> None:
         """Fly the trajectory that waited since :meth:`pause` (on its own clock: a path
         resumes where it would be now)."""
         ref, self.paused = self.paused, None
         if ref is not None:
-            self.stack.set_mission(ref)
+            self._steer(ref)
 
     # ------------------------------------------------------------------ geofence
     def fly(self, reference: Reference) -> None:
-        """Fly a commanded mission (checked against the geofence already): the avoidance's
-        ceiling over it, then the trajectory (or, paused, after :meth:`resume`)."""
-        self.limit_ceiling(reference.points[:, 2])
+        """Fly a commanded mission (checked against the geofence already), or, paused, keep
+        it for :meth:`resume`."""
         if self.paused is not None:
             self.paused = reference
             return
+        self._steer(reference)
+
+    def _steer(self, reference: Reference) -> None:
+        """Every trajectory the stack is given passes here (the launch hold, the mission and
+        its steps, a pause and its end, the fence's way back): the avoidance's ceiling over
+        it, then the trajectory. A mission step that climbs lowers the room left above it
+        (found: a walk's waypoint higher than the first kept the first's ceiling)."""
+        self.limit_ceiling(reference.points[:, 2])
         self.stack.set_mission(reference)
 
     def limit_ceiling(self, z_m: np.ndarray) -> None:
         """With a geofence, the avoidance climbs no higher than its ceiling over a mission at
-        heights ``z_m`` (K,) [m]."""
+        heights ``z_m`` (K,) [m], lowered by ``uncertainty_k`` of the vertical σ the UAV states
+        (A3: where its estimate is at the ceiling, its truth may lie that far above; found
+        with single-band GNSS, a UAV raised to the ceiling was outside by its truth)."""
         if self.fence is not None:
-            self.stack.limit_offset(self.fence.ceiling_m(z_m))
+            self.stack.limit_offset(max(0.0, self.fence.ceiling_m(z_m) - self._sigma_above_m()))
+
+    def _sigma_above_m(self) -> float:
+        """How far above its estimate the UAV may truly be [m]: ``uncertainty_k`` σ_v."""
+        return float(self.stack.params.uncertainty_k) * self.stack.position_sigma_m[1]
 
     def watch_fence(self, own_s: float, position_m: np.ndarray, heading_rad: float,
                     margin_m: float | None = None) -> bool:
@@ -201,7 +226,9 @@ class Supervisor:
         when it engaged."""
         if self.fence is None:
             return False
-        ref = self.fence.recovery(own_s, position_m, heading_rad, margin_m)
+        ref = self.fence.recovery(own_s, position_m, heading_rad, margin_m,
+                                  offset_m=self.stack.tracker.z_offset_m,
+                                  sigma_above_m=self._sigma_above_m())
         if ref is None:
             return False
         self.failsafe(ref)

@@ -647,12 +647,10 @@ class Node:
         """The failsafe at 10 Hz: a vehicle found outside the volume flies back in and holds."""
         fence, sup = self._fence, self.supervisor
         assert fence is not None and sup is not None
-        back = fence.recovery(sup.stack.tracker.time_s, state.position_m,
-                              float(heading_of(state.attitude_wxyz)))
-        if back is not None:
+        if sup.watch_fence(sup.stack.tracker.time_s, state.position_m,
+                           float(heading_of(state.attitude_wxyz))):
             with self._lock:
                 self._pending_mission = None  # a mission that waited led out as well
-            sup.failsafe(back)
         self.stats.geofence = fence.report()
 
     def _open_command(self, payload: bytes, channel: str) -> bytes:

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uavmpc.comms.ros2 import Ros2Graph, UavTopics
+from uavmpc.geofence import GeofenceError
 from uavmpc.missions.format import mission_from_table
 from uavmpc.onboard import OnboardStack
 from uavmpc.reference import Reference
@@ -138,8 +139,16 @@ class WorldOnRos2:
                 publish_plan(topics, stamp, u.stack, self.epoch_s)
             refs, rejected = topics.missions(now, self._mission(now))
             self.missions_rejected += rejected
-            for ref in refs:
-                u.stack.set_mission(ref)
+            for ref in refs:  # as a node takes them: checked against the geofence, flown
+                fence = u.supervisor.fence  # under its ceiling by the supervisor
+                if fence is not None:
+                    try:
+                        fence.check_mission(ref)
+                    except GeofenceError as e:
+                        fence.refused += 1
+                        self.missions_rejected.append(f"{u.uav_id}: {e}")
+                        continue
+                u.supervisor.fly(ref)
                 self.missions_taken += 1
 
     def _mission(self, now: float) -> Any:

@@ -499,17 +499,18 @@ class World:
         self.launch_check_s = _launch_check(launch_check_s)
         #: Per id: when it set off [s, world time] and whom it had not heard then.
         self.launches: dict[str, dict[str, Any]] = {}
+        self.period_s = self.onboard.tracker.config.first_step_s
+        # Before the UAVs: the σ each states bounds its room under a geofence's ceiling.
+        self.estimator = _estimator_of(gnss, self.onboard, n, self.period_s, seed)
         self.uavs = self._add_uavs(airframes, strategy, wind_mps, offsets)
         #: The rows still held at their starts by the launch check.
         self._held = [i for i, u in enumerate(self.uavs) if not u.supervisor.launched]
         self.t_s = 0.0
-        self.period_s = self.onboard.tracker.config.first_step_s
         self.n_sub = _common_substeps(self.uavs, self.period_s)
         self._offsets = offsets.copy()
         #: The rows due to broadcast at a tick and their clocks (work arrays of _emit).
         self._due_rows = np.empty(n, dtype=np.int64)
         self._due_stamps = np.empty(n)
-        self.estimator = _estimator_of(gnss, self.onboard, n, self.period_s, seed)
         #: The numerical tick of every UAV (one compiled call).
         self.ticker = CompiledTick(self.onboard, self.plants, self.n_sub, self.period_s,
                                    self.estimator,
