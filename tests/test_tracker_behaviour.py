@@ -234,3 +234,25 @@ def test_stepping_trackers_together_equals_stepping_them_alone() -> None:
     assert braked, "the tightening must make one of them brake"
     for a, b in zip(together, alone, strict=True):
         assert np.array_equal(a.state, b.state)
+
+
+def test_a_held_height_stops_the_references_climb_and_keeps_the_offset(
+        tracker: MpcTracker) -> None:
+    """A hold short stops vertically too: with a held height the reference's own climb no
+    longer moves the virtual UAV, the avoidance's offset still does; released, it climbs on."""
+    climb = Reference(np.array([0.0, 20.0]), np.array([[0.0, 0.0, 0.0, 0.0],
+                                                       [0.0, 0.0, 30.0, 0.0]]))
+    tracker.set_reference(climb)
+    fly(tracker, 200)  # 2 s into a 1.5 m/s climb
+    assert tracker.hold_z_m is None
+    tracker.hold_height(3.0)
+    held = fly(tracker, 800)
+    assert held[-1, 2, 0] == pytest.approx(3.0, abs=0.01)  # the climb went on to 24 m
+    tracker.set_z_offset(3.0)
+    raised = fly(tracker, 800)
+    assert raised[-1, 2, 0] == pytest.approx(6.0, abs=0.01)
+    tracker.hold_height(None)
+    freed = fly(tracker, 500)
+    assert freed[-1, 2, 0] > 10.0 and freed[-1, 2, 1] > 1.0
+    with pytest.raises(ValueError, match="hold z_m"):
+        tracker.hold_height(float("nan"))

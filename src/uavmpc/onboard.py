@@ -761,6 +761,7 @@ class OnboardStack:
         self.batch.resting[self.row] = False
         self.decision = None
         self.batch.holding.discard(self.row)
+        self.tracker.hold_height(None)
         self.batch.stats.avoiding[self.row] = False
         if self._limits_key != (1.0, None, None):
             self._limits_key = (1.0, None, None)
@@ -995,18 +996,32 @@ class OnboardStack:
         if decision is self.decision:
             return  # steering by it already (only this and follow() change what it sets)
         self.decision = decision
+        if decision.z_offset_m != self.tracker.z_offset_m:
+            self.tracker.set_z_offset(decision.z_offset_m)
         if decision.holding:
+            if self.row not in self.batch.holding:
+                self.tracker.hold_height(self._rest_height_m())
             self.batch.holding.add(self.row)
         else:
             self.batch.holding.discard(self.row)
-        if decision.z_offset_m != self.tracker.z_offset_m:
-            self.tracker.set_z_offset(decision.z_offset_m)
+            self.tracker.hold_height(None)
         key = (decision.horizontal_scale, decision.climb_speed_mps, decision.climb_accel_mps2,
                decision.holding)
         if key != self._limits_key:
             self._limits_key = key
             self.tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
         self.batch.stats.avoiding[self.row] = bool(decision.avoiding)
+
+
+    def _rest_height_m(self) -> float:
+        """Where the virtual UAV's climb or descent comes to rest braking at its limits, in
+        the mission's frame (less the offset): the height a hold keeps (a hold at the height
+        of now would overshoot and come back)."""
+        s = self.tracker.state[2]
+        z, v = float(s[0]), float(s[1])
+        lim = self.tracker.limits
+        brake = lim.descend_accel_mps2 if v > 0.0 else lim.ascend_accel_mps2
+        return z + v * abs(v) / (2.0 * brake) - self.tracker.z_offset_m
 
 
 def _estimate_part(estimate: VehicleState, name: str, n: int) -> np.ndarray:

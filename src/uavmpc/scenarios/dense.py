@@ -94,6 +94,48 @@ def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
                     link if link is not None else LinkSettings(), geofence=fence)
 
 
+def vertical_swap(per_stack: int, gap_m: float = 40.0, bottom_m: float = 6.0,
+                  spacing_m: float = 6.0, speed_mps: float = SPEED_MPS,
+                  start_s: float = START_S, duration_s: float = DURATION_S, *,
+                  link: LinkSettings | None = None, ceiling_m: float | None = None
+                  ) -> Scenario:
+    """Two stacks of ``per_stack`` UAVs, one above the other every ``spacing_m`` [m] from
+    ``bottom_m`` [m], ``gap_m`` [m] apart on the x axis, swap places and invert their heights:
+    the lowest of one stack flies to the top of the other's place. Every path climbs or
+    descends through the others' heights while they cross: vertical traffic, which a layer of
+    offsets alone does not separate. Priorities: the west stack first (bottom up), then the
+    east. ``ceiling_m``: a geofence from the ground up to it (default: 12 m above the top)."""
+    if isinstance(per_stack, bool) or not isinstance(per_stack, int) or not 1 <= per_stack <= 50:
+        raise ConfigError(f"per_stack: must be an integer in [1, 50], got {per_stack!r}")
+    gap = positive(gap_m, "gap_m", upper=1e4)
+    bottom = positive(bottom_m, "bottom_m", upper=1e4)
+    spacing = positive(spacing_m, "spacing_m", upper=1e3)
+    if spacing < 2.0:
+        raise ConfigError(f"spacing_m: UAVs of a stack {spacing:g} m apart, need ≥ 2 m")
+    speed = positive(speed_mps, "speed_mps", upper=100.0)
+    start = positive(start_s, "start_s", upper=3600.0, allow_zero=True)
+    duration = positive(duration_s, "duration_s", upper=7 * 24 * 3600.0)
+    heights = [bottom + spacing * k for k in range(per_stack)]
+    top = positive(heights[-1] + 12.0 if ceiling_m is None else ceiling_m, "ceiling_m",
+                   upper=1e4)
+    if top < heights[-1] + 2.0:
+        raise ConfigError(f"ceiling_m: {top:g} m leaves no room above the stack's top "
+                          f"{heights[-1]:g} m (need ≥ {heights[-1] + 2.0:g} m)")
+    uavs = []
+    for side, x in enumerate((-0.5 * gap, 0.5 * gap)):
+        heading = 0.0 if x < 0.0 else math.pi
+        for k, z in enumerate(heights):
+            here, there = (x, 0.0, z), (-x, 0.0, heights[per_stack - 1 - k])
+            mission = Reference.along_path(np.array([here, there]), speed, start)
+            n = side * per_stack + k + 1
+            uavs.append(UavSpec(f"uav{n}", n, "f550", here, heading, mission, there))
+    side_m = 0.5 * gap + 10.0
+    fence = Geofence.from_dict({"box": [-side_m, -10.0, side_m, 10.0], "min_altitude_m": 0.0,
+                                "max_altitude_m": top}, "geofence")
+    return Scenario(f"vertical_swap_{per_stack}", duration, tuple(uavs),
+                    link if link is not None else LinkSettings(), geofence=fence)
+
+
 def antipodal_toml(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
                    speed_mps: float = SPEED_MPS, start_s: float = START_S,
                    duration_s: float = DURATION_S) -> str:

@@ -96,6 +96,9 @@ class TrackerRows(NamedTuple):
         u_prev: (N, 4) the last applied input (for the input-rate weight).
         v_lo, v_hi, a_lo, a_hi: (N, 4) the limits in force (velocity, acceleration/input).
         z_offset_m: (N,) the avoidance's shift of the reference (≥ 0 in practice).
+        hold_z_m: (N,) while the avoidance holds short, the reference's height (before the
+            offset) in place of its own; NaN: none. A hold stops the mission's climb or
+            descent as well as its horizontal motion; the offset still moves it.
         has_previous: (N,) a reference switch is pending: before the current reference's start
             the previous one is flown.
         fallback_count: (N,) ticks on which an axis fell back to braking.
@@ -123,6 +126,7 @@ class TrackerRows(NamedTuple):
     a_lo: np.ndarray
     a_hi: np.ndarray
     z_offset_m: np.ndarray
+    hold_z_m: np.ndarray
     has_previous: np.ndarray
     fallback_count: np.ndarray
     u_plan: np.ndarray
@@ -153,8 +157,8 @@ class TrackerRows(NamedTuple):
         return cls(
             np.zeros((n, N_AXES, 3)), np.zeros(n), np.zeros((n, N_AXES)),
             np.zeros((n, N_AXES)), np.zeros((n, N_AXES)), np.zeros((n, N_AXES)),
-            np.zeros((n, N_AXES)), np.zeros(n), np.zeros(n, dtype=np.bool_),
-            np.zeros(n, dtype=np.int64),
+            np.zeros((n, N_AXES)), np.zeros(n), np.full(n, np.nan),
+            np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
             np.zeros((n, N_AXES, m)), np.zeros((n, N_AXES)), np.zeros((n, N_AXES, 3)),
             np.zeros(n, dtype=np.bool_), np.zeros((n, N_AXES), dtype=np.bool_),
             np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
@@ -446,6 +450,9 @@ def prepare_row(i: int, rows: TrackerRows, refs: ReferenceTable, c: TrackerConst
                 sample_reference(refs.knots_s[b0:b0 + nb], refs.values[b0:b0 + nb],
                                  refs.period_s[i, 1], refs.loop[i, 1], times[:early],
                                  rr[:early])
+        if not math.isnan(rows.hold_z_m[i]):
+            for k in range(m):
+                rr[k, 2] = rows.hold_z_m[i]
         if rows.z_offset_m[i] != 0.0:
             for k in range(m):
                 rr[k, 2] += rows.z_offset_m[i]

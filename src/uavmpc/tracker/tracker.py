@@ -483,6 +483,7 @@ class MpcTracker:
         r.t_s[row] = t0
         r.u_prev[row] = 0.0
         r.z_offset_m[row] = 0.0
+        r.hold_z_m[row] = np.nan
         self._limits = self.config.limits
         batch.set_limits(row, self._limits)
 
@@ -544,6 +545,23 @@ class MpcTracker:
         if not np.isfinite(dz) or abs(dz) > 1.0e4:
             raise ValueError(f"z_offset_m must be finite and within ±1e4 m, got {z_offset_m!r}")
         self.batch.rows.z_offset_m[self.row] = dz
+
+    @property
+    def hold_z_m(self) -> float | None:
+        """The height a hold keeps (before the offset) [m], or None."""
+        z = float(self.batch.rows.hold_z_m[self.row])
+        return None if np.isnan(z) else z
+
+    def hold_height(self, z_m: float | None) -> None:
+        """Fly at ``z_m`` [m] (before the offset) in place of the reference's heights, or
+        (None) the reference's own again: a hold short stops vertically as well."""
+        if z_m is None:
+            self.batch.rows.hold_z_m[self.row] = np.nan
+            return
+        z = float(z_m)
+        if not np.isfinite(z) or abs(z) > 1.0e4:
+            raise ValueError(f"hold z_m must be finite and within ±1e4 m, got {z_m!r}")
+        self.batch.rows.hold_z_m[self.row] = z
 
     def goto(self, x: float, y: float, z: float, heading: float = 0.0) -> None:
         """Fly to a point and hold it, starting now."""
