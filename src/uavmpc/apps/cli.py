@@ -814,6 +814,57 @@ def _add_run_parser(sub: Any) -> None:
     run.set_defaults(func=_run)
 
 
+def _add_falsify_parser(sub: Any) -> None:
+    """Add ``uavmpc falsify``: the search for the smallest separation (its space, budget,
+    link and faults)."""
+    from uavmpc.apps.campaign import add_fault_arguments
+
+    f = sub.add_parser("falsify", help="search scenarios for the smallest separation the "
+                                       "avoidance allows; keep the worst as scenario files")
+    f.add_argument("--budget", type=int, default=200, help="flights (default 200)")
+    f.add_argument("--generation", type=int, default=None,
+                   help="cases per generation (default: a tenth of the budget, at least 4)")
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--uavs", type=int, default=6, help="UAVs per case (default 6)")
+    f.add_argument("--area", type=float, default=60.0,
+                   help="side of the square starts and goals lie in [m] (default 60)")
+    f.add_argument("--min-height", type=float, default=5.0, help="[m] (default 5)")
+    f.add_argument("--max-height", type=float, default=20.0, help="[m] (default 20)")
+    f.add_argument("--ceiling", type=float, default=30.0,
+                   help="the geofence's ceiling [m] (default 30)")
+    f.add_argument("--speed", type=float, default=5.0, help="cruise speed [m/s] (default 5)")
+    f.add_argument("--duration", type=float, default=60.0,
+                   help="simulated seconds per flight (default 60)")
+    f.add_argument("--loss", type=float, default=0.0, help="message loss probability")
+    f.add_argument("--latency", type=float, default=0.05, help="link latency [s]")
+    f.add_argument("--no-avoidance", action="store_true", help="search without avoidance")
+    f.add_argument("--out", default="out/falsify", help="output folder (default out/falsify)")
+    add_fault_arguments(f)
+    f.set_defaults(func=_falsify)
+
+
+def _falsify(args: argparse.Namespace) -> int:
+    from uavmpc.apps.falsify import falsify, space_from_args, summary_lines, write_results
+
+    space = space_from_args(args)
+    closest = [math.inf]
+
+    def said(o: Any) -> None:
+        new = o.min_distance_m < closest[0]
+        closest[0] = min(closest[0], o.min_distance_m)
+        if new or (o.index + 1) % 10 == 0:
+            print(f"flight {o.index + 1}/{args.budget}: {o.min_distance_m:.2f} m"
+                  + (" (closest so far)" if new else f"; closest {closest[0]:.2f} m"),
+                  flush=True)
+
+    outcomes = falsify(space, args.budget, seed=args.seed, generation=args.generation,
+                       avoidance=not args.no_avoidance, on_flight=said)
+    paths = write_results(space, outcomes, Path(args.out), avoidance=not args.no_avoidance)
+    for line in summary_lines(space, outcomes, paths):
+        print(line)
+    return 0
+
+
 def _add_node_parser(sub: Any) -> None:
     """Add ``uavmpc node``: one UAV's identity, peers, mission, keys and autopilot link."""
     node = sub.add_parser("node", help="one UAV's onboard stack in real time over Zenoh")
@@ -1080,6 +1131,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_demo_parser(sub)
     _add_run_parser(sub)
+    _add_falsify_parser(sub)
     _add_node_parser(sub)
     _add_sitl_parser(sub)
     _add_swarm_parser(sub)

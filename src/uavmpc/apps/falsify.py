@@ -1,0 +1,305 @@
+"""``uavmpc falsify``: a search of scenario space for the smallest separation the avoidance
+allows, by the truth of the simulated world.
+
+A *case* is a point θ of the unit cube [0, 1]^(8N) for N UAVs: per UAV its start and its goal
+(x, y in the square of ``area_m``, z between ``min_height_m`` and ``max_height_m``), when it
+sets off (0 to :data:`MAX_DELAY_S` after the common start) and a key that orders the
+priorities. Each UAV flies a straight path from its start to its goal at ``speed_mps``, under
+a geofence whose ceiling is ``ceiling_m``; the link and the faults are the run's (one flight
+seed per case: the losses and the faults are drawn from it). A case whose starts or goals lie
+closer than :data:`MIN_GAP_M` is a set-up error, not a conflict: it is drawn again.
+
+The search is the cross-entropy method over θ, as falsification tools search the inputs of a
+closed loop for the lowest robustness of a property (here: the closest approach of any pair,
+and the highest altitude against the ceiling): a first generation drawn uniformly (random
+search), then each generation drawn from a normal law per coordinate fitted to the best
+:data:`ELITE` of all cases so far, its spread kept above :data:`MIN_SPREAD` so the search never
+collapses onto one case. The budget counts flights.
+
+What it writes (``out``): ``cases.json`` (every flight: its θ, seed, closest approach, when,
+which pair, the highest altitude), and the worst cases as scenario files ``worst_<k>.toml``
+each headed by the command that replays it (``uavmpc run FILE --seed S`` with the run's link
+and fault flags). Judged, as every run is, by the simulated plants' truth.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uavmpc.config import ConfigError, positive
+from uavmpc.scenarios import LinkSettings
+from uavmpc.scenarios.faults import FaultSpec
+
+#: Per UAV: start x, y, z, goal x, y, z, delay, priority key.
+DIMS_PER_UAV = 8
+#: Starts (and goals) closer than this are a set-up error [m] (two UAVs in one place).
+MIN_GAP_M = 3.0
+#: The latest a UAV sets off after the common start [s].
+MAX_DELAY_S = 8.0
+#: When every UAV may set off at the earliest [s]: each has broadcast by then.
+START_S = 2.0
+#: The share of all cases so far whose law the next generation is drawn from.
+ELITE = 0.2
+#: The smallest spread of a coordinate of θ (its range is 1).
+MIN_SPREAD = 0.03
+#: Draws of a case before a set-up error is given up on (a cube this crowded is refused).
+MAX_DRAWS = 1000
+#: The worst cases written as scenario files.
+KEEP = 5
+
+
+@dataclass(frozen=True)
+class Space:
+    """The scenario space searched (SI units, ENU)."""
+
+    uavs: int = 6
+    area_m: float = 60.0
+    min_height_m: float = 5.0
+    max_height_m: float = 20.0
+    ceiling_m: float = 30.0
+    speed_mps: float = 5.0
+    duration_s: float = 60.0
+    link: LinkSettings = field(default_factory=LinkSettings)
+    faults: FaultSpec = field(default_factory=FaultSpec)
+
+    def __post_init__(self) -> None:
+        n = self.uavs
+        if isinstance(n, bool) or not isinstance(n, int) or not 2 <= n <= 64:
+            raise ConfigError(f"uavs: must be an integer in [2, 64], got {n!r}")
+        positive(self.area_m, "area_m", upper=1e4)
+        positive(self.min_height_m, "min_height_m", upper=1e4)
+        positive(self.max_height_m, "max_height_m", upper=1e4)
+        positive(self.speed_mps, "speed_mps", upper=30.0)
+        positive(self.duration_s, "duration_s", upper=3600.0)
+        if not self.max_height_m >= self.min_height_m:
+            raise ConfigError(f"max_height_m ({self.max_height_m}) must be ≥ min_height_m "
+                              f"({self.min_height_m})")
+        if not self.ceiling_m >= self.max_height_m + 2.0:
+            raise ConfigError(f"ceiling_m: {self.ceiling_m} leaves no room above the highest "
+                              f"start or goal ({self.max_height_m} m; need ≥ 2 m)")
+
+    @property
+    def dims(self) -> int:
+        return DIMS_PER_UAV * self.uavs
+
+    def points(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """θ (8N,) as (starts (N, 3), goals (N, 3), delays (N,) [s], priorities (N,) 1…N)."""
+        t = np.asarray(theta, dtype=float).reshape(self.uavs, DIMS_PER_UAV)
+        half = 0.5 * self.area_m
+        span = self.max_height_m - self.min_height_m
+
+        def place(u: np.ndarray) -> np.ndarray:
+            return np.column_stack([(2.0 * u[:, 0] - 1.0) * half, (2.0 * u[:, 1] - 1.0) * half,
+                                    self.min_height_m + u[:, 2] * span])
+
+        starts, goals = place(t[:, 0:3]), place(t[:, 3:6])
+        priorities = np.empty(self.uavs, dtype=np.int64)
+        priorities[np.argsort(t[:, 7], kind="stable")] = np.arange(1, self.uavs + 1)
+        return starts, goals, t[:, 6] * MAX_DELAY_S, priorities
+
+    def valid(self, theta: np.ndarray) -> bool:
+        """Starts and goals each at least :data:`MIN_GAP_M` apart."""
+        starts, goals, _, _ = self.points(theta)
+        return _spread(starts) >= MIN_GAP_M and _spread(goals) >= MIN_GAP_M
+
+    def toml(self, theta: np.ndarray, name: str, header: str = "") -> str:
+        """Case θ as a scenario file (what is flown is what this file loads)."""
+        starts, goals, delays, priorities = self.points(theta)
+        half = 0.5 * self.area_m + 10.0
+        lines = [f"# {line}" for line in header.splitlines()]
+        lines += [f'name = "{name}"', f"duration_s = {self.duration_s!r}", "",
+                  "[link]", f"latency_s = {self.link.latency_s!r}",
+                  f"jitter_s = {self.link.jitter_s!r}", f"loss = {self.link.loss!r}",
+                  f"burst_len = {self.link.burst_len!r}", "",
+                  "[geofence]", f"box = [{-half!r}, {-half!r}, {half!r}, {half!r}]",
+                  "min_altitude_m = 0.0", f"max_altitude_m = {self.ceiling_m!r}"]
+        for i in range(self.uavs):
+            here = ", ".join(repr(round(float(v), 3)) for v in starts[i])
+            there = ", ".join(repr(round(float(v), 3)) for v in goals[i])
+            lines += ["", "[[uavs]]", f'id = "uav{i + 1}"', f"priority = {int(priorities[i])}",
+                      f"start = [{here}]", "[uavs.path]", f"waypoints = [[{here}], [{there}]]",
+                      f"speed_mps = {self.speed_mps!r}",
+                      f"start_s = {round(START_S + float(delays[i]), 3)!r}"]
+        return "\n".join(lines) + "\n"
+
+
+def _spread(p: np.ndarray) -> float:
+    """The smallest distance between two of the points ``p`` (N, 3) [m]."""
+    d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
+    d[np.diag_indices(len(p))] = np.inf
+    return float(d.min())
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One flight of a case: its closest approach by the truth and the highest altitude."""
+
+    index: int
+    seed: int
+    theta: tuple[float, ...]
+    min_distance_m: float
+    at_s: float
+    pair: tuple[str, str]
+    collisions: int
+    top_m: float
+
+
+def fly_case(space: Space, theta: np.ndarray, seed: int, index: int = 0,
+             avoidance: bool = True) -> Outcome:
+    """Fly case ``theta`` once in the simulated world with flight seed ``seed``."""
+    import tomllib
+
+    from uavmpc import scenarios
+    from uavmpc.drivers.world import World
+    from uavmpc.scenarios.run import RunSpec
+
+    sc = scenarios.from_dict(tomllib.loads(space.toml(theta, f"falsify_{index}")),
+                             f"case {index}")
+    res = World.from_spec(RunSpec(sc, seed=seed, avoidance=avoidance,
+                                  faults=space.faults)).run()
+    d = res.min_distance_m
+    k = int(np.argmin(d))
+    pos = res.positions_m[k]
+    gaps = np.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
+    gaps[np.diag_indices(len(pos))] = np.inf
+    a, b = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
+    return Outcome(index, seed, tuple(float(v) for v in theta), float(d[k]),
+                   float(res.t_s[k]), (res.uav_ids[min(a, b)], res.uav_ids[max(a, b)]),
+                   len(res.collisions), float(res.positions_m[:, :, 2].max()))
+
+
+def _draw(space: Space, rng: np.random.Generator, mean: np.ndarray | None,
+          spread: np.ndarray | None) -> np.ndarray:
+    """A valid case: uniform (no law yet), else from the normal law, clipped to the cube."""
+    for _ in range(MAX_DRAWS):
+        if mean is None or spread is None:
+            theta = rng.random(space.dims)
+        else:
+            theta = np.clip(rng.normal(mean, spread), 0.0, 1.0)
+        if space.valid(theta):
+            return theta
+    raise ConfigError(f"{space.uavs} UAVs do not fit {MIN_GAP_M:g} m apart in a "
+                      f"{space.area_m:g} m square: widen --area or fly fewer")
+
+
+def falsify(space: Space, budget: int, *, seed: int = 0, generation: int | None = None,
+            avoidance: bool = True,
+            on_flight: Callable[[Outcome], None] | None = None) -> list[Outcome]:
+    """Search ``budget`` flights (cross-entropy over θ, see the module); every outcome in
+    the order flown. ``generation``: cases per generation (default: a tenth of the budget,
+    at least 4)."""
+    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+        raise ConfigError(f"budget: must be an integer ≥ 1, got {budget!r}")
+    size = max(4, budget // 10) if generation is None else generation
+    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+        raise ConfigError(f"generation: must be an integer ≥ 1, got {size!r}")
+    rng = np.random.default_rng(seed)
+    outcomes: list[Outcome] = []
+    mean: np.ndarray | None = None
+    spread: np.ndarray | None = None
+    while len(outcomes) < budget:
+        for _ in range(min(size, budget - len(outcomes))):
+            theta = _draw(space, rng, mean, spread)
+            flight_seed = seed * 1_000_000 + len(outcomes)
+            out = fly_case(space, theta, flight_seed, len(outcomes), avoidance)
+            outcomes.append(out)
+            if on_flight is not None:
+                on_flight(out)
+        best = sorted(outcomes, key=_badness)[:max(2, math.ceil(ELITE * len(outcomes)))]
+        elite = np.array([o.theta for o in best])
+        mean = elite.mean(axis=0)
+        spread = np.maximum(elite.std(axis=0), MIN_SPREAD)
+    return outcomes
+
+
+def _badness(o: Outcome) -> tuple[float, float]:
+    """The order of the search: the closest approach first, then the highest altitude."""
+    return o.min_distance_m, -o.top_m
+
+
+def replay_flags(space: Space) -> str:
+    """The ``uavmpc run`` flags that fly a case as the search did (the link is in the file
+    as well)."""
+    f = space.faults
+    flags = []
+    if space.link.loss:
+        flags.append(f"--loss {space.link.loss:g}")
+    if space.link.latency_s != LinkSettings().latency_s:
+        flags.append(f"--latency {space.link.latency_s:g}")
+    if f.clock_offset_s:
+        flags.append(f"--clock-offset {f.clock_offset_s:g}")
+    if f.time_reference is not None:
+        flags.append(f"--time-reference {f.time_reference}")
+    if f.gnss != "none":
+        flags.append(f"--gnss {f.gnss}")
+    if f.burst_len:
+        flags.append(f"--burst-loss {f.burst_len:g}")
+    if f.non_cooperative:
+        flags.append(f"--non-cooperative {f.non_cooperative}")
+    if f.silent:
+        flags.append(f"--silent {f.silent}")
+    return " ".join(flags)
+
+
+def write_results(space: Space, outcomes: list[Outcome], out: Path, *,
+                  avoidance: bool = True) -> list[Path]:
+    """``cases.json`` and the :data:`KEEP` worst cases as scenario files; their paths."""
+    out.mkdir(parents=True, exist_ok=True)
+    worst = sorted(outcomes, key=_badness)[:KEEP]
+    flags = replay_flags(space)
+    paths = []
+    for rank, o in enumerate(worst, 1):
+        path = out / f"worst_{rank}.toml"
+        command = (f"uavmpc run {path} --seed {o.seed}" + (f" {flags}" if flags else "")
+                   + ("" if avoidance else " --no-avoidance"))
+        header = (f"uavmpc falsify: worst case {rank} of {len(outcomes)} flights: "
+                  f"{o.min_distance_m:.2f} m ({o.pair[0]}–{o.pair[1]} at {o.at_s:.1f} s), "
+                  f"highest {o.top_m:.1f} m under a {space.ceiling_m:g} m ceiling.\n"
+                  f"Replay: {command}")
+        path.write_text(space.toml(np.array(o.theta), f"falsify_worst_{rank}", header))
+        paths.append(path)
+    record = {"space": {k: v for k, v in space.__dict__.items() if k not in ("link", "faults")}
+              | {"link": space.link.__dict__, "faults": space.faults.active()},
+              "avoidance": avoidance, "flights": len(outcomes),
+              "min_distance_m": min(o.min_distance_m for o in outcomes),
+              "top_m": max(o.top_m for o in outcomes),
+              "collisions": sum(o.collisions > 0 for o in outcomes),
+              "worst": [str(p.name) for p in paths],
+              "cases": [o.__dict__ for o in outcomes], "written_unix_s": round(time.time(), 3)}
+    (out / "cases.json").write_text(json.dumps(record, indent=1, default=list))
+    return paths
+
+
+def summary_lines(space: Space, outcomes: list[Outcome], paths: list[Path]) -> list[str]:
+    """What the command prints at the end."""
+    worst = sorted(outcomes, key=_badness)[:len(paths)]
+    hits = sum(o.collisions > 0 for o in outcomes)
+    above = sum(o.top_m > space.ceiling_m for o in outcomes)
+    lines = [f"{len(outcomes)} flights: closest {worst[0].min_distance_m:.2f} m; "
+             f"{hits} with a collision; {above} above the {space.ceiling_m:g} m ceiling"]
+    lines += [f"  {p}: {o.min_distance_m:.2f} m ({o.pair[0]}–{o.pair[1]} at {o.at_s:.1f} s), "
+              f"seed {o.seed}, highest {o.top_m:.1f} m" for o, p in zip(worst, paths,
+                                                                          strict=True)]
+    return lines
+
+
+def space_from_args(args: Any) -> Space:
+    """The :class:`Space` of ``uavmpc falsify``'s flags."""
+    from uavmpc.apps.campaign import fault_spec
+
+    if args.launch_check is not None:
+        raise ConfigError("--launch-check: the search flies every case with all UAVs "
+                          "setting off at their times; it is not a dimension searched")
+    link = LinkSettings.from_dict({"loss": args.loss, "latency_s": args.latency}, "link")
+    return Space(uavs=args.uavs, area_m=args.area, min_height_m=args.min_height,
+                 max_height_m=args.max_height, ceiling_m=args.ceiling,
+                 speed_mps=args.speed, duration_s=args.duration, link=link,
+                 faults=fault_spec(args))

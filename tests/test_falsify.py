@@ -1,0 +1,82 @@
+"""uavmpc falsify: the search over scenario space, its files and its replay."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uavmpc import scenarios
+from uavmpc.apps.cli import main
+from uavmpc.apps.falsify import Space, falsify, fly_case, write_results
+from uavmpc.config import ConfigError
+from uavmpc.drivers.world import World
+from uavmpc.scenarios.run import RunSpec
+
+
+def test_a_case_is_its_scenario_file_and_a_worst_case_replays_to_the_same_separation(
+        tmp_path: Path) -> None:
+    space = Space(uavs=3, area_m=30.0, duration_s=20.0)
+    seen = []
+    outcomes = falsify(space, 5, seed=4, generation=3, on_flight=seen.append)
+    assert [o.index for o in outcomes] == [0, 1, 2, 3, 4] and seen == outcomes
+    assert len({o.seed for o in outcomes}) == 5  # one flight seed per case
+    for o in outcomes:
+        assert space.valid(np.array(o.theta))
+        assert 0.0 < o.min_distance_m < 60.0 and o.top_m <= space.ceiling_m
+    paths = write_results(space, outcomes, tmp_path)
+    record = json.loads((tmp_path / "cases.json").read_text())
+    assert record["flights"] == 5 and len(record["cases"]) == 5
+    assert record["min_distance_m"] == min(o.min_distance_m for o in outcomes)
+    worst = min(outcomes, key=lambda o: o.min_distance_m)
+    text = paths[0].read_text()
+    assert f"--seed {worst.seed}" in text.splitlines()[1]
+    # the file flies the case the search flew: the same closest approach, by the truth
+    sc = scenarios.load(paths[0])
+    res = World.from_spec(RunSpec(sc, seed=worst.seed)).run()
+    assert float(res.min_distance_m.min()) == pytest.approx(worst.min_distance_m, abs=1e-9)
+    # and the search's own flight of it agrees (θ → the same file)
+    again = fly_case(space, np.array(worst.theta), worst.seed)
+    assert again.min_distance_m == pytest.approx(worst.min_distance_m, abs=1e-9)
+
+
+def test_the_case_s_priorities_and_start_times_come_from_theta() -> None:
+    space = Space(uavs=3, area_m=40.0)
+    theta = np.array([0.0, 0.5, 0.0, 1.0, 0.5, 1.0, 0.0, 0.9,
+                      0.5, 0.0, 0.5, 0.5, 1.0, 0.5, 1.0, 0.1,
+                      1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.5, 0.5])
+    starts, goals, delays, priorities = space.points(theta)
+    assert starts[0].tolist() == [-20.0, 0.0, 5.0] and goals[0].tolist() == [20.0, 0.0, 20.0]
+    assert priorities.tolist() == [3, 1, 2] and delays.tolist() == [0.0, 8.0, 4.0]
+    data = tomllib.loads(space.toml(theta, "case"))
+    assert [u["priority"] for u in data["uavs"]] == [3, 1, 2]
+    assert [u["path"]["start_s"] for u in data["uavs"]] == [2.0, 10.0, 6.0]
+    assert data["geofence"]["max_altitude_m"] == 30.0
+
+
+@pytest.mark.parametrize(("kw", "named"), [
+    ({"uavs": 1}, "uavs"), ({"ceiling_m": 21.0}, "ceiling_m"),
+    ({"min_height_m": 30.0, "max_height_m": 20.0}, "max_height_m"), ({"area_m": -5.0}, "area_m"),
+])
+def test_a_bad_space_names_the_field(kw: dict, named: str) -> None:
+    with pytest.raises(ConfigError, match=named):
+        Space(**kw)
+
+
+def test_a_space_too_crowded_to_draw_a_case_says_so() -> None:
+    with pytest.raises(ConfigError, match="do not fit"):
+        falsify(Space(uavs=40, area_m=1.0, min_height_m=5.0, max_height_m=5.0), 1)
+
+
+@pytest.mark.parametrize(("argv", "named"), [
+    (["--budget", "0"], "budget"), (["--loss", "1.5"], "link.loss"),
+    (["--launch-check", "3"], "--launch-check"), (["--ceiling", "10"], "ceiling_m"),
+])
+def test_cli_mistakes_are_one_line(argv: list[str], named: str, capsys, tmp_path) -> None:
+    assert main(["falsify", "--out", str(tmp_path / "f"), *argv]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert named in line
+    assert not (tmp_path / "f").exists()
