@@ -47,18 +47,18 @@ def pytest_sessionstart(session) -> None:
 
 
 def pytest_itemcollected(item) -> None:
-    """The fleets (a swarm of node processes, the real PX4) fly one after another on one
-    worker, beside the other tests on the others: two fleets at once (a swarm is a dozen
-    processes) would starve each other on a small machine, and the real PX4's instances have
-    fixed UDP ports (14540 + instance). A real-time test of one node or one run loads the
-    machine as a computing test does, and goes to any worker. A test that boots the real PX4
-    is a real-time fleet. (Marked here, as each test is collected: xdist reads the groups in
-    its own collection hook.)"""
+    """The real-time tests run one after another on one worker, beside the computing ones on
+    the others: two real-time flights at once (a swarm is a dozen processes) would starve
+    each other on a small machine, and the real PX4's instances have fixed UDP ports
+    (14540 + instance). A test that boots the real PX4 is a real-time one. (Marked here, as
+    each test is collected: xdist reads the groups in its own collection hook.) Tried: only
+    the fleets (swarms, real PX4s) on one worker, one-node real-time tests anywhere: the
+    whole run took 957 s against 773 s, the other worker then the longer, and the live
+    swarm's view went quiet under the load."""
     if "px4_sitl_build" in item.fixturenames:
         item.add_marker(pytest.mark.realtime)
-        item.add_marker(pytest.mark.fleet)
-    if item.get_closest_marker("fleet") is not None:
-        item.add_marker(pytest.mark.xdist_group("fleet"))
+    if item.get_closest_marker("realtime") is not None:
+        item.add_marker(pytest.mark.xdist_group("realtime"))
 
 
 @pytest.fixture

@@ -386,7 +386,6 @@ def test_node_processes_refuse_scenarios_whose_missions_only_the_world_runs(tmp_
             run_swarm(RunSpec(scenarios.load(name)), tmp_path)
 
 
-@pytest.mark.fleet
 @pytest.mark.realtime
 def test_a_formation_of_node_processes_over_zenoh(tmp_path) -> None:
     """The same follower mission in real node processes: slots from the leader's plans as they

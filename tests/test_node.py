@@ -79,7 +79,6 @@ class _Flight:
 # tests/test_live.py: one flight for both.
 
 
-@pytest.mark.fleet
 def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
     s = run_swarm(RunSpec(scenarios.load("swap_through_static"), avoidance=False,
                           duration_s=10.0), tmp_path)
@@ -87,7 +86,6 @@ def test_the_same_swap_without_avoidance_collides(tmp_path) -> None:
     assert s.status is RunStatus.COLLISION
 
 
-@pytest.mark.fleet
 def test_a_killed_node_is_no_longer_avoided_once_its_vehicle_can_only_have_landed(
         tmp_path, hover_pair) -> None:
     # uav1 is killed at 5 s. uav2 counts it silent, then (3 s unheard) dead: where a PX4

@@ -367,7 +367,6 @@ def test_garbage_and_other_systems_at_the_nodes_port_change_nothing() -> None:
 
 
 
-@pytest.mark.fleet
 def test_nodes_flying_stand_ins_avoid_each_other_and_without_avoidance_collide(
         tmp_path: Path, head_on_pairs) -> None:
     """Four node + stand-in pairs in one swarm (the same two head-on pairs as the real-PX4

@@ -356,7 +356,6 @@ def test_the_graph_publishes_reliably_and_listens_on_loopback_only() -> None:
         router.close()
 
 
-@pytest.mark.fleet
 def test_a_swarm_on_the_graph_publishes_every_uavs_topics(tmp_path: Path) -> None:
     router, endpoint = _router()
     obs = Observer(endpoint)

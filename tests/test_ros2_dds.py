@@ -221,7 +221,6 @@ def test_every_message_uavmpc_writes_round_trips_through_real_rclpy(rclpy_py: Pa
         "pose", "command", "reference", "prediction", "avoidance"}  # the bag's topics
 
 
-@pytest.mark.fleet
 def test_a_swarm_on_dds_is_seen_by_real_rclpy_and_flies_its_goal(rclpy_py: Path,
                                                                  tmp_path: Path) -> None:
     domain = _domain()

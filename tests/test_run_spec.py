@@ -110,7 +110,6 @@ def test_a_replaced_field_is_validated_again() -> None:
 CEILING_SCENARIO = Path(__file__).parent / "data" / "crossing_under_ceiling.toml"
 
 
-@pytest.mark.fleet
 @pytest.mark.realtime
 def test_a_swarm_flies_the_scenario_s_geofence_and_offsets_as_the_world_does(
         tmp_path: Path) -> None:

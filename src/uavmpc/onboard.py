@@ -95,6 +95,9 @@ BROADCAST_PERIOD_S = 0.5
 LIMIT_TOL = 1e-6
 #: Tolerance of the schedules (avoidance, broadcast) against round-off in the tick times.
 _SCHEDULE_TOL_S = 1e-9
+#: A mission whose height changes by at most _LEVEL_DZ_M over _LEVEL_DT_S keeps its height
+#: (a hold then keeps the mission's height, :meth:`OnboardStack._rest_height_m`) [m, s].
+_LEVEL_DZ_M, _LEVEL_DT_S = 1e-3, 0.1
 
 
 class StackStats(NamedTuple):
@@ -1012,11 +1015,20 @@ class OnboardStack:
             self.tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
         self.batch.stats.avoiding[self.row] = bool(decision.avoiding)
 
-
     def _rest_height_m(self) -> float:
-        """Where the virtual UAV's climb or descent comes to rest braking at its limits, in
-        the mission's frame (less the offset): the height a hold keeps (a hold at the height
-        of now would overshoot and come back)."""
+        """The height a hold keeps, in the mission's frame (before the offset). While the
+        mission climbs or descends, where the virtual UAV's vertical motion comes to rest
+        braking at its limits (a hold at the height of now would overshoot and come back);
+        while the mission keeps its height (a go-to, a level path), the mission's height: a
+        UAV held during its take-off still climbs to where its mission is (found on real
+        PX4: held at its height mid take-off, a UAV flew its whole mission 2.5 m above the
+        ground)."""
+        ref = self.tracker.reference
+        if ref is not None:
+            t = self.tracker.time_s
+            z_ref = ref.sample(np.array([t, t + _LEVEL_DT_S]))[:, 2]
+            if abs(float(z_ref[1] - z_ref[0])) <= _LEVEL_DZ_M:
+                return float(z_ref[0])
         s = self.tracker.state[2]
         z, v = float(s[0]), float(s[1])
         lim = self.tracker.limits
