@@ -110,7 +110,7 @@ class Space:
     def valid(self, theta: np.ndarray) -> bool:
         """Starts and goals each at least :data:`MIN_GAP_M` apart."""
         starts, goals, _, _ = self.points(theta)
-        return _spread(starts) >= MIN_GAP_M and _spread(goals) >= MIN_GAP_M
+        return _closest(starts)[0] >= MIN_GAP_M and _closest(goals)[0] >= MIN_GAP_M
 
     def toml(self, theta: np.ndarray, name: str, header: str = "") -> str:
         """Case θ as a scenario file (what is flown is what this file loads)."""
@@ -133,11 +133,13 @@ class Space:
         return "\n".join(lines) + "\n"
 
 
-def _spread(p: np.ndarray) -> float:
-    """The smallest distance between two of the points ``p`` (N, 3) [m]."""
+def _closest(p: np.ndarray) -> tuple[float, int, int]:
+    """The smallest distance between two of the points ``p`` (N, 3) [m], and which two
+    (i < j)."""
     d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
     d[np.diag_indices(len(p))] = np.inf
-    return float(d.min())
+    a, b = np.unravel_index(int(np.argmin(d)), d.shape)
+    return float(d[a, b]), int(min(a, b)), int(max(a, b))
 
 
 @dataclass(frozen=True)
@@ -169,12 +171,9 @@ def fly_case(space: Space, theta: np.ndarray, seed: int, index: int = 0,
                                   faults=space.faults)).run()
     d = res.min_distance_m
     k = int(np.argmin(d))
-    pos = res.positions_m[k]
-    gaps = np.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
-    gaps[np.diag_indices(len(pos))] = np.inf
-    a, b = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
+    _, a, b = _closest(res.positions_m[k])
     return Outcome(index, seed, tuple(float(v) for v in theta), float(d[k]),
-                   float(res.t_s[k]), (res.uav_ids[min(a, b)], res.uav_ids[max(a, b)]),
+                   float(res.t_s[k]), (res.uav_ids[a], res.uav_ids[b]),
                    len(res.collisions), float(res.positions_m[:, :, 2].max()))
 
 
