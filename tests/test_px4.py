@@ -41,6 +41,7 @@ pytestmark = pytest.mark.realtime  # flies on the wall clock
 AF = Airframe.packaged("f550")
 ODOMETRY = mavlink.MAVLINK_MSG_ID_ODOMETRY
 SET_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET
+SET_POSITION_TARGET = mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
 
 def _msgid(data: bytes) -> int:
@@ -323,18 +324,57 @@ def test_lost_setpoints_make_the_stand_in_fail_safe_and_the_node_stop_and_say_so
     assert f.heights[-1][2] == "POSCTL"
 
 
-def test_without_odometry_the_node_stops_commanding_within_a_fifth_of_a_second() -> None:
+def test_an_odometry_gap_is_flown_by_the_autopilot_on_position_setpoints_then_ours_again(
+        ) -> None:
+    """ODOMETRY stops reaching the node for 0.6 s in the air (what a loaded machine did to
+    real PX4 for 0.2 s): from 0.2 s on the node does not fly its attitude on the old estimate
+    but sends the tracker's position setpoints (the autopilot flies them on its own estimate),
+    and flies attitude again once estimates return. The vehicle holds its height throughout and
+    stays ours: no stop, no failsafe."""
+    with PxFlight(duration_s=30.0) as f:
+        f.wait_phase("flying")
+        wait_until(lambda: f.height_m() > 2.9, 20.0, "the climb to 3 m")
+        wait_until(lambda: abs(f.height_m() - 3.0) < 0.1, 10.0, "the hold at 3 m")
+        cut = time.time()
+        f.hop.drop("to_node", ODOMETRY, cut, cut + 0.6)
+        wait_until(lambda: any(t > cut + 0.7 and m == SET_ATTITUDE_TARGET
+                               for t, _, m in list(f.hop.log)), 5.0, "attitude setpoints again")
+        wait_until(lambda: f.vehicle.report()["position_fallbacks"] >= 1
+                   and f.vehicle.report()["position_fallback_s"] > 0.0, 5.0,
+                   "the fallback spell to end")
+        phase = f.vehicle.phase.value
+        rep = f.vehicle.report()
+        during = [(t, m) for t, d, m in list(f.hop.log)
+                  if d == "to_sitl" and cut + 0.25 < t < cut + 0.55]
+        heights = [h for t, h, _ in f.heights if cut <= t <= cut + 1.5]
+    assert phase == "flying", rep["stop_reason"]
+    assert rep["position_fallbacks"] == 1, rep
+    assert 0.3 < rep["position_fallback_max_s"] < 0.7, rep
+    kinds = {m for _, m in during}
+    assert SET_POSITION_TARGET in kinds and SET_ATTITUDE_TARGET not in kinds, kinds
+    assert heights and max(abs(h - 3.0) for h in heights) < 0.3, heights
+
+
+def test_without_odometry_for_a_second_the_node_stops_commanding() -> None:
+    """No estimate for longer than PX4's own offboard-loss timeout (1 s): the node stops; from
+    0.2 s on, only position setpoints went out."""
     with PxFlight(duration_s=30.0) as f:
         f.wait_phase("flying")
         wait_until(lambda: f.height_m() > 2.9, 20.0, "the climb to 3 m")
         cut = time.time()
         f.hop.drop("to_node", ODOMETRY, cut)
-        f.wait_phase("stopped", timeout_s=2.0)
-        time.sleep(0.5)
+        f.wait_phase("stopped", timeout_s=5.0)
+        time.sleep(0.3)
         rep = f.vehicle.report()
-        last_setpoint = max(t for t, d, m in f.hop.log if m == SET_ATTITUDE_TARGET)
-    assert "estimate stale" in rep["stop_reason"]
-    assert last_setpoint - cut < 0.2 + 0.03  # the timeout plus one tick and the hop's jitter
+        sent = [(t, m) for t, d, m in list(f.hop.log)
+                if d == "to_sitl" and m in (SET_ATTITUDE_TARGET, SET_POSITION_TARGET)]
+    assert "estimate lost" in rep["stop_reason"], rep["stop_reason"]
+    last_attitude = max(t for t, m in sent if m == SET_ATTITUDE_TARGET)
+    last_any = max(t for t, _ in sent)
+    # The limits plus a tick and the hop's jitter (0.1 s: the thread's scheduling on a
+    # loaded machine).
+    assert last_attitude - cut < 0.2 + 0.1
+    assert 0.2 < last_any - cut < 1.0 + 0.1
 
 
 def test_garbage_and_other_systems_at_the_nodes_port_change_nothing() -> None:

@@ -75,7 +75,8 @@ def _full_cycle_checks(rep: dict[str, Any], mode: str) -> None:
 
 class _Relay:
     """A UDP relay between PX4 (which sends to ``px4_port``) and the node (listening on
-    ``node_port``) that can cut the node → PX4 direction, and reads what crosses."""
+    ``node_port``) that can cut the node → PX4 direction, hide PX4's ODOMETRY from the node,
+    and reads what crosses."""
 
     def __init__(self, px4_port: int, node_port: int) -> None:
         self.px4_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -85,11 +86,15 @@ class _Relay:
         self.node_addr = ("127.0.0.1", node_port)
         self.px4_addr: tuple[str, int] | None = None
         self.cut = threading.Event()
+        self.hide_odometry = threading.Event()
         self.stop = threading.Event()
+        self.heights: list[tuple[float, float]] = []  # (time, PX4's estimated height [m])
+        self.setpoint_kinds: list[tuple[float, str]] = []  # (time, SET_* message name)
         self.setpoints_after_cut: list[float] = []
         self.modes: list[tuple[float, int, bool]] = []  # (time, PX4 main mode, armed)
         self.height_m = 0.0  # PX4's estimate, from its ODOMETRY (NED: up is −z)
         self.cut_at: float | None = None
+        self.hidden = (0.0, 0.0)  # when ODOMETRY was hidden from the node
         self.restored_at: float | None = None
         self._parse_up = mavlink.MAVLink(None)
         self._parse_down = mavlink.MAVLink(None)
@@ -106,12 +111,19 @@ class _Relay:
             except TimeoutError:
                 continue
             self.px4_addr = addr
-            for m in self._parse_down.parse_buffer(data) or []:
+            msgs = self._parse_down.parse_buffer(data) or []
+            for m in msgs:
                 if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1:
                     self.modes.append((time.time(), (m.custom_mode >> 16) & 0xFF,
                                        bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)))
                 elif m.get_type() == "ODOMETRY":
                     self.height_m = -float(m.z)
+                    self.heights.append((time.time(), self.height_m))
+            if self.hide_odometry.is_set() and any(m.get_type() == "ODOMETRY" for m in msgs):
+                for m in msgs:
+                    if m.get_type() != "ODOMETRY":
+                        self.node_side.sendto(m.get_msgbuf(), self.node_addr)
+                continue
             self.node_side.sendto(data, self.node_addr)
 
     def _up(self) -> None:  # node → PX4
@@ -122,6 +134,8 @@ class _Relay:
             except TimeoutError:
                 continue
             kinds = [m.get_type() for m in self._parse_up.parse_buffer(data) or []]
+            now = time.time()
+            self.setpoint_kinds.extend((now, k) for k in kinds if k.startswith("SET_"))
             if self.cut_at is not None and any(k.startswith("SET_") for k in kinds):
                 self.setpoints_after_cut.append(time.time())
             if self.cut.is_set() or self.px4_addr is None:
@@ -179,6 +193,17 @@ def flights(px4_sitl_build, tmp_path_factory) -> dict[str, Any]:
         wait_until(lambda: any(m == offboard and armed for _, m, armed in relay.modes), 90.0,
                    "PX4 armed in offboard")
         wait_until(lambda: relay.height_m > 2.0, 30.0, "the climb: the cut happens in the air")
+        # First its ODOMETRY is hidden from the node for 0.6 s (what a loaded machine did for
+        # 0.2 s): PX4 must fly the node's position setpoints meanwhile, and stay offboard.
+        time.sleep(1.0)  # the climb's end: the hide is judged at a steady height
+        relay.hidden = (time.time(), time.time() + 0.6)
+        relay.hide_odometry.set()
+        wait_until(lambda: time.time() > relay.hidden[1], 2.0, "the hide's end")
+        relay.hide_odometry.clear()
+        wait_until(lambda: any(t > relay.hidden[1] + 0.2 and k == "SET_ATTITUDE_TARGET"
+                               for t, k in list(relay.setpoint_kinds)), 10.0,
+                   "attitude setpoints again")
+        time.sleep(1.0)
         relay.cut_at = time.time()
         relay.cut.set()
         wait_until(lambda: any(t > relay.cut_at and m != offboard for t, m, _ in relay.modes),
@@ -205,6 +230,25 @@ def flights(px4_sitl_build, tmp_path_factory) -> dict[str, Any]:
 def test_the_node_flies_real_px4_through_its_whole_cycle(flights, mode: str) -> None:
     """connect → offboard → arm → take off → mission → land → disarm, in each setpoint mode."""
     _full_cycle_checks(flights["reports"][mode], mode)
+
+
+def test_px4_flies_the_node_s_position_setpoints_while_its_odometry_is_hidden(flights) -> None:
+    """PX4's ODOMETRY does not reach the node for 0.6 s in the air: the node bridges the gap
+    with position setpoints (real PX4 switches from attitude to position control within
+    offboard and back), it neither stops nor does PX4 leave offboard, and the height PX4
+    holds meanwhile stays within half a metre of where it was."""
+    relay, px4 = flights["relay"], flights["reports"]["cut"]["vehicle"]
+    t0, t1 = relay.hidden
+    offboard = 6
+    kinds = {k for t, k in relay.setpoint_kinds if t0 + 0.3 < t < t1}
+    assert kinds == {"SET_POSITION_TARGET_LOCAL_NED"}, kinds
+    assert any(k == "SET_ATTITUDE_TARGET" for t, k in relay.setpoint_kinds if t > t1 + 0.2)
+    assert px4["position_fallbacks"] >= 1 and px4["position_fallback_max_s"] >= 0.4, px4
+    assert all(m == offboard and armed for t, m, armed in relay.modes if t0 <= t <= t1 + 1.0)
+    before = [h for t, h in relay.heights if t0 - 0.5 <= t < t0]
+    during = [h for t, h in relay.heights if t0 <= t <= t1 + 1.0]
+    assert before and during, (before, during)
+    assert max(abs(h - before[-1]) for h in during) < 0.5, (before[-1], during)
 
 
 def test_a_cut_setpoint_stream_makes_px4_leave_offboard_and_the_node_never_takes_it_back(

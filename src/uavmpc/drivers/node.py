@@ -406,7 +406,8 @@ class Node:
                 self._note_vehicle(landing=landing_until is not None)
                 self._supervise(now, state, ticks, landing=landing_until is not None)
                 if ticks % 10 == 0:  # the avoidance's rate
-                    self._watch_assumptions(now, state, landing=landing_until is not None)
+                    self._watch_assumptions(now, state, landing=landing_until is not None,
+                                            fresh=fresh is not None)
                 if commanded and not vehicle.commanding and fresh is not None \
                         and ticks % 10 == 0:
                     stack.follow(now, fresh)  # no longer ours: say what it really does
@@ -458,7 +459,8 @@ class Node:
         if self._fence is not None and ticks % 10 == 0:
             self._watch_fence(state)
 
-    def _watch_assumptions(self, now: float, state: VehicleState, landing: bool) -> None:
+    def _watch_assumptions(self, now: float, state: VehicleState, landing: bool,
+                           fresh: bool = True) -> None:
         """The measures of the assumptions (:mod:`uavmpc.assumptions`): the uncertainty the
         UAV states from its autopilot's and its tracking error, and a hold where its plan is
         while one is beyond its bound (the mission resumes when all are back)."""
@@ -472,8 +474,9 @@ class Node:
                 w.heard(msg.uav_id, msg.stamp_s, msg.received_s)
         if not (sup.launched and vehicle.flying and vehicle.commanding and not landing):
             return  # on the ground, landing, or no longer ours: nothing to hold
-        w.tracking(now, state.position_m, stack.command().position_m,
-                   airborne=bool(state.position_m[2] - vehicle.ground_z_m > TAKEOFF_BELOW_M))
+        if fresh:  # an old estimate would read as a tracking error (PX4 flies on a fresh one)
+            w.tracking(now, state.position_m, stack.command().position_m,
+                       airborne=bool(state.position_m[2] - vehicle.ground_z_m > TAKEOFF_BELOW_M))
         stack.state_uncertainty(*w.stated_sigma_m())
         self.broken = w.broken(now)
         if self.broken and sup.paused is None:

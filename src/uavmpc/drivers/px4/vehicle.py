@@ -24,11 +24,16 @@ What real PX4 does and how this class meets it (docs/px4.md has the table):
   ground station's HEARTBEAT at 1 Hz.
 
 Every command's ``COMMAND_ACK`` is checked, a rejection reported with its result name and PX4's
-text. Our failsafes: an estimate older than ``estimate_timeout_s`` (0.2 s), an autopilot that
-leaves offboard or disarms, or a lost link (no HEARTBEAT) → **stopped**: no more setpoints, the
-reason reported; the node then broadcasts what the vehicle really does
-(:meth:`OnboardStack.follow <uavmpc.onboard.OnboardStack.follow>`). A stopped vehicle is never
-taken back: a pilot who switched modes keeps the vehicle.
+text. An estimate older than ``estimate_timeout_s`` (0.2 s) is not flown on: until it is fresh
+again the node sends the tracker's position, velocity and acceleration
+(``SET_POSITION_TARGET_LOCAL_NED``), which PX4 tracks on its own, fresh estimate — the virtual
+UAV, and so the plan the node broadcasts, stays what the vehicle flies. (Found on real PX4 on a
+loaded two-core machine: ODOMETRY gaps of 0.20–0.21 s, each of which stopped a vehicle that
+was flying well.) Our failsafes: no estimate younger than ``estimate_lost_s`` (1 s, PX4's own
+``COM_OF_LOSS_T``), an autopilot that leaves offboard or disarms, or a lost link (no HEARTBEAT)
+→ **stopped**: no more setpoints, the reason reported; the node then broadcasts what the
+vehicle really does (:meth:`OnboardStack.follow <uavmpc.onboard.OnboardStack.follow>`).
+A stopped vehicle is never taken back: a pilot who switched modes keeps the vehicle.
 
 Frames: PX4's local frame is NED with its origin where its estimator started; ``origin_m`` is
 that origin in the swarm's ENU world, given, or placed from PX4's own ``GPS_GLOBAL_ORIGIN``
@@ -71,8 +76,12 @@ from uavmpc.plant.interface import heading_of, quat_to_rot, yaw_quat
 
 __all__ = ["SETPOINT_MODES", "Phase", "Px4Vehicle", "VehicleLost"]
 
-#: An estimate older than this is no estimate (the issue's 0.2 s).
+#: An estimate older than this is not flown on: the node sends position setpoints (PX4 flies
+#: them on its own estimate) until a fresh one arrives.
 ESTIMATE_TIMEOUT_S = 0.2
+#: No estimate younger than this: the node stops commanding. PX4's offboard-loss timeout
+#: (COM_OF_LOSS_T, 1 s by default): no longer than PX4 itself waits for a silent companion.
+ESTIMATE_LOST_S = 1.0
 #: No HEARTBEAT for this long is a lost link (PX4 sends one per second).
 HEARTBEAT_TIMEOUT_S = 2.5
 #: A command without COMMAND_ACK is sent again after this, up to COMMAND_ATTEMPTS times.
@@ -156,6 +165,11 @@ class Px4Report:
     setpoint_period_max_ms: float = 0.0
     estimate_age_p50_ms: float = 0.0
     estimate_age_p99_ms: float = 0.0
+    #: Spells with no fresh estimate that the node bridged with position setpoints (PX4
+    #: flying on its own estimate), their total and longest duration [s].
+    position_fallbacks: int = 0
+    position_fallback_s: float = 0.0
+    position_fallback_max_s: float = 0.0
     odometry_received: int = 0
     #: Ticks after start() on which no estimate was fresh (none commands on such a tick).
     ticks_without_estimate: int = 0
@@ -216,7 +230,9 @@ class Px4Vehicle:
         origin_m: the ENU world position of the autopilot's local-frame origin.
         offboard_after_s: how long to stream setpoints before asking for offboard (PX4 needs
             more than 1 s).
-        estimate_timeout_s: estimate age that stops the commanding.
+        estimate_timeout_s: estimate age beyond which the node sends position setpoints
+            instead of flying the estimate.
+        estimate_lost_s: estimate age that stops the commanding.
         geo_origin: (latitude [deg], longitude [deg], altitude [m AMSL]) of the swarm's ENU
             origin; with it, ``origin_m`` is placed from the autopilot's ``GPS_GLOBAL_ORIGIN``
             (its estimator's origin) instead of being given.
@@ -227,6 +243,7 @@ class Px4Vehicle:
                  origin_m: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
                  offboard_after_s: float = OFFBOARD_STREAM_S + 0.2,
                  estimate_timeout_s: float = ESTIMATE_TIMEOUT_S,
+                 estimate_lost_s: float = ESTIMATE_LOST_S,
                  own_system_id: int | None = None,
                  geo_origin: tuple[float, float, float] | None = None) -> None:
         if setpoints not in SETPOINT_MODES:
@@ -249,6 +266,10 @@ class Px4Vehicle:
         self.origin_m = origin
         self.offboard_after_s = float(offboard_after_s)
         self.estimate_timeout_s = float(estimate_timeout_s)
+        self.estimate_lost_s = float(estimate_lost_s)
+        if not 0.0 < self.estimate_timeout_s <= self.estimate_lost_s:
+            raise ValueError(f"estimate_timeout_s ({estimate_timeout_s!r}) must be positive and "
+                             f"at most estimate_lost_s ({estimate_lost_s!r})")
         self.system_id = None if system_id is None else int(system_id)
         self.component_id = 1
         # A companion computer shares its autopilot's system id; before we know it, 245.
@@ -292,6 +313,7 @@ class Px4Vehicle:
         self._last_send_s: float | None = None
         self._periods: list[float] = []
         self._ages: list[float] = []
+        self._fallback_since_s: float | None = None
         self._t0_s = time.time()
         self._connected = False
 
@@ -407,37 +429,18 @@ class Px4Vehicle:
 
     def actuate(self, now_s: float, target: AttitudeTarget, command: Any) -> None:
         """Send the setpoint of this tick (when commanding): the attitude target, or the
-        tracker's ``command`` (p, v, a, heading) in position mode."""
+        tracker's ``command`` (p, v, a, heading) in position mode and whenever the estimate is
+        not fresh (our attitude would be flown on an old state; PX4's is fresh)."""
         if self.phase == Phase.CONNECTING and self._connected \
                 and self.estimate(now_s) is not None:
             self._enter(Phase.STREAMING, now_s)  # the stream (and our failsafes) start here
         if not self.commanding or self.system_id is None:
             return
         ms = int((now_s - self._t0_s) * 1e3) & 0xFFFFFFFF
-        if self.setpoints == "attitude":
-            attitude = target.attitude_wxyz
-            thrust = float(np.clip(target.thrust_n / (self.airframe.mass_kg * 9.80665)
-                                   * self.hover_thrust, 0.0, 1.0))
-            if self.phase in (Phase.LANDING, Phase.DISARMING) \
-                    and thrust < TOUCHDOWN_THRUST_FRACTION * self.hover_thrust:
-                # Pushed into the ground, the SE(3) law's thrust vector is small and its
-                # direction is its horizontal terms: up to the tilt limit, a vehicle rocking on
-                # its legs, which PX4's land detector reads as rotation (landings took a minute).
-                # Level, as PX4's position controller is on ground contact.
-                attitude = yaw_quat(float(heading_of(attitude)))
-            q = enu_flu_quat_to_ned_frd(attitude)
-            rates = flu_to_frd(target.body_rates_ff_radps)  # only the yaw rate is used
-            msg = _M.MAVLink_set_attitude_target_message(
-                ms, self.system_id, self.component_id, _ATT_TYPE_MASK, q.tolist(),
-                float(rates[0]), float(rates[1]), float(rates[2]), thrust)
-        else:
-            p = enu_to_ned(np.asarray(command.position_m) - self.origin_m)
-            v = enu_to_ned(command.velocity_mps)
-            a = enu_to_ned(command.acceleration_mps2)
-            msg = _M.MAVLink_set_position_target_local_ned_message(
-                ms, self.system_id, self.component_id, _M.MAV_FRAME_LOCAL_NED, _POS_TYPE_MASK,
-                *map(float, p), *map(float, v), *map(float, a),
-                heading_enu_to_ned(command.heading_rad), -float(command.heading_rate_radps))
+        if self.setpoints == "attitude" and self.estimate(now_s) is not None:
+            msg = self._attitude_target(ms, target)
+        else:  # position mode, or no fresh estimate to fly our attitude on: PX4 flies it
+            msg = self._position_target(ms, command)
         if not self.link.send(msg):
             return
         self.report_data.setpoints_sent += 1
@@ -448,6 +451,34 @@ class Px4Vehicle:
         self._last_send_s = now_s
         if self._odom is not None:  # estimate-to-setpoint latency: from the sample's time
             self._ages.append(now_s - self._odom[1].t_s)
+
+    def _attitude_target(self, ms: int, target: AttitudeTarget) -> Any:
+        """SET_ATTITUDE_TARGET from our SE(3) controller's attitude and thrust."""
+        attitude = target.attitude_wxyz
+        thrust = float(np.clip(target.thrust_n / (self.airframe.mass_kg * 9.80665)
+                               * self.hover_thrust, 0.0, 1.0))
+        if self.phase in (Phase.LANDING, Phase.DISARMING) \
+                and thrust < TOUCHDOWN_THRUST_FRACTION * self.hover_thrust:
+            # Pushed into the ground, the SE(3) law's thrust vector is small and its
+            # direction is its horizontal terms: up to the tilt limit, a vehicle rocking on
+            # its legs, which PX4's land detector reads as rotation (landings took a minute).
+            # Level, as PX4's position controller is on ground contact.
+            attitude = yaw_quat(float(heading_of(attitude)))
+        q = enu_flu_quat_to_ned_frd(attitude)
+        rates = flu_to_frd(target.body_rates_ff_radps)  # only the yaw rate is used
+        return _M.MAVLink_set_attitude_target_message(
+            ms, self.system_id, self.component_id, _ATT_TYPE_MASK, q.tolist(),
+            float(rates[0]), float(rates[1]), float(rates[2]), thrust)
+
+    def _position_target(self, ms: int, command: Any) -> Any:
+        """SET_POSITION_TARGET_LOCAL_NED from the tracker's p, v, a and heading."""
+        p = enu_to_ned(np.asarray(command.position_m) - self.origin_m)
+        v = enu_to_ned(command.velocity_mps)
+        a = enu_to_ned(command.acceleration_mps2)
+        return _M.MAVLink_set_position_target_local_ned_message(
+            ms, self.system_id, self.component_id, _M.MAV_FRAME_LOCAL_NED, _POS_TYPE_MASK,
+            *map(float, p), *map(float, v), *map(float, a),
+            heading_enu_to_ned(command.heading_rad), -float(command.heading_rate_radps))
 
     def land(self, now_s: float) -> None:
         """The mission is over: the node now flies down; disarm when on the ground."""
@@ -630,6 +661,13 @@ class Px4Vehicle:
 
     def estimate(self, now_s: float) -> VehicleState | None:
         """The latest estimate if younger than ``estimate_timeout_s``, else None."""
+        est = self.latest_estimate()
+        if est is None or now_s - est.t_s > self.estimate_timeout_s:
+            return None
+        return est
+
+    def latest_estimate(self) -> VehicleState | None:
+        """The autopilot's latest estimate on our clock, however old (None: none yet)."""
         est = None
         if self._odom is not None:
             est = self._odom[1]
@@ -647,8 +685,6 @@ class Px4Vehicle:
                 attitude_wxyz=ned_frd_quat_to_enu_flu(q_ned / np.linalg.norm(q_ned)),
                 body_rates_radps=frd_to_flu(np.array([a.rollspeed, a.pitchspeed,
                                                       a.yawspeed])))
-        if est is None or now_s - est.t_s > self.estimate_timeout_s:
-            return None
         return est
 
     # ------------------------------------------------------------------ the life cycle
@@ -698,33 +734,53 @@ class Px4Vehicle:
         if now_s - self.last_heartbeat_s > HEARTBEAT_TIMEOUT_S:
             self._stop(now_s, f"link lost: no HEARTBEAT for {HEARTBEAT_TIMEOUT_S:g} s")
             return
-        if est is None:
-            if (self.phase in (Phase.LANDING, Phase.DISARMING) and not self.armed
-                    and self._ground_seen):
-                # Landed and disarmed by the autopilot: no estimate is needed any more. (Found
-                # in CI on a loaded machine: an estimate 0.205 s old after "Disarmed by
-                # landing" reported a landed vehicle as stopped.)
-                self._pending = None
-                self._enter(Phase.LANDED, now_s)
-                return
-            age = (now_s - self._odom[1].t_s) if self._odom is not None else math.inf
-            self._stop(now_s, f"estimate stale: the last is {age:.3f} s old "
-                              f"(limit {self.estimate_timeout_s:g} s)")
+        if est is None and self.phase in (Phase.LANDING, Phase.DISARMING) \
+                and not self.armed and self._ground_seen:
+            # Landed and disarmed by the autopilot: no estimate is needed any more. (Found in
+            # CI on a loaded machine: an estimate 0.205 s old after "Disarmed by landing"
+            # reported a landed vehicle as stopped.)
+            self._pending = None
+            self._enter(Phase.LANDED, now_s)
             return
+        if est is None:
+            latest = self.latest_estimate()
+            age = now_s - latest.t_s if latest is not None else math.inf
+            if age > self.estimate_lost_s:
+                self._end_fallback(now_s)
+                self._stop(now_s, f"estimate lost: the last is {age:.3f} s old "
+                                  f"(limit {self.estimate_lost_s:g} s)")
+                return
         if self._offboard_seen and self.mode is not None and not self.mode.is_offboard:
+            self._end_fallback(now_s)
             self._stop(now_s, f"the autopilot left offboard (now {self.mode})")
             return
         if self.phase in (Phase.FLYING, Phase.LANDING, Phase.DISARMING) and not self.armed:
-            if self.phase != Phase.FLYING and (self._ground_seen
-                                               or self._autopilot_says_landed(est)):
+            self._end_fallback(now_s)
+            if self.phase != Phase.FLYING and (
+                    self._ground_seen or (est is not None and self._autopilot_says_landed(est))):
                 self._pending = None  # its own auto-disarm after landing (COM_DISARM_LAND)
                 self._enter(Phase.LANDED, now_s)
             else:
                 self._stop(now_s, "the autopilot disarmed")
             return
+        if est is None:  # bridged by position setpoints (actuate); the life cycle waits
+            if self._fallback_since_s is None:
+                self._fallback_since_s = now_s
+                self.report_data.position_fallbacks += 1
+            return
+        self._end_fallback(now_s)
         if self.mode is not None and self.mode.is_offboard:
             self._offboard_seen = True
         getattr(self, f"_in_{self.phase.value}")(now_s, est)
+
+    def _end_fallback(self, now_s: float) -> None:
+        if self._fallback_since_s is None:
+            return
+        spell = now_s - self._fallback_since_s
+        self._fallback_since_s = None
+        r = self.report_data
+        r.position_fallback_s = round(r.position_fallback_s + spell, 3)
+        r.position_fallback_max_s = round(max(r.position_fallback_max_s, spell), 3)
 
     def _in_streaming(self, now_s: float, est: VehicleState) -> None:
         if self._stream_start_s is None or now_s - self._stream_start_s < self.offboard_after_s:
