@@ -195,16 +195,35 @@ def test_a_state_crosses_odometry_and_comes_back(p, v, q, w) -> None:
 
 
 @settings(max_examples=25, deadline=None)
+@given(vectors, vectors, vectors, st.floats(-3.1, 3.1), st.floats(-2.0, 2.0))
+def test_a_position_target_crosses_set_position_target_and_comes_back(p, v, a, heading, rate):
+    """What the node sends in position mode and while its estimate is stale."""
+    from uavmpc.tracker.tracker import TrackerCommand
+
+    vehicle, sitl = _pair((10.0, -4.0, 0.0))
+    try:
+        cmd = TrackerCommand(0.0, p + sitl.origin_m, v, a, heading, rate, 0.0)
+        sitl._on_position_target(_wire(vehicle.link, sitl.link,
+                                       vehicle.position_target_message(1.0, cmd)), 1.0)
+        hold = sitl.setpoint.values
+        assert np.allclose(hold.position_m, cmd.position_m, rtol=1e-6, atol=1e-4)
+        assert np.allclose(hold.velocity_mps, v, rtol=1e-6, atol=1e-5)
+        assert np.allclose(hold.acceleration_mps2, a, rtol=1e-6, atol=1e-5)
+        assert abs(math.remainder(hold.heading_rad - heading, math.tau)) < 1e-6
+        assert math.isclose(hold.heading_rate_radps, rate, abs_tol=1e-6)
+    finally:
+        vehicle.close()
+        sitl.link.close()
+
+
+@settings(max_examples=25, deadline=None)
 @given(unit, st.floats(0.0, 30.0), st.floats(-2.0, 2.0))
 def test_an_attitude_target_crosses_set_attitude_target_and_comes_back(q, thrust, yaw_rate):
     vehicle, sitl = _pair((0.0, 0.0, 0.0))
-    sent = []
-    vehicle.link.send = lambda m: sent.append(m) or True  # capture instead of the socket
     try:
-        vehicle.phase = type(vehicle.phase).FLYING
         target = AttitudeTarget(q, thrust, np.array([0.0, 0.0, yaw_rate]))
-        vehicle.actuate(1.0, target, None)
-        sitl._on_attitude_target(_wire(vehicle.link, sitl.link, sent[0]), 1.0)
+        msg = vehicle.attitude_target_message(1.0, target)
+        sitl._on_attitude_target(_wire(vehicle.link, sitl.link, msg), 1.0)
         q_ned, rates, thrust_norm = sitl.setpoint.values
         back_q = frames.ned_frd_quat_to_enu_flu(q_ned)
         assert min(np.abs(back_q - q).max(), np.abs(back_q + q).max()) < 1e-6

@@ -73,6 +73,7 @@ from uavmpc.drivers.px4.frames import (
 )
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of, quat_to_rot, yaw_quat
+from uavmpc.tracker.tracker import TrackerCommand
 
 __all__ = ["SETPOINT_MODES", "Phase", "Px4Vehicle", "VehicleLost"]
 
@@ -436,11 +437,10 @@ class Px4Vehicle:
             self._enter(Phase.STREAMING, now_s)  # the stream (and our failsafes) start here
         if not self.commanding or self.system_id is None:
             return
-        ms = int((now_s - self._t0_s) * 1e3) & 0xFFFFFFFF
         if self.setpoints == "attitude" and self.estimate(now_s) is not None:
-            msg = self._attitude_target(ms, target)
+            msg = self.attitude_target_message(now_s, target)
         else:  # position mode, or no fresh estimate to fly our attitude on: PX4 flies it
-            msg = self._position_target(ms, command)
+            msg = self.position_target_message(now_s, command)
         if not self.link.send(msg):
             return
         self.report_data.setpoints_sent += 1
@@ -452,8 +452,13 @@ class Px4Vehicle:
         if self._odom is not None:  # estimate-to-setpoint latency: from the sample's time
             self._ages.append(now_s - self._odom[1].t_s)
 
-    def _attitude_target(self, ms: int, target: AttitudeTarget) -> Any:
-        """SET_ATTITUDE_TARGET from our SE(3) controller's attitude and thrust."""
+    def _time_boot_ms(self, now_s: float) -> int:
+        return int((now_s - self._t0_s) * 1e3) & 0xFFFFFFFF
+
+    def attitude_target_message(self, now_s: float, target: AttitudeTarget) -> Any:
+        """The SET_ATTITUDE_TARGET that flies our SE(3) controller's attitude and thrust
+        (built, not sent)."""
+        assert self.hover_thrust is not None, "the hover thrust is known from start()"
         attitude = target.attitude_wxyz
         thrust = float(np.clip(target.thrust_n / (self.airframe.mass_kg * 9.80665)
                                * self.hover_thrust, 0.0, 1.0))
@@ -467,16 +472,18 @@ class Px4Vehicle:
         q = enu_flu_quat_to_ned_frd(attitude)
         rates = flu_to_frd(target.body_rates_ff_radps)  # only the yaw rate is used
         return _M.MAVLink_set_attitude_target_message(
-            ms, self.system_id, self.component_id, _ATT_TYPE_MASK, q.tolist(),
-            float(rates[0]), float(rates[1]), float(rates[2]), thrust)
+            self._time_boot_ms(now_s), self.system_id, self.component_id, _ATT_TYPE_MASK,
+            q.tolist(), float(rates[0]), float(rates[1]), float(rates[2]), thrust)
 
-    def _position_target(self, ms: int, command: Any) -> Any:
-        """SET_POSITION_TARGET_LOCAL_NED from the tracker's p, v, a and heading."""
+    def position_target_message(self, now_s: float, command: TrackerCommand) -> Any:
+        """The SET_POSITION_TARGET_LOCAL_NED that flies the tracker's p, v, a and heading
+        (built, not sent)."""
         p = enu_to_ned(np.asarray(command.position_m) - self.origin_m)
         v = enu_to_ned(command.velocity_mps)
         a = enu_to_ned(command.acceleration_mps2)
         return _M.MAVLink_set_position_target_local_ned_message(
-            ms, self.system_id, self.component_id, _M.MAV_FRAME_LOCAL_NED, _POS_TYPE_MASK,
+            self._time_boot_ms(now_s), self.system_id, self.component_id,
+            _M.MAV_FRAME_LOCAL_NED, _POS_TYPE_MASK,
             *map(float, p), *map(float, v), *map(float, a),
             heading_enu_to_ned(command.heading_rad), -float(command.heading_rate_radps))
 
