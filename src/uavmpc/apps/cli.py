@@ -124,7 +124,7 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   realtime: float | None = None, uavs: int | None = None,
                   cruise_heights: tuple[float, ...] | None = None,
                   faults: Any = None, launch_check: float | None = None,
-                  live_port: int | None = None) -> dict:
+                  live_port: int | None = None, liveness: bool = True) -> RunSummary:
     """Fly a scenario; write its summary, flight log and figures to ``out``; the summary."""
     import contextlib
     import dataclasses
@@ -160,6 +160,10 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
         summary = summary.with_sections(faults=spec.flown.faults.summary())
     if traffic_mod is not None:
         summary = summary.with_sections(traffic=traffic_mod.traffic_outcome(result, sc))
+    elif liveness and avoidance:
+        from uavmpc.apps.liveness import liveness as liveness_of
+
+        summary = summary.with_sections(liveness=liveness_of(spec, result))
     summary.write(out / "summary.json")
     return summary.with_sections(figures=_save_run_figures(
         result, sc, summary, out, avoidance=avoidance, traffic=traffic_mod is not None))
@@ -197,6 +201,9 @@ def _print_world_summary(s: RunSummary, out: Path) -> None:
               f"{u.avoidance_active_s or 0.0:.1f} s, "
               f"{_goal_words(u.reached_goal)}, tracking RMSE "
               f"{u.tracking_rmse_m or float('nan'):.3f} m")
+    live = s.sections.get("liveness")
+    if live is not None:
+        print(_liveness_line(live))
     m = s.messages
     print(f"  link: {m.sent} predictions sent, {m.delivered} delivered, {m.dropped} dropped")
     if traffic is not None:
@@ -209,6 +216,19 @@ def _print_world_summary(s: RunSummary, out: Path) -> None:
         _print_formation(s.formation)
     log = ", flight.mcap" if s.sections.get("flight_log") else ""
     print(f"wrote {out}/summary.json{log}, {', '.join(s.sections.get('figures', []))}")
+
+
+def _liveness_line(live: dict[str, Any]) -> str:
+    timed = live["per_uav"]
+    arrived = sum(e["goal_s"] is not None for e in timed.values())
+    line = f"  liveness: {arrived} of {len(timed)} at their goals"
+    if live["delay_max_s"] is not None:
+        worst = max((e["delay_s"], u) for u, e in timed.items() if e["delay_s"] is not None)
+        line += (f"; the avoidance cost a median {live['delay_median_s']:.1f} s, at most "
+                 f"{worst[0]:.1f} s ({worst[1]}), against the same flight without it")
+    for uav in live["late"]:
+        line += f"\n  {uav} LATE: {timed[uav]['why']}"
+    return line
 
 
 def _print_landing(la: Landing) -> None:
@@ -315,7 +335,7 @@ def _run(args: argparse.Namespace) -> int:
                               latency=args.latency, wind=args.wind, ros2=args.ros2,
                               realtime=args.realtime, uavs=args.uavs, cruise_heights=heights,
                               faults=fault_spec(args), launch_check=args.launch_check,
-                              live_port=args.live)
+                              live_port=args.live, liveness=not args.no_liveness)
     except (OSError, ValueError) as exc:
         if args.ros2 is None and args.live is None:
             raise
@@ -787,6 +807,8 @@ def _add_run_parser(sub: Any) -> None:
     run.add_argument("--cruise-heights", default=None, metavar="Z1,Z2,...",
                      help="traffic: cruise heights by direction of travel (default one: 30)")
     run.add_argument("--no-avoidance", action="store_true", help="fly without avoidance")
+    run.add_argument("--no-liveness", action="store_true",
+                     help="skip the flight without avoidance that times each UAV's delay")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--duration", type=float, default=None, help="simulated seconds")
     _add_threads_argument(run)

@@ -124,6 +124,8 @@ class UavOutcome:
         final_position_m: where it ended (ENU, m).
         messages_rejected: messages its inbox rejected.
         yielded_to: whom its avoidance yielded to, other id → [first, last] time [s].
+        goal_reached_s: when it arrived for good (within the tolerance from then to the end)
+            [s]; None if it did not, or its mission sets its way.
     """
 
     max_z_offset_m: float
@@ -136,6 +138,7 @@ class UavOutcome:
     tracker_fallbacks: int
     messages_rejected: int
     yielded_to: dict[str, list[float]] = field(default_factory=dict)
+    goal_reached_s: float | None = None
 
 
 @dataclass
@@ -186,7 +189,8 @@ class WorldResult:
             details={"limit_violations": v.limit_violations,
                      "max_limit_excess": v.max_limit_excess,
                      "tracker_fallbacks": v.tracker_fallbacks,
-                     "messages_rejected": v.messages_rejected, "yielded_to": v.yielded_to})
+                     "messages_rejected": v.messages_rejected, "yielded_to": v.yielded_to,
+                     "goal_reached_s": v.goal_reached_s})
             for k, v in self.per_uav.items()}
         contacts = tuple(Contact(c.t, c.a, c.b, c.distance_m) for c in self.collisions)
         return RunSummary(

@@ -103,20 +103,35 @@ class Yields:
                 span[1] = now
 
 
-def uav_outcomes(uavs: Sequence[WorldUav], final_m: np.ndarray) -> dict[str, UavOutcome]:
-    """Per UAV, how its flight ended, from its program's report and its last position
-    ``final_m`` (N, 3) [m]."""
+def arrival_s(t_s: np.ndarray, track_m: np.ndarray, goal_m: np.ndarray,
+              tolerance_m: float = GOAL_TOLERANCE_M) -> float | None:
+    """When a UAV arrived for good: the first time ``t_s`` (K,) from which its positions
+    ``track_m`` (K, 3) stay within ``tolerance_m`` of ``goal_m`` to the end; None if it ends
+    outside."""
+    inside = np.linalg.norm(track_m - goal_m, axis=1) < tolerance_m
+    if not inside.size or not inside[-1]:
+        return None
+    outside = np.flatnonzero(~inside)
+    return float(t_s[0 if not outside.size else outside[-1] + 1])
+
+
+def uav_outcomes(uavs: Sequence[WorldUav], t_s: np.ndarray,
+                 positions_m: np.ndarray) -> dict[str, UavOutcome]:
+    """Per UAV, how its flight ended, from its program's report and its true positions
+    ``positions_m`` (K, N, 3) [m] at ``t_s`` (K,)."""
     from uavmpc.drivers.world import UavOutcome
 
     per_uav = {}
-    for u, final in zip(uavs, final_m, strict=True):
+    for i, u in enumerate(uavs):
         rep = u.stack.report()
+        arrived = (None if u.supervisor.mission is not None
+                   else arrival_s(t_s, positions_m[:, i], u.goal_m))
         per_uav[u.uav_id] = UavOutcome(
             max_z_offset_m=rep.max_z_offset_m, avoidance_active_s=rep.avoidance_active_s,
             tracking_rmse_m=rep.tracking_rmse_m,
-            reached_goal=(None if u.supervisor.mission is not None
-                          else bool(np.linalg.norm(final - u.goal_m) < GOAL_TOLERANCE_M)),
-            final_position_m=final.tolist(), limit_violations=rep.limit_violations,
+            reached_goal=None if u.supervisor.mission is not None else arrived is not None,
+            goal_reached_s=arrived,
+            final_position_m=positions_m[-1, i].tolist(), limit_violations=rep.limit_violations,
             max_limit_excess=rep.max_limit_excess, tracker_fallbacks=rep.tracker_fallbacks,
             messages_rejected=rep.messages_rejected_total,
             yielded_to={k: [round(a, 3), round(b, 3)] for k, (a, b) in u.yielded_to.items()})
@@ -219,7 +234,7 @@ def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
     result = WorldResult(world.scenario.name, world.seed, world.avoidance,
                          tr.t_s.shape[0] * world.period_s, [u.uav_id for u in world.uavs],
                          tr.t_s, tr.pos, tr.zoff, tr.dmin, contacts.collisions,
-                         uav_outcomes(world.uavs, tr.pos[-1]), messages, wall_s)
+                         uav_outcomes(world.uavs, tr.t_s, tr.pos), messages, wall_s)
     if tr.members.size:
         result.members_avoiding = tr.members_avoiding
     if world.batched:
