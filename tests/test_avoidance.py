@@ -281,8 +281,13 @@ def test_receive_time_fallback_aligns_on_the_receivers_clock() -> None:
     other_t = NOW - 0.7 + REL
     b = line(other_t, (20.0, 0.0, 10.0), (-5.0, 0.0, 0.0))
     m = msg("a", 1, b, stamp=NOW - 0.7 + skew, times=other_t + skew, received_s=NOW - 0.7)
-    stamp_mode = HeightOffsetStrategy().update(NOW, "b", 2, t, a, {"a": m})
-    assert stamp_mode.conflicts == ()  # by its stamp it is from the future, far off
+    # By its stamp it is from the future, far off (beyond any clock the inbox measures: it
+    # would hold no time of ours for it).
+    unplaced = msg("a", 1, b, stamp=NOW - 0.7 + skew, times=other_t + skew)
+    assert HeightOffsetStrategy().update(NOW, "b", 2, t, a, {"a": unplaced}).conflicts == ()
+    # With a time of ours (the receive-time reference, or a clock the inbox measured off),
+    # that time is its reference in either mode.
+    assert HeightOffsetStrategy().update(NOW, "b", 2, t, a, {"a": m}).conflicts == ("a",)
     recv = HeightOffsetStrategy(AvoidanceParams(time_reference="receive"))
     d = recv.update(NOW, "b", 2, t, a, {"a": m})
     assert d.conflicts == ("a",) and d.first_conflict_s == pytest.approx(3.61)

@@ -42,21 +42,20 @@ def test_the_setting_reaches_the_inbox(tmp_path, reference: str) -> None:
         assert u.stack.avoidance.params.time_reference == reference
 
 
-def test_receive_time_avoids_where_stamps_from_a_clock_ahead_are_refused(tmp_path) -> None:
-    stamp_world, stamp = _fly(tmp_path, "stamp", "ack_grace_s = 0.0")
-    uav2 = stamp_world.uavs[1].stack.inbox
-    # With stamps, every message of the UAV whose clock is ahead looks future-stamped to the
-    # one that must yield: it never sees it coming, and without the acknowledgement they
-    # collide.
-    assert uav2.accepted == 0 and uav2.rejected_total > 40
-    assert stamp.collisions
-    assert stamp.per_uav["uav2"].max_z_offset_m == 0.0
-    # The acknowledgement (on by default, docs/safety.md, A2) saves them: uav2 never lists
-    # uav1 as heard, so uav1, the higher priority, climbs over it instead.
-    _, acked = _fly(tmp_path, "stamp")
-    assert acked.collisions == []
-    assert acked.per_uav["uav1"].max_z_offset_m == 3.0
-    assert acked.per_uav["uav2"].max_z_offset_m == 0.0
+def test_a_clock_ahead_is_measured_with_stamps_and_ignored_with_receive_times(tmp_path) -> None:
+    """uav1's clock runs 0.7 s ahead: its stamps look future-stamped to uav2, which must
+    yield. Refused, uav2 never saw it coming (they collided without the acknowledgement).
+    Now uav2's inbox measures the offset and puts uav1's messages on its own clock: uav2
+    yields one layer, as with the receive-time reference, even without the acknowledgement."""
+    for extra in ("ack_grace_s = 0.0", ""):
+        stamp_world, stamp = _fly(tmp_path, "stamp", extra)
+        uav2 = stamp_world.uavs[1].stack.inbox
+        assert uav2.rejected_total == 0 and uav2.accepted > 40
+        assert uav2.latest["uav1"].received_s is not None  # put on uav2's clock
+        assert stamp.collisions == []
+        assert stamp.per_uav["uav2"].max_z_offset_m == 3.0
+        assert stamp.per_uav["uav1"].max_z_offset_m == 0.0
+        assert min(stamp.min_distance_m) > 2.5
 
     receive_world, receive = _fly(tmp_path, "receive")
     assert receive_world.uavs[1].stack.inbox.rejected_total == 0

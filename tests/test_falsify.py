@@ -80,3 +80,25 @@ def test_cli_mistakes_are_one_line(argv: list[str], named: str, capsys, tmp_path
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert named in line
     assert not (tmp_path / "f").exists()
+
+
+@pytest.mark.parametrize("loss", [0.3, 0.0])
+def test_the_falsifier_s_case_of_clocks_apart_keeps_2_m(loss: float) -> None:
+    """A case the falsifier found (tests/data/falsify_clocks_apart.toml): with clocks up to
+    0.86 s apart one UAV refused another's every message as future-stamped and came within
+    1.08 m of it (0.94 m, a collision, on a loss-free link). The inbox now measures a sender's
+    clock offset and puts its messages on the receiver's clock."""
+    from uavmpc.drivers.world import World
+    from uavmpc.scenarios import LinkSettings
+    from uavmpc.scenarios.faults import FaultSpec
+    from uavmpc.scenarios.run import RunSpec
+
+    sc = scenarios.load(Path(__file__).parent / "data" / "falsify_clocks_apart.toml")
+    res = World.from_spec(RunSpec(
+        sc, seed=47, link=LinkSettings(loss=loss, latency_s=0.2),
+        faults=FaultSpec(clock_offset_s=0.5, gnss="single",
+                         burst_len=3.0 if loss else 0.0))).run()
+    assert not res.collisions
+    assert float(res.min_distance_m.min()) >= 2.0
+    refused = {u: o.messages_rejected for u, o in res.per_uav.items()}
+    assert max(refused.values()) < 20, refused  # was 239 for uav2: blind

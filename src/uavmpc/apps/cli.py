@@ -870,14 +870,18 @@ def _falsify(args: argparse.Namespace) -> int:
 
     space = space_from_args(args)
     closest = [math.inf]
+    so_far: list[Any] = []
 
     def said(o: Any) -> None:
         new = o.min_distance_m < closest[0]
         closest[0] = min(closest[0], o.min_distance_m)
+        so_far.append(o)
         if new or (o.index + 1) % 10 == 0:
             print(f"flight {o.index + 1}/{args.budget}: {o.min_distance_m:.2f} m"
                   + (" (closest so far)" if new else f"; closest {closest[0]:.2f} m"),
                   flush=True)
+            # A long search stopped early keeps what it found.
+            write_results(space, so_far, Path(args.out), avoidance=not args.no_avoidance)
 
     outcomes = falsify(space, args.budget, seed=args.seed, generation=args.generation,
                        avoidance=not args.no_avoidance, on_flight=said)

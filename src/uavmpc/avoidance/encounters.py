@@ -126,14 +126,15 @@ _FRESH, _SILENT, _IGNORED = 0, 1, 2
 
 
 @kernel
-def _reference_s(stamp_s: float, received_s: float, use_received: bool) -> float:
-    """The time a receiver takes a held message to be from: its stamp ``stamp_s``, or, with
-    the receive-time reference, its receive time ``received_s`` (when known, not NaN).
+def _reference_s(stamp_s: float, received_s: float) -> float:
+    """The time on the receiver's clock a held message is from: its stamp ``stamp_s``, or
+    ``received_s`` when known (not NaN): its arrival with the receive-time reference, or its
+    stamp put on our clock by the sender's measured offset (:mod:`uavmpc.comms.inbox`).
 
     This and :func:`_standing` take numbers, not the records: they run for every column of
     a row, and a compiled call that takes a record increments and decrements the reference
     count of each of its arrays (an atomic operation each) on every call."""
-    if use_received and not math.isnan(received_s):
+    if not math.isnan(received_s):
         return received_s
     return stamp_s
 
@@ -158,7 +159,7 @@ def heard_from_all(rows: InboxRows, r: int, cols: np.ndarray, now_s: float,
     for c in cols:
         if rows.held_slot[r, c] < 0:
             return False
-        ref = _reference_s(rows.held_stamp_s[r, c], rows.held_received_s[r, c], use_received)
+        ref = _reference_s(rows.held_stamp_s[r, c], rows.held_received_s[r, c])
         if _standing(ref, now_s, timeout_s, silent_hold_s) == _IGNORED:
             return False
     return True
@@ -178,7 +179,7 @@ def heard_columns(rows: InboxRows, store: Store, r: int, now_s: float, use_recei
     for c in range(s_count):
         if c == rows.own_col[r] or rows.held_slot[r, c] < 0:
             continue
-        ref = _reference_s(rows.held_stamp_s[r, c], rows.held_received_s[r, c], use_received)
+        ref = _reference_s(rows.held_stamp_s[r, c], rows.held_received_s[r, c])
         if _standing(ref, now_s, timeout_s, silent_hold_s) == _IGNORED:
             continue
         cols[n] = c
@@ -483,8 +484,7 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
         for col in range(n_cols):
             if rows.held_slot[r, col] < 0:
                 continue
-            ref = _reference_s(rows.held_stamp_s[r, col], rows.held_received_s[r, col],
-                               use_received)
+            ref = _reference_s(rows.held_stamp_s[r, col], rows.held_received_s[r, col])
             if _standing(ref, now, timeout_s, silent_hold_s) != _SILENT:
                 continue
             if ns < cap_s:
@@ -515,8 +515,7 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
                     n_cand += 1
         for c in range(n_cand):
             col = cand[c]
-            ref = _reference_s(rows.held_stamp_s[r, col], rows.held_received_s[r, col],
-                               use_received)
+            ref = _reference_s(rows.held_stamp_s[r, col], rows.held_received_s[r, col])
             if _standing(ref, now, timeout_s, silent_hold_s) != _FRESH:
                 continue
             widen = pair_widening_m(own_sigma_h_m[j], store.sigma_m[rows.held_slot[r, col], 0],

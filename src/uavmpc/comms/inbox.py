@@ -43,6 +43,20 @@ FUTURE_REASON = "future-stamped"
 STALE_REASON = "stale"
 #: Garbage is decoded once per distinct byte string; a flood of distinct garbage is bounded.
 _MAX_FAILURES_CACHED = 4096
+#: A sender's clock, measured against ours (the stamp check): per receiver and sender, the
+#: floor of arrival − stamp (its clock offset plus the link's shortest latency, the way NTP's
+#: minimum-delay filter reads it) over the copies that arrive. Stamps are trusted while the
+#: floor is within CLOCK_TRUST_S of zero; beyond it the sender's clock is off, and its messages
+#: are put on our clock by the floor (error: the shortest latency) instead of being refused as
+#: future-stamped or stale — a refused message is a neighbour nobody avoids. (Found by the
+#: falsifier: clocks ±0.5 s apart made one UAV refuse every message of two others, 0.94 m.)
+CLOCK_TRUST_S = 0.25
+#: Only copies within this of our clock measure it: a stamp further off is not a clock
+#: offset worth following but a forged or broken one (refused as before).
+MAX_CLOCK_OFFSET_S = 2.0
+#: The floor rises at most this fast [s/s] (a sender whose clock steps back, or drifts): a
+#: floor only falls on its own.
+CLOCK_FLOOR_RISE = 0.01
 
 
 class Store(NamedTuple):
@@ -95,13 +109,17 @@ class InboxRows(NamedTuple):
 
     Attributes:
         held_slot: (N, S) int64 the store slot of the newest accepted message (−1: none).
-        held_stamp_s: (N, S) its stamp; held_received_s: (N, S) the receiver's clock when it
-            arrived (NaN unless the receiver uses the receive-time reference).
+        held_stamp_s: (N, S) its stamp; held_received_s: (N, S) its time on the receiver's
+            clock when its stamp is not that: its arrival (the receive-time reference), or its
+            stamp put on our clock by the sender's measured offset (a sender whose clock is
+            off); NaN: the stamp.
         own_col: (N,) int64 each receiver's own column (its echoes are ignored).
         receive_time: (N,) bool the receiver uses the receive-time reference: stamps are then
             only compared with the same sender's stamps.
         max_future_s, max_age_s: (N,) the clock tolerance and the age limit of the stamp check.
         accepted, superseded, future, stale: (N,) int64 counters.
+        lag_floor_s: (N, S) the floor of arrival − stamp [s] (NaN: none yet), and
+            lag_floor_at_s: (N, S) the receiver's clock when it was last lowered or risen.
     """
 
     held_slot: np.ndarray
@@ -115,6 +133,8 @@ class InboxRows(NamedTuple):
     superseded: np.ndarray
     future: np.ndarray
     stale: np.ndarray
+    lag_floor_s: np.ndarray
+    lag_floor_at_s: np.ndarray
 
 
 @kernel
@@ -171,13 +191,29 @@ def _accept_block(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
         t = now_s[r]
         col = store.col[slot]
         stamp = store.stamp_s[slot]
+        on_our_clock = math.nan  # the stamp is ours
         if not rows.receive_time[r]:
-            ahead = stamp - t
-            if ahead > rows.max_future_s[r]:
+            lag = t - stamp
+            floor = rows.lag_floor_s[r, col]
+            if abs(lag) <= MAX_CLOCK_OFFSET_S:
+                if math.isnan(floor) or lag < floor:
+                    floor = lag
+                else:
+                    floor = min(lag, floor + CLOCK_FLOOR_RISE * (t - rows.lag_floor_at_s[r, col]))
+                rows.lag_floor_s[r, col] = floor
+                rows.lag_floor_at_s[r, col] = t
+            if not math.isnan(floor) and abs(floor) > CLOCK_TRUST_S \
+                    and abs(lag) <= MAX_CLOCK_OFFSET_S:
+                on_our_clock = stamp + floor  # its clock is off: measured, not refused
+                if lag - floor > rows.max_age_s[r]:
+                    rows.stale[r] += 1
+                    outcome = STALE
+                    continue
+            elif -lag > rows.max_future_s[r]:
                 rows.future[r] += 1
                 outcome = FUTURE
                 continue
-            if -ahead > rows.max_age_s[r]:
+            elif lag > rows.max_age_s[r]:
                 rows.stale[r] += 1
                 outcome = STALE
                 continue
@@ -194,8 +230,10 @@ def _accept_block(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
         holders[slot] += 1
         rows.held_slot[r, col] = slot
         rows.held_stamp_s[r, col] = stamp
-        if rows.receive_time[r]:  # otherwise it stays NaN, as the rows start: one
-            rows.held_received_s[r, col] = t  # scattered store less per copy
+        if rows.receive_time[r]:
+            rows.held_received_s[r, col] = t
+        elif not (math.isnan(on_our_clock) and math.isnan(rows.held_received_s[r, col])):
+            rows.held_received_s[r, col] = on_our_clock  # (else NaN already: a store less)
         rows.accepted[r] += 1
         outcome = KEPT
     return outcome
@@ -286,7 +324,8 @@ class InboxTable:
                          np.full(n, self.time_reference == "receive"),
                          np.full(n, self.max_future_s), np.full(n, self.max_age_s),
                          np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
-                         np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64))
+                         np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                         np.full((n, s), np.nan), np.zeros((n, s)))
 
     # ------------------------------------------------------------------ senders
     def col_of(self, uav_id: str) -> int:
@@ -309,6 +348,8 @@ class InboxTable:
         new.held_slot[:, :s0] = old.held_slot
         new.held_stamp_s[:, :s0] = old.held_stamp_s
         new.held_received_s[:, :s0] = old.held_received_s
+        new.lag_floor_s[:, :s0] = old.lag_floor_s
+        new.lag_floor_at_s[:, :s0] = old.lag_floor_at_s
         for name in ("own_col", "receive_time", "max_future_s", "max_age_s", "accepted",
                      "superseded", "future", "stale"):
             getattr(new, name)[:] = getattr(old, name)
