@@ -433,10 +433,11 @@ def _climb(enc: EncounterRows, must: np.ndarray, half_h: float, ahead_s: np.ndar
 
 
 @kernel
-def _standing_still(pos: np.ndarray) -> bool:
-    """The plan ``pos`` (m, 3) stays within :data:`STANDING_M` of its first point."""
+def _standing_still(pos: np.ndarray, until: int) -> bool:
+    """The plan ``pos`` (m, 3) stays within :data:`STANDING_M` of its first point up to
+    point ``until`` (included)."""
     best = -math.inf
-    for p in range(pos.shape[0]):
+    for p in range(min(until + 1, pos.shape[0])):
         d0 = pos[p, 0] - pos[0, 0]
         d1 = pos[p, 1] - pos[0, 1]
         best = max(best, d0 * d0 + d1 * d1)
@@ -741,17 +742,32 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
         # fault at once: UAVs hovering at their starts, in each other's wide cylinders, all
         # stuck). Once stuck, until that conflict is resolved (a hold's rounds alternate
         # between the standing plan and the probes' one).
+        #
+        # Standing still means until it reaches us, not over the whole horizon: found by the
+        # falsifier (single-band GNSS, no layer clear of the other's widened cylinder), a UAV
+        # waiting at its start for a departure 3 s away held where a higher priority's
+        # descent passed through it (1.21 m), never stuck because its plan moved later.
         by_rank = False
         coming = False
+        reach = -1  # the last point of our plan before the first one it comes to meet us at
         for j in range(k):
             r = (unresolved[j] and enc.avoiding[j] and not deaf[j] and not unheard
                  and rank[j])
             by_rank = by_rank or r
-            if r and not in_cylinder(enc.near[j, 0], enc.dz[j, 0], z,
-                                     half_h + enc.widen_v[j]):
-                coming = True  # it comes to us
-        st.stuck[i] = by_rank and (st.stuck[i] or (coming and has_pos
-                                                   and _standing_still(pos)))
+            if not r:
+                continue
+            # It comes to us: in our cylinder later but not now, or (a cylinder widened by
+            # the pair's uncertainty holds it from afar) closing in by over STANDING_M.
+            half = half_h + enc.widen_v[j]
+            inside_now = in_cylinder(enc.near[j, 0], enc.dz[j, 0], z, half)
+            for p in range(1, enc.near.shape[1]):
+                if in_cylinder(enc.near[j, p], enc.dz[j, p], z, half) and (
+                        not inside_now or enc.dxy[j, p] < enc.dxy[j, 0] - STANDING_M):
+                    coming = True
+                    reach = max(reach, p)
+                    break
+        st.stuck[i] = by_rank and (st.stuck[i] or (coming and has_pos and reach >= 0
+                                                   and _standing_still(pos, reach)))
     else:
         st.stuck[i] = False
     if not any_unresolved:
