@@ -50,7 +50,7 @@ def test_a_clock_ahead_is_measured_with_stamps_and_ignored_with_receive_times(tm
     for extra in ("ack_grace_s = 0.0", ""):
         stamp_world, stamp = _fly(tmp_path, "stamp", extra)
         uav2 = stamp_world.uavs[1].stack.inbox
-        assert uav2.rejected_total == 0 and uav2.accepted > 40
+        assert uav2.rejected_total <= 1 and uav2.accepted > 40  # its first, before measured
         assert uav2.latest["uav1"].received_s is not None  # put on uav2's clock
         assert stamp.collisions == []
         assert stamp.per_uav["uav2"].max_z_offset_m == 3.0

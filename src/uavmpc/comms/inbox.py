@@ -45,17 +45,19 @@ STALE_REASON = "stale"
 _MAX_FAILURES_CACHED = 4096
 #: A sender's clock, measured against ours (the stamp check): per receiver and sender, the
 #: floor of arrival − stamp (its clock offset plus the link's shortest latency, the way NTP's
-#: minimum-delay filter reads it) over the copies that arrive. Stamps are trusted while the
-#: floor is within CLOCK_TRUST_S of zero; beyond it the sender's clock is off, and its messages
-#: are put on our clock by the floor (error: the shortest latency) instead of being refused as
-#: future-stamped or stale — a refused message is a neighbour nobody avoids. (Found by the
-#: falsifier: clocks ±0.5 s apart made one UAV refuse every message of two others, 0.94 m.)
+#: minimum-delay filter reads it) over the copies that arrive, followed at a bounded rate.
+#: Stamps are trusted while the floor is within CLOCK_TRUST_S of zero; beyond it the sender's
+#: clock is off, and its messages are put on our clock by the floor (error: the shortest
+#: latency) instead of being refused as future-stamped or stale — a refused message is a
+#: neighbour nobody avoids. (Found by the falsifier: clocks ±0.5 s apart made one UAV refuse
+#: every message of two others, 0.94 m.)
 CLOCK_TRUST_S = 0.25
 #: Only copies within this of our clock measure it: a stamp further off is not a clock
 #: offset worth following but a forged or broken one (refused as before).
 MAX_CLOCK_OFFSET_S = 2.0
-#: The floor rises at most this fast [s/s] (a sender whose clock steps back, or drifts): a
-#: floor only falls on its own.
+#: The floor rises at most this fast [s/s] (a sender whose clock steps back, or drifts). It
+#: falls to a lower arrival at once, but by more than CLOCK_TRUST_S only when two arrivals in a
+#: row say so (to the higher of the two): one garbled stamp does not move it.
 CLOCK_FLOOR_RISE = 0.01
 
 
@@ -118,8 +120,9 @@ class InboxRows(NamedTuple):
             only compared with the same sender's stamps.
         max_future_s, max_age_s: (N,) the clock tolerance and the age limit of the stamp check.
         accepted, superseded, future, stale: (N,) int64 counters.
-        lag_floor_s: (N, S) the floor of arrival − stamp [s] (NaN: none yet), and
-            lag_floor_at_s: (N, S) the receiver's clock when it was last lowered or risen.
+        lag_floor_s: (N, S) the floor of arrival − stamp [s] (NaN: none yet),
+            lag_floor_at_s: (N, S) the receiver's clock when it was last updated, and
+            lag_low_s: (N, S) an arrival's lag far below it awaiting a second (NaN: none).
     """
 
     held_slot: np.ndarray
@@ -135,6 +138,7 @@ class InboxRows(NamedTuple):
     stale: np.ndarray
     lag_floor_s: np.ndarray
     lag_floor_at_s: np.ndarray
+    lag_low_s: np.ndarray
 
 
 @kernel
@@ -196,7 +200,14 @@ def _accept_block(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
             lag = t - stamp
             floor = rows.lag_floor_s[r, col]
             if abs(lag) <= MAX_CLOCK_OFFSET_S:
-                if math.isnan(floor) or lag < floor:
+                low = rows.lag_low_s[r, col]  # an arrival far below the floor, unconfirmed
+                rows.lag_low_s[r, col] = math.nan
+                if math.isnan(floor) or lag < floor - CLOCK_TRUST_S:
+                    if math.isnan(low):
+                        rows.lag_low_s[r, col] = lag
+                    else:
+                        floor = max(low, lag)
+                elif lag < floor:
                     floor = lag
                 else:
                     floor = min(lag, floor + CLOCK_FLOOR_RISE * (t - rows.lag_floor_at_s[r, col]))
@@ -325,7 +336,8 @@ class InboxTable:
                          np.full(n, self.max_future_s), np.full(n, self.max_age_s),
                          np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
                          np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
-                         np.full((n, s), np.nan), np.zeros((n, s)))
+                         np.full((n, s), np.nan), np.zeros((n, s)),
+                         np.full((n, s), np.nan))
 
     # ------------------------------------------------------------------ senders
     def col_of(self, uav_id: str) -> int:
@@ -350,6 +362,7 @@ class InboxTable:
         new.held_received_s[:, :s0] = old.held_received_s
         new.lag_floor_s[:, :s0] = old.lag_floor_s
         new.lag_floor_at_s[:, :s0] = old.lag_floor_at_s
+        new.lag_low_s[:, :s0] = old.lag_low_s
         for name in ("own_col", "receive_time", "max_future_s", "max_age_s", "accepted",
                      "superseded", "future", "stale"):
             getattr(new, name)[:] = getattr(old, name)
