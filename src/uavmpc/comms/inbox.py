@@ -56,8 +56,10 @@ CLOCK_TRUST_S = 0.25
 #: offset worth following but a forged or broken one (refused as before).
 MAX_CLOCK_OFFSET_S = 2.0
 #: The floor rises at most this fast [s/s] (a sender whose clock steps back, or drifts). It
-#: falls to a lower arrival at once, but by more than CLOCK_TRUST_S only when two arrivals in a
-#: row say so (to the higher of the two): one garbled stamp does not move it.
+#: starts at the first arrival and falls to a lower one at once, but by more than
+#: CLOCK_TRUST_S only when two arrivals in a row say so (to the higher of the two): one
+#: garbled stamp later does not move it. (A garbled first stamp does, until the floor has
+#: risen back at that rate: an open weakness, a UDP checksum or a signature makes it rare.)
 CLOCK_FLOOR_RISE = 0.01
 
 
@@ -202,7 +204,9 @@ def _accept_block(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
             if abs(lag) <= MAX_CLOCK_OFFSET_S:
                 low = rows.lag_low_s[r, col]  # an arrival far below the floor, unconfirmed
                 rows.lag_low_s[r, col] = math.nan
-                if math.isnan(floor) or lag < floor - CLOCK_TRUST_S:
+                if math.isnan(floor):
+                    floor = lag
+                elif lag < floor - CLOCK_TRUST_S:
                     if math.isnan(low):
                         rows.lag_low_s[r, col] = lag
                     else:

@@ -469,9 +469,13 @@ class Node:
         w = self.watch
         w.estimate(*vehicle.position_sigma_m)
         self._assume_dead_peers(now)
-        for msg in stack.inbox.latest.values():
-            if msg.received_s is not None and msg.uav_id not in self._dead:
-                w.heard(msg.uav_id, msg.stamp_s, msg.received_s)
+        # A message's age is its arrival less its stamp with the receive-time reference only:
+        # with stamps, ``received_s`` is set for a sender whose clock the inbox measured off,
+        # and is then its stamp on our clock, not its arrival.
+        if stack.inbox.time_reference == "receive":
+            for msg in stack.inbox.latest.values():
+                if msg.received_s is not None and msg.uav_id not in self._dead:
+                    w.heard(msg.uav_id, msg.stamp_s, msg.received_s)
         if not (sup.launched and vehicle.flying and vehicle.commanding and not landing):
             return  # on the ground, landing, or no longer ours: nothing to hold
         if fresh:  # an old estimate would read as a tracking error (PX4 flies on a fresh one)
