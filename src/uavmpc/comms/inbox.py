@@ -217,18 +217,16 @@ def _accept_block(rows: InboxRows, store: Store, receivers: np.ndarray, slots: n
                     floor = min(lag, floor + CLOCK_FLOOR_RISE * (t - rows.lag_floor_at_s[r, col]))
                 rows.lag_floor_s[r, col] = floor
                 rows.lag_floor_at_s[r, col] = t
+            offset = 0.0  # our clock less the sender's, as far as it is measured
             if not math.isnan(floor) and abs(floor) > CLOCK_TRUST_S \
                     and abs(lag) <= MAX_CLOCK_OFFSET_S:
-                on_our_clock = stamp + floor  # its clock is off: measured, not refused
-                if lag - floor > rows.max_age_s[r]:
-                    rows.stale[r] += 1
-                    outcome = STALE
-                    continue
+                offset = floor  # its clock is off: measured, not refused
+                on_our_clock = stamp + floor
             elif -lag > rows.max_future_s[r]:
                 rows.future[r] += 1
                 outcome = FUTURE
                 continue
-            elif lag > rows.max_age_s[r]:
+            if lag - offset > rows.max_age_s[r]:
                 rows.stale[r] += 1
                 outcome = STALE
                 continue
