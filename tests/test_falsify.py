@@ -123,3 +123,23 @@ def test_the_falsifier_s_case_of_a_uav_held_in_the_way_keeps_2_m(all_faults: boo
     res = World.from_spec(RunSpec(sc, seed=16, link=link, faults=faults)).run()
     assert not res.collisions
     assert float(res.min_distance_m.min()) >= 2.0
+
+
+def test_the_falsifier_s_case_of_a_uav_released_while_holding_keeps_2_m() -> None:
+    """A case the falsifier found (tests/data/falsify_held_while_releasing.toml, every
+    fault): a held UAV released its offset while holding and, hearing again the one it had
+    yielded to, held still descending into it (0.81 m); with that fixed, it took the other,
+    1.3 m above it within the pair's 7.2 m vertical uncertainty, as surely above and
+    descended to escape it (1.64 m). A hold now keeps its offset, and a descent escapes only
+    from one above by more than the pair's uncertainty."""
+    from uavmpc.drivers.world import World
+    from uavmpc.scenarios import LinkSettings
+    from uavmpc.scenarios.faults import FaultSpec
+    from uavmpc.scenarios.run import RunSpec
+
+    sc = scenarios.load(Path(__file__).parent / "data" / "falsify_held_while_releasing.toml")
+    res = World.from_spec(RunSpec(
+        sc, seed=221, link=LinkSettings(loss=0.3, latency_s=0.2, jitter_s=0.02),
+        faults=FaultSpec(clock_offset_s=0.5, gnss="single", burst_len=3.0))).run()
+    assert not res.collisions
+    assert float(res.min_distance_m.min()) >= 2.0

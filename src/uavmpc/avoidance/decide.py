@@ -330,8 +330,12 @@ def _layer_below(enc: EncounterRows, must: np.ndarray, z: float, half_h: float,
             h = half_h + enc.widen_v[e]
             for p in range(m):
                 d = enc.dz[e, p]
-                if in_cylinder(enc.near[e, p], d, z, h) and d + z <= LEVEL_M:
-                    continue  # escaping: a descent escapes from one level or above
+                # Escaping: a descent escapes from one level or above, surely so: found by
+                # the falsifier (single-band GNSS), a UAV held 9 m up took one 1.3 m above
+                # it, within the pair's vertical uncertainty (7.2 m), as above, and
+                # descended onto it (1.64 m).
+                if in_cylinder(enc.near[e, p], d, z, h) and d + z <= LEVEL_M - enc.widen_v[e]:
+                    continue
                 for w in range(way.shape[0]):
                     if in_cylinder(enc.near[e, p], d, way[w], h):
                         return np.nan  # the way down is blocked: no lower layer either
@@ -653,7 +657,8 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
         if n_silent == 0 and rest_row(st, i, now_s):
             return CALM_KIND, 0.0, np.nan
         st.unlisted_s[i, :] = np.nan
-        _release(st, i, now_s)
+        if not st.holding[i]:
+            _release(st, i, now_s)
         st.last_update_s[i] = now_s
         holding = _hold_short(st, i, False, times, pos, has_pos, e, e_start, q_lo, q_hi,
                               has_probes, own_priority, deaf_col, False)
@@ -725,7 +730,13 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
         # for 5 s (ten lost messages in a row) released its offset onto it. Silent UAVs are
         # among the encounters, at their widened last plans: the way down is clear of them
         # too (until their plans end, with ``silent_hold_s``).
-        _release(st, i, now_s)
+        #
+        # Not while holding: a hold stops in 3-D, the offset included. Found by the falsifier
+        # (bursty loss, single-band GNSS): a UAV held 9 m up released its offset while
+        # holding, heard again the one it had yielded to, now level with its way down, and
+        # held, still descending into it (0.81 m).
+        if not st.holding[i]:
+            _release(st, i, now_s)
     st.last_update_s[i] = now_s
     holding = _hold_short(st, i, any_unresolved, times, pos, has_pos, e, e_start, q_lo, q_hi,
                           has_probes, own_priority, deaf_col, unheard)
