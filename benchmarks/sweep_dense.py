@@ -9,6 +9,11 @@ loss probability and, when given, that latency), with avoidance, and prints one 
 scenario × link, then every collision and every missed goal precisely, and, last, one JSON
 object.
 
+The vertical stack swaps of docs/safety.md (2 × 3 and 2 × 5, 3 seeds, clean and lossy):
+
+    python benchmarks/sweep_dense.py --seeds 3 --links 0,0.3:0.2 --workers 2 \
+        --scenarios vertical_3,vertical_5
+
 The antipodal swaps of docs/safety.md (N = 8 … 32 under a 30 m ceiling):
 
 
@@ -39,20 +44,25 @@ import numpy as np
 from uavmpc import ConfigError, scenarios
 from uavmpc.drivers.world import World, WorldResult
 from uavmpc.scenarios import Scenario
-from uavmpc.scenarios.dense import antipodal, time_to_goals
+from uavmpc.scenarios.dense import antipodal, time_to_goals, vertical_swap
 
 DENSE = ("antipodal_8", "antipodal_12", "noncooperative_crossing")
 _ANTIPODAL = re.compile(r"^antipodal_(\d+)$")
+_VERTICAL = re.compile(r"^vertical_(\d+)$")
 
 
 def load(name: str, ceiling_m: float | None = None) -> Scenario:
-    """A built-in scenario, or ``antipodal_<N>`` for any N (uavmpc.scenarios.dense), under a
-    ``ceiling_m`` geofence when given (antipodal only)."""
+    """A built-in scenario, ``antipodal_<N>`` for any N, or ``vertical_<K>``: two stacks of K
+    swapping places and heights (uavmpc.scenarios.dense), under a ``ceiling_m`` geofence when
+    given (generated ones only; a vertical swap's default: 12 m above its top)."""
     m = _ANTIPODAL.match(name)
-    if name in scenarios.BUILTIN and (ceiling_m is None or m is None):
+    v = _VERTICAL.match(name)
+    if name in scenarios.BUILTIN and (ceiling_m is None or (m is None and v is None)):
         return scenarios.load(name)
+    if v is not None:
+        return vertical_swap(int(v.group(1)), duration_s=90.0, ceiling_m=ceiling_m)
     if m is None:
-        raise ValueError(f"{name}: neither a built-in scenario nor antipodal_<N>")
+        raise ValueError(f"{name}: neither a built-in scenario, antipodal_<N> nor vertical_<K>")
     return antipodal(int(m.group(1)), duration_s=120.0, ceiling_m=ceiling_m)
 
 
@@ -167,9 +177,11 @@ def main() -> None:
         parser.error(f"--links: LOSS[:LATENCY_S] with loss in [0, 1) and latency in [0, 5] s, "
                      f"got {exc}")
     names = [v for v in args.scenarios.split(",") if v]
-    unknown = [v for v in names if v not in scenarios.BUILTIN and not _ANTIPODAL.match(v)]
+    unknown = [v for v in names if v not in scenarios.BUILTIN and not _ANTIPODAL.match(v)
+               and not _VERTICAL.match(v)]
     if unknown:
-        parser.error(f"--scenarios: neither built-in nor antipodal_<N>: {', '.join(unknown)}")
+        parser.error("--scenarios: neither built-in, antipodal_<N> nor vertical_<K>: "
+                     f"{', '.join(unknown)}")
     try:
         for name in names:
             load(name, args.ceiling)
