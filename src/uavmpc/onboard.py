@@ -98,6 +98,8 @@ _SCHEDULE_TOL_S = 1e-9
 #: A mission whose height changes by at most _LEVEL_DZ_M over _LEVEL_DT_S keeps its height
 #: (a hold then keeps the mission's height, :meth:`OnboardStack._rest_height_m`) [m, s].
 _LEVEL_DZ_M, _LEVEL_DT_S = 1e-3, 0.1
+#: The mission's point is "over" the virtual UAV (or at its height) within this distance [m].
+_OVER_M = 1.0
 
 
 class StackStats(NamedTuple):
@@ -1019,17 +1021,26 @@ class OnboardStack:
         """The height a hold keeps, in the mission's frame (before the offset). While the
         mission climbs or descends, where the virtual UAV's vertical motion comes to rest
         braking at its limits (a hold at the height of now would overshoot and come back);
-        while the mission keeps its height (a go-to, a level path), the mission's height: a
-        UAV held during its take-off still climbs to where its mission is (found on real
-        PX4: held at its height mid take-off, a UAV flew its whole mission 2.5 m above the
-        ground)."""
+        while the mission keeps its height (a go-to, a level path) right over the virtual
+        UAV, the mission's height: a UAV held during its take-off still climbs to where its
+        mission is (found on real PX4: held at its height mid take-off, a UAV flew its whole
+        mission 2.5 m above the ground), or at the mission's height already (the part of
+        the offset climbed aside). Not when the mission's point is elsewhere, at another
+        height: found in the vertical stack swap (2 × 5), a UAV held long enough for its
+        mission's point to reach its goal 22 m higher climbed straight up to it, into the
+        UAV above."""
         ref = self.tracker.reference
+        s = self.tracker.state
         if ref is not None:
             t = self.tracker.time_s
-            z_ref = ref.sample(np.array([t, t + _LEVEL_DT_S]))[:, 2]
-            if abs(float(z_ref[1] - z_ref[0])) <= _LEVEL_DZ_M:
-                return float(z_ref[0])
-        s = self.tracker.state[2]
+            at = ref.sample(np.array([t, t + _LEVEL_DT_S]))
+            z_ref, z = float(at[0, 2]), float(s[2, 0])
+            climbed = min(max(z - z_ref, 0.0), self.tracker.z_offset_m)
+            over = math.hypot(float(at[0, 0] - s[0, 0]), float(at[0, 1] - s[1, 0]))
+            if abs(float(at[1, 2]) - z_ref) <= _LEVEL_DZ_M and (
+                    over <= _OVER_M or abs(z - climbed - z_ref) <= _OVER_M):
+                return z_ref
+        s = s[2]
         z, v = float(s[0]), float(s[1])
         lim = self.tracker.limits
         brake = lim.descend_accel_mps2 if v > 0.0 else lim.ascend_accel_mps2
@@ -1068,11 +1079,14 @@ def avoidance_limits(nominal: DynamicLimits, horizontal_scale: float,
                                      horizontal_accel_mps2=nominal.horizontal_accel_mps2)
     if climb_speed_mps is None and climb_accel_mps2 is None:
         return limits
+    # A climb lifted is braked as hard as it may start: a multirotor stops a climb by easing
+    # its thrust. Found in the vertical stack swap (2 × 5): a climb at 5 m/s told to stop
+    # where it was went on for 5 m at the nominal 1 m/s² downwards, into the UAV above.
+    climb_accel = max(limits.ascend_accel_mps2, climb_accel_mps2 or 0.0)
     return DynamicLimits(
         limits.horizontal_speed_mps, limits.horizontal_accel_mps2,
-        max(limits.ascend_speed_mps, climb_speed_mps or 0.0),
-        max(limits.ascend_accel_mps2, climb_accel_mps2 or 0.0),
-        limits.descend_speed_mps, limits.descend_accel_mps2,
+        max(limits.ascend_speed_mps, climb_speed_mps or 0.0), climb_accel,
+        limits.descend_speed_mps, max(limits.descend_accel_mps2, climb_accel),
         limits.heading_rate_radps, limits.heading_accel_radps2,
     )
 

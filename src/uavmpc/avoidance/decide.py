@@ -450,15 +450,16 @@ def _standing_still(pos: np.ndarray, until: int) -> bool:
 
 @kernel(allocates=True)
 def _way_clear(e: EncounterRows, e_start: np.ndarray, q_lo: int, q_hi: int, own_priority: int,
-               deaf_col: np.ndarray, unheard: bool, z: float, ceiling: float, prm: np.ndarray
-               ) -> bool:
-    """(docs/safety.md, A6.) Some offset from ``z`` up to the ceiling is clear,
-    along every probe (plans ``q_lo`` … ``q_hi`` − 1), of everyone we yield to
-    (``deaf_col``: this round's deaf columns)."""
+               deaf_col: np.ndarray, unheard: bool, z: float, ceiling: float, prm: np.ndarray,
+               way_up: bool) -> bool:
+    """(docs/safety.md, A6.) Some offset from ``z`` up to the ceiling (only ``z`` without
+    ``way_up``: the climb to any other is blocked) is clear, along every probe (plans
+    ``q_lo`` … ``q_hi`` − 1), of everyone we yield to (``deaf_col``: this round's deaf
+    columns)."""
     dz = prm[P_DZ]
     half_h = 0.5 * prm[P_HEIGHT]
     top = _lower(prm[P_MAX_OFFSET], ceiling)
-    n_c = math.floor(_higher(top - z, 0.0) / dz + EPS) + 1
+    n_c = math.floor(_higher(top - z, 0.0) / dz + EPS) + 1 if way_up else 1
     blocked = np.zeros(n_c, dtype=np.bool_)
     for q in range(q_lo, q_hi):
         probe = _plan_rows(e, e_start[q], e_start[q + 1])
@@ -487,10 +488,16 @@ def _way_clear(e: EncounterRows, e_start: np.ndarray, q_lo: int, q_hi: int, own_
                     if not in_cylinder(probe.near[j, p], probe.dz[j, p], cand, h):
                         all_hit = False
                         break
+                # Away in 3-D: neither closer horizontally nor vertically. Found in the
+                # vertical stack swap (2 × 5): uav2, held under uav3 in one column, went on
+                # every other round (horizontally it only drew away), and each time its
+                # mission's climb carried it on up into uav3 (0.29 m).
                 run = True  # logical_and.accumulate(conflict & apart)
                 for p in range(m):
                     hit = in_cylinder(probe.near[j, p], probe.dz[j, p], cand, h)
-                    apart = p == 0 or probe.dxy[j, p] >= probe.dxy[j, p - 1]
+                    apart = p == 0 or (
+                        probe.dxy[j, p] >= probe.dxy[j, p - 1]
+                        and abs(probe.dz[j, p] + cand) >= abs(probe.dz[j, p - 1] + cand) - EPS)
                     run = run and hit and apart
                     if hit and not (run and not all_hit):
                         blocked[c] = True
@@ -501,14 +508,17 @@ def _way_clear(e: EncounterRows, e_start: np.ndarray, q_lo: int, q_hi: int, own_
 @kernel(allocates=True)
 def _hold_short(st: StrategyRows, i: int, start: bool, times: np.ndarray, pos: np.ndarray,
                 has_pos: bool, e: EncounterRows, e_start: np.ndarray, q_lo: int, q_hi: int,
-                has_probes: bool, own_priority: int, deaf_col: np.ndarray, unheard: bool
-                ) -> bool:
+                has_probes: bool, own_priority: int, deaf_col: np.ndarray, unheard: bool,
+                way_up: bool) -> bool:
     """(docs/safety.md, A6: time as well as height.) Whether we hold short after this
     round. A hold starts (``start``: a conflict with one we yield to is left unresolved)
     with the plan it interrupts; it ends once some layer, at or above the
     offset in force, is clear of them along every probe (:meth:`~uavmpc.avoidance.
     HeightOffsetStrategy.hold_probes`, plans ``q_lo`` … ``q_hi`` − 1): going on
-    now or up to ``hold_delay_s`` later meets none of them. The order is the priorities'
+    now or up to ``hold_delay_s`` later meets none of them (a layer above only with
+    ``way_up``: the climb to it is not waiting for anyone; found in the vertical stack swap,
+    a hold that ended for a layer its climb could not reach began again in the next round,
+    and the mission's climb went on between the holds). The order is the priorities'
     (a total order): the highest never holds, and each holds only for higher ones."""
     if not st.holding[i]:
         if start and st.params[i, P_HOLD_DELAY] > 0.0 and has_pos:
@@ -521,7 +531,7 @@ def _hold_short(st: StrategyRows, i: int, start: bool, times: np.ndarray, pos: n
                     st.hold_m[i, p, ax] = pos[p, ax]
         return st.holding[i]
     if has_probes and _way_clear(e, e_start, q_lo, q_hi, own_priority, deaf_col, unheard,
-                                 st.z_offset_m[i], st.ceiling_m[i], st.params[i]):
+                                 st.z_offset_m[i], st.ceiling_m[i], st.params[i], way_up):
         st.holding[i] = False
         st.hold_n[i] = 0
     return st.holding[i]
@@ -661,7 +671,7 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
             _release(st, i, now_s)
         st.last_update_s[i] = now_s
         holding = _hold_short(st, i, False, times, pos, has_pos, e, e_start, q_lo, q_hi,
-                              has_probes, own_priority, deaf_col, False)
+                              has_probes, own_priority, deaf_col, False, True)
         st.stuck[i] = False
         last = st.last_conflict_s[i]
         recent = holding or (not math.isnan(last) and now_s - last < hyst)
@@ -696,16 +706,28 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
         yield_hit[j] = hit_start[j] and must[j]
         any_yield = any_yield or yield_hit[j]
     ceiling_hit = False
+    ahead = np.empty(times.shape[0])
+    for p in range(times.shape[0]):
+        ahead[p] = times[p] - now_s
+    climbed = z_start if math.isnan(climbed_m) else _lower(climbed_m, z_start)
     if any_start and any_yield:
         # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
         # another climbed into its layer. A new offset must be clear of the silent ones too.
-        ahead = np.empty(times.shape[0])
-        for p in range(times.shape[0]):
-            ahead[p] = times[p] - now_s
-        climbed = z_start if math.isnan(climbed_m) else _lower(climbed_m, z_start)
         z_new, ceiling_hit = _climb(enc, must, half_h, ahead, climbed, z_start,
                                     st.ceiling_m[i], prm, masks[:, M_WAITING])
         st.z_offset_m[i] = z_new
+    elif climbed < z_start - LEVEL_M:
+        # A climb under way is checked in every round, not only in those that yield: its
+        # conflict may be resolved while someone moves into its way. Found in the vertical
+        # stack swap (2 × 5): uav9, climbing 15 m for those above it, went on through uav10
+        # hovering 6 m over it, which had no layer left under the ceiling (0.06 m).
+        way = np.empty((1, k), dtype=np.bool_)
+        _blocked_way(enc, np.array([z_start]), z_start, climbed, ahead, half_h, prm,
+                     climbed, way)
+        if way[0].any():
+            for j in range(k):
+                masks[j, M_WAITING] = way[0, j]
+            st.z_offset_m[i] = climbed
     z = st.z_offset_m[i]
     if z == z_start:
         hit_end = hit_start
@@ -739,7 +761,8 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
             _release(st, i, now_s)
     st.last_update_s[i] = now_s
     holding = _hold_short(st, i, any_unresolved, times, pos, has_pos, e, e_start, q_lo, q_hi,
-                          has_probes, own_priority, deaf_col, unheard)
+                          has_probes, own_priority, deaf_col, unheard,
+                          not masks[:, M_WAITING].any())
     z = st.z_offset_m[i]
     if any_unresolved:
         # Stuck (docs/safety.md, A6): a hold is a stop within our plan, so that the one we
