@@ -47,6 +47,28 @@ class Transport(Protocol):
         ...
 
 
+class Samples(Protocol):
+    """A queue of samples on one topic pattern (what a network subscription delivers)."""
+
+    def drain(self, limit: int | None = None) -> list[tuple[str, bytes]]:
+        """Up to ``limit`` queued (key, payload) pairs, oldest first (all with None)."""
+        ...
+
+
+class NetworkTransport(Transport, Protocol):
+    """A transport between processes (:class:`~uavmpc.comms.zenoh_link.ZenohTransport`):
+    besides the predictions' broadcast, named topics under the swarm's key space, which a
+    node puts its state on and takes its missions and commands from."""
+
+    def put(self, topic: str, payload: bytes) -> None:
+        """Put ``payload`` on this sender's ``topic`` (best effort)."""
+        ...
+
+    def subscribe(self, keyexpr_suffix: str, maxlen: int = 1024) -> Samples:
+        """Queue the samples on the swarm's ``keyexpr_suffix`` (at most ``maxlen``)."""
+        ...
+
+
 @dataclass
 class LinkStats:
     """Counters of a :class:`SimulatedLink`, per receiver copy of a broadcast.

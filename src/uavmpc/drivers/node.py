@@ -34,7 +34,7 @@ import numpy as np
 from uavmpc.assumptions import DEAD_AFTER_S, AssumptionWatch, failsafe_prediction
 from uavmpc.avoidance import AvoidanceParams, HeightOffsetStrategy
 from uavmpc.comms.auth import CommandGate, Identity, Roster, SharedKey
-from uavmpc.comms.link import Transport
+from uavmpc.comms.link import NetworkTransport
 from uavmpc.comms.message import PredictionMessage
 from uavmpc.comms.state import NodeState
 from uavmpc.drivers.ros2 import publish_plan, publish_status, ros2_mission
@@ -230,18 +230,17 @@ def warm_up(airframe: Airframe) -> None:
 
 class Node:
     """One UAV in real time: a driver (the wall clock, a transport, a vehicle) around one
-    :class:`~uavmpc.onboard.OnboardStack`. ``transport`` is any
-    :class:`~uavmpc.comms.link.Transport` that also offers ``put(topic, bytes)`` and
-    ``subscribe(suffix) -> .drain()`` (the Zenoh one). ``vehicle`` is what it flies (default:
-    a :class:`SimulatedVehicle` at ``start_m``); a vehicle on the ground below ``start_m``
-    takes off to it once it is ours to fly, before the mission."""
+    :class:`~uavmpc.onboard.OnboardStack`. ``transport`` is a
+    :class:`~uavmpc.comms.link.NetworkTransport` (the Zenoh one). ``vehicle`` is what it
+    flies (default: a :class:`SimulatedVehicle` at ``start_m``); a vehicle on the ground below
+    ``start_m`` takes off to it once it is ours to fly, before the mission."""
 
     def __init__(
         self,
         uav_id: str,
         priority: int,
         airframe: Airframe,
-        transport: Any,
+        transport: NetworkTransport,
         *,
         start_m: Sequence[float] = (0.0, 0.0, 5.0),
         heading_rad: float = 0.0,
@@ -262,7 +261,7 @@ class Node:
         self.uav_id = uav_id
         self.priority = priority
         self.airframe = airframe
-        self.transport: Transport = transport
+        self.transport = transport
         self.key = key
         self.identity = identity
         self.roster = roster
