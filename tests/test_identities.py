@@ -233,7 +233,8 @@ def test_a_node_takes_missions_only_from_an_operator_and_only_once() -> None:
         for data in [*attacks, genuine]:
             gcs_tx.send("uav1", "mission", data)
             time.sleep(0.05)
-        thread.join(timeout=20)
+        thread.join(timeout=600)  # its flight, after its kernels are loaded
+        assert not thread.is_alive(), "the node's flight did not end within 600 s"
     finally:
         node.stop()
         thread.join(timeout=10)
@@ -281,7 +282,9 @@ def test_keygen_and_the_mission_command_reach_a_node(tmp_path, capsys) -> None:
                 "--connect", f"tcp/127.0.0.1:{port}"]
         assert main([*argv, "--identity-file", str(keys / "uav1.id")]) == 0  # a UAV's key
         assert main([*argv, "--identity-file", str(keys / "gcs.id")]) == 0
-        thread.join(timeout=20)
+        # its 8 s flight, after its kernels are loaded (a loaded machine takes its time)
+        thread.join(timeout=600)
+        assert not thread.is_alive(), "the node's 8 s flight did not end within 600 s"
     finally:
         node.stop()
         thread.join(timeout=10)
@@ -289,3 +292,20 @@ def test_keygen_and_the_mission_command_reach_a_node(tmp_path, capsys) -> None:
     assert node.stats.commands_rejected == {"not allowed": 1}
     state = node.vehicle.plant.state()
     assert np.linalg.norm(state.position_m - [2.0, 0.0, 5.0]) < 0.3
+
+
+def test_keygen_without_the_auth_extra_names_it(tmp_path, capsys, monkeypatch) -> None:
+    """Without cryptography installed, ``uavmpc keygen`` says which extra to install (it said
+    "No module named 'cryptography'"), and writes nothing."""
+    import sys
+
+    from uavmpc.apps.cli import main
+
+    for name in [m for m in sys.modules if m == "cryptography" or m.startswith("cryptography.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "cryptography", None)  # import cryptography → ImportError
+    keys = tmp_path / "keys"
+    assert main(["keygen", "gcs", "--role", "operator", "--dir", str(keys)]) == 2
+    err = capsys.readouterr().err
+    assert "uavmpc[auth]" in err and "No module named" not in err
+    assert not keys.exists() or not any(keys.iterdir())

@@ -233,9 +233,10 @@ class Identity:
     @classmethod
     def generate(cls, member_id: str) -> Identity:
         """A new random identity."""
+        ed = _ed25519()  # first: without the extra, its message names it
         from cryptography.hazmat.primitives import serialization
 
-        raw = _ed25519().Ed25519PrivateKey.generate().private_bytes(
+        raw = ed.Ed25519PrivateKey.generate().private_bytes(
             serialization.Encoding.Raw, serialization.PrivateFormat.Raw,
             serialization.NoEncryption())
         return cls(member_id, raw)
@@ -243,10 +244,11 @@ class Identity:
     @property
     def public_key(self) -> bytes:
         """The 32-byte public key (what the roster holds)."""
+        key = self._key()  # first: without the extra, its message names it
         from cryptography.hazmat.primitives import serialization
 
-        return self._key().public_key().public_bytes(serialization.Encoding.Raw,
-                                                     serialization.PublicFormat.Raw)
+        return key.public_key().public_bytes(serialization.Encoding.Raw,
+                                             serialization.PublicFormat.Raw)
 
     def _key(self) -> Any:
         cached = self.__dict__.get("_cached")
