@@ -106,7 +106,7 @@ def test_tracker_config_files_are_validated(tmp_path) -> None:
     cases = {
         "[weights]\nposition = -5.0\n": "weights.position: must be > 0",
         "[horizon]\nsteps = 1\n": "horizon.steps",
-        "[horizon]\nstep = 0.2\n": "horizon.step: unknown field",
+        "[horizon]\nstep = 0.2\n": "horizon.step: unknown field \\(did you mean 'steps'\\?",
         "[limits]\nhorizontal_speed_mps = 8.3\n": "limits.horizontal_accel_mps2: missing",
         "[solver]\nname = 'cvxgen'\n": "solver.name",
         "[model]\ntau_s = 0\n": "model.tau_s: must be > 0",

@@ -7,6 +7,7 @@ Every loader names the offending field in its error, e.g. ``limits.horizontal_sp
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import sys
 import tomllib
@@ -123,7 +124,9 @@ def reject_unknown(table: dict[str, Any], known: set[str], prefix: str) -> None:
     unknown = sorted(set(table) - known)
     if unknown:
         names = ", ".join(sorted(known))
-        raise ConfigError(f"{prefix}.{unknown[0]}: unknown field (known: {names})")
+        close = difflib.get_close_matches(str(unknown[0]), sorted(known), n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise ConfigError(f"{prefix}.{unknown[0]}: unknown field ({hint}known: {names})")
 
 
 def from_table(cls: type[T], table: Any, prefix: str) -> T:
