@@ -36,7 +36,7 @@ from mcap.writer import CompressionType, Writer
 from uavmpc.view.scene import METRICS_SCHEMA, SCENE_SCHEMA, published_schema, stamp
 from uavmpc.view.scene import pose as _pose
 
-_STATUS_SCHEMA = {
+_STATUS_SCHEMA: dict[str, Any] = {
     "title": "uavmpc.UavStatus",
     "type": "object",
     "properties": {
@@ -58,7 +58,7 @@ _STATUS_SCHEMA = {
         "broken": {"type": "array", "items": {"type": "string"}},
     },
 }
-_LINK_SCHEMA = {
+_LINK_SCHEMA: dict[str, Any] = {
     "title": "uavmpc.LinkEvent",
     "type": "object",
     "properties": {

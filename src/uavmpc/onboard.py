@@ -779,7 +779,7 @@ class OnboardStack:
         state[3, 0] = now_heading + (heading - now_heading + np.pi) % (2.0 * np.pi) - np.pi
         self.tracker.set_z_offset(0.0)
         self.tracker.set_state(state, now_s)
-        self.tracker.set_reference(Reference.goto(*p, state[3, 0], start_s=now_s))
+        self.tracker.set_reference(Reference.goto(p[0], p[1], p[2], state[3, 0], start_s=now_s))
 
     # ------------------------------------------------------------------ the phases
     def receive(self, now_s: float, received: Iterable[bytes]) -> list[PredictionMessage | None]:

@@ -279,7 +279,7 @@ def _uav(t: dict[str, Any], i: int) -> UavSpec:
     try:
         # None given: hold at the start (e.g. until a mission says where to go).
         mission = (mission_from_table(given, p) if given
-                   else Reference.goto(*start, float(heading)))
+                   else Reference.goto(start[0], start[1], start[2], float(heading)))
     except InvalidReferenceError as exc:
         raise ConfigError(str(exc)) from None
     goal = mission.points[-1]

@@ -759,6 +759,13 @@ class TrackerBundle(structref.StructRefProxy):
     again when the references are repacked (:func:`make_bundle`).
     """
 
+    # The fields define_proxy adds as properties (declared for type checkers only)
+    rows: TrackerRows
+    refs: ReferenceTable
+    consts: TrackerConsts
+    buf: np.ndarray
+    skip: np.ndarray
+
 
 structref.define_proxy(TrackerBundle, _BundleType, ["rows", "refs", "consts", "buf", "skip"])
 
