@@ -637,9 +637,9 @@ class Node:
         if not sup.launched:
             return  # missions wait until the vehicle is ours to fly
         with self._lock:
-            ref, self._pending_mission = self._pending_mission, None
-        if ref is not None:
-            sup.fly(ref)
+            pending, self._pending_mission = self._pending_mission, None
+        if pending is not None:
+            sup.fly(pending)
 
     def _set_checked(self, ref: Reference) -> None:
         """:meth:`set_mission`, counting a refusal by the geofence as such."""

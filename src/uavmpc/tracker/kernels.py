@@ -759,7 +759,8 @@ class TrackerBundle(structref.StructRefProxy):
     again when the references are repacked (:func:`make_bundle`).
     """
 
-    # The fields define_proxy adds as properties (declared for type checkers only)
+    # The fields as compiled code reads them (kernels only: define_proxy gives the Python
+    # proxy no accessors); declared for type checkers, no attributes at run time
     rows: TrackerRows
     refs: ReferenceTable
     consts: TrackerConsts
