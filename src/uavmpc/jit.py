@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numba
 import numpy as np
@@ -36,6 +36,7 @@ from numba.core import event as numba_event
 from numba.extending import intrinsic
 
 F = TypeVar("F", bound=Callable[..., Any])
+R = TypeVar("R")
 
 #: Let LLVM reorder sums (vectorised dot products) and fuse multiply-adds, but keep NaN/inf
 #: semantics: the kernels rely on isnan/isfinite to reject bad data.
@@ -122,21 +123,36 @@ def kernel(fn: F | None = None, /, *, allocates: bool = False, **options: Any) -
     options = {**options, "_nrt": bool(allocates or options.get("parallel"))}
 
     def decorate(f: F) -> F:
-        saved = numba.config.CACHE_DIR
-        numba.config.CACHE_DIR = CACHE_DIR
+        # numba.config sets its options through globals() at import: mypy cannot see them
+        saved = numba.config.CACHE_DIR  # type: ignore[attr-defined]
+        numba.config.CACHE_DIR = CACHE_DIR  # type: ignore[attr-defined]
         try:
             compiled: F = numba.njit(cache=True, **options)(f)  # numba is untyped
             return compiled
         finally:
-            numba.config.CACHE_DIR = saved
+            numba.config.CACHE_DIR = saved  # type: ignore[attr-defined]
 
     return decorate(fn) if fn is not None else decorate
+
+
+def intrinsic_returning(result: type[R]) -> Callable[[Callable[..., Any]], Callable[..., R]]:
+    """numba's ``@intrinsic``, typed as compiled code calls it: ``f(*args) -> result``.
+
+    numba's stubs type an intrinsic's call with its typing function's parameters
+    (``typingctx`` first) and a ``Never`` result: the call from Python, which raises. A kernel
+    calls it without ``typingctx`` and gets a value of the type its signature builds."""
+
+    def decorate(fn: Callable[..., Any]) -> Callable[..., R]:
+        return cast("Callable[..., R]", intrinsic(fn))
+
+    return decorate
 
 
 def available_threads() -> int:
     """The threads a parallel kernel can use in this process: every core, unless
     ``NUMBA_NUM_THREADS`` set fewer before numba started."""
-    return int(numba.config.NUMBA_NUM_THREADS)
+    # set through numba.config's globals() at import: mypy cannot see it
+    return int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
 
 
 #: The environment variable that sets the default thread count of the parallel kernels
@@ -300,7 +316,7 @@ def bound(kernel_or_function: Any) -> Callable[..., Any]:
 HAS_CYCLE_COUNTER = platform.machine().lower() in ("x86_64", "amd64")
 
 
-@intrinsic
+@intrinsic_returning(int)
 def _read_cycle_counter(typingctx: Any) -> Any:
     sig = types.int64()
 
@@ -320,7 +336,7 @@ def cycle_count() -> int:
     return _read_cycle_counter()
 
 
-@intrinsic
+@intrinsic_returning(int)
 def _fetch_add(typingctx: Any, counters: Any, i: Any, value: Any) -> Any:
     sig = types.int64(counters, types.intp, types.int64)
 

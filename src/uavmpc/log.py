@@ -26,7 +26,7 @@ The Foxglove messages are declared with Foxglove's published JSON schemas, uncha
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +36,7 @@ from mcap.writer import CompressionType, Writer
 from uavmpc.view.scene import METRICS_SCHEMA, SCENE_SCHEMA, published_schema, stamp
 from uavmpc.view.scene import pose as _pose
 
-_STATUS_SCHEMA = {
+_STATUS_SCHEMA: dict[str, Any] = {
     "title": "uavmpc.UavStatus",
     "type": "object",
     "properties": {
@@ -58,7 +58,7 @@ _STATUS_SCHEMA = {
         "broken": {"type": "array", "items": {"type": "string"}},
     },
 }
-_LINK_SCHEMA = {
+_LINK_SCHEMA: dict[str, Any] = {
     "title": "uavmpc.LinkEvent",
     "type": "object",
     "properties": {
@@ -75,10 +75,10 @@ _LINK_SCHEMA = {
 class FlightRecorder:
     """Writes one run to an MCAP file. Use as a context manager, or call :meth:`close`."""
 
-    def __init__(self, path: str | Path, uav_ids: Iterable[str], metadata: dict[str, str],
+    def __init__(self, path: str | Path, uav_ids: Iterable[str], metadata: Mapping[str, object],
                  objects: Iterable[str] = ()) -> None:
-        """``objects``: other things in the scene that only have a pose (``/<name>/state``),
-        e.g. the ground vehicle carrying a landing deck."""
+        """``metadata``: written as strings. ``objects``: other things in the scene that only
+        have a pose (``/<name>/state``), e.g. the ground vehicle carrying a landing deck."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = self.path.open("wb")

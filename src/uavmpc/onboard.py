@@ -24,9 +24,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -534,7 +534,7 @@ class OnboardBatch:
         #: of the first inbox table a stack binds it with (:meth:`strategies_for`).
         self.strategies: StrategyTable | None = None
         self.n = n
-        self._one: tuple[ReferenceTable, object] | None = None
+        self._one: tuple[ReferenceTable, Callable[..., Any]] | None = None
 
     def strategies_for(self, table: InboxTable) -> StrategyTable | None:
         """The rows its stacks' height-offset strategies live in when their inbox table is
@@ -724,7 +724,10 @@ class OnboardStack:
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
         #: the broadcast flag down.
         self.cooperative = True
-        self._limits_key: tuple[float, float | None, float | None] = (1.0, None, None)
+        # (1.0, None, None): the nominal limits (at the start, and from follow()); a decision's
+        # key also says whether it holds
+        self._limits_key: (tuple[float, float | None, float | None]
+                           | tuple[float, float | None, float | None, bool]) = (1.0, None, None)
         self._ticked = False
         sched.planning[self.row] = False
         batch.resting[self.row] = False
@@ -779,7 +782,7 @@ class OnboardStack:
         state[3, 0] = now_heading + (heading - now_heading + np.pi) % (2.0 * np.pi) - np.pi
         self.tracker.set_z_offset(0.0)
         self.tracker.set_state(state, now_s)
-        self.tracker.set_reference(Reference.goto(*p, state[3, 0], start_s=now_s))
+        self.tracker.set_reference(Reference.goto(p[0], p[1], p[2], state[3, 0], start_s=now_s))
 
     # ------------------------------------------------------------------ the phases
     def receive(self, now_s: float, received: Iterable[bytes]) -> list[PredictionMessage | None]:

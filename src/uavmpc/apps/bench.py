@@ -66,7 +66,8 @@ def demanding_events(ticks: int, seed: int) -> list[Event]:
             direction[rng.integers(0, 2)] = rng.choice([-1.0, 1.0])
             target = here + 50.0 * direction
             kind = "step"
-        events.append(Event(tick, kind, (*map(float, target), float(rng.uniform(-np.pi, np.pi)))))
+        events.append(Event(tick, kind, (float(target[0]), float(target[1]), float(target[2]),
+                                         float(rng.uniform(-np.pi, np.pi)))))
         here = target
         tick += int(rng.integers(150, 600))
     limit_tick = 0

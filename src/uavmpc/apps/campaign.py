@@ -368,8 +368,10 @@ def report_rows(*reports: dict[str, Any]) -> list[tuple[str, str, str]]:
         ("collisions", lambda r: str(r["collisions"])),
         ("trials with a collision", lambda r: f"{r['trials_with_collision']} / {r['trials']}"),
     ]
-    rows += [(f"time to first collision, {q} %", lambda r, q=q: _fmt_ttc(r, f"p{q}"))
-             for q in PERCENTILES]
+    def ttc(q: int) -> Callable[[dict[str, Any]], str]:
+        return lambda r: _fmt_ttc(r, f"p{q}")
+
+    rows += [(f"time to first collision, {q} %", ttc(q)) for q in PERCENTILES]
     rows += [
         ("min. distance between UAVs", lambda r: f"{r['min_distance_m']:.2f} m"),
         ("UAVs / area", lambda r: f"{r['parameters']['uavs']} / "

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from uavmpc.drivers.summary import Formation, Landing, RunSummary
 
 #: ``uavmpc run`` writes a flight log for worlds of at most this many UAVs.
@@ -88,6 +90,7 @@ def _save_run_figures(result: Any, sc: Any, summary: RunSummary, out: Path, *, a
     from uavmpc.drivers.world import COLLISION_DISTANCE_M
 
     title = f"{sc.name} ({'with' if avoidance else 'without'} avoidance)"
+    figs: tuple[Figure, ...]
     if traffic:  # hundreds of paths: no per-UAV legend, decimated traces
         from uavmpc.apps.plots import plot_min_distance_trace, plot_traffic
 
@@ -268,7 +271,7 @@ def _compiling() -> Iterator[Any]:
     from uavmpc.jit import CompileWatch
 
     with beside() as helped:
-        announced = []
+        announced: list[str] = []
 
         def show(line: str) -> None:
             print(line, file=sys.stderr, flush=True)
@@ -438,7 +441,7 @@ def _swarm_preflight(args: argparse.Namespace) -> tuple[Any, Any] | None:
 
         geo_origin = tuple(args.geo_origin or DEFAULT_GEO_ORIGIN)
         try:
-            enu_to_geodetic([0.0, 0.0, 0.0], geo_origin)
+            enu_to_geodetic(np.asarray([0.0, 0.0, 0.0]), geo_origin)
         except ValueError as exc:
             print(f"uavmpc swarm: --geo-origin: {exc}", file=sys.stderr)
             return None
@@ -707,9 +710,10 @@ def _tracker_demo(args: argparse.Namespace) -> int:
     lim = tracker.limits
     outside = np.flatnonzero(np.abs(p - 50.0) >= 0.01)
     settle = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < n else None
+    overshoot_m = float(max(p.max() - 50.0, 0.0))
     summary = {
         "step_m": 50.0,
-        "overshoot_m": float(max(p.max() - 50.0, 0.0)),
+        "overshoot_m": overshoot_m,
         "settle_1cm_s": settle,
         "max_speed_mps": float(np.abs(v).max()),
         "max_accel_mps2": float(np.abs(a).max()),
@@ -725,7 +729,7 @@ def _tracker_demo(args: argparse.Namespace) -> int:
     print(f"50 m step flown by the virtual UAV: max speed {summary['max_speed_mps']:.2f} m/s "
           f"(limit {lim.horizontal_speed_mps}), max accel {summary['max_accel_mps2']:.2f} m/s² "
           f"(limit {lim.horizontal_accel_mps2}),")
-    print(f"overshoot {100 * summary['overshoot_m']:.1f} cm, within 1 cm after "
+    print(f"overshoot {100 * overshoot_m:.1f} cm, within 1 cm after "
           f"{settle if settle is not None else float('nan'):.2f} s, "
           f"{tracker.fallback_count} solver fallbacks.")
     print(f"wrote {out / 'step_50m.png'} and {out / 'summary.json'}")

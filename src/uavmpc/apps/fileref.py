@@ -213,7 +213,11 @@ def _builtin(name: str) -> dict[str, Any]:
                          .read_text())
 
 
-def _scenario_probes() -> list[tuple[str, dict[str, Any], tuple[str | int, ...], type | None]]:
+#: (table name, a valid document, the table's path in it, its dataclass if any)
+_Probe = tuple[str, dict[str, Any], tuple[str | int, ...], type | None]
+
+
+def _scenario_probes() -> list[_Probe]:
     """(table name, a valid document, the table's path in it, its dataclass if any)."""
     from uavmpc.avoidance import AvoidanceParams
     from uavmpc.geofence import Geofence
@@ -252,10 +256,10 @@ def _scenario_probes() -> list[tuple[str, dict[str, Any], tuple[str | int, ...],
     ]
 
 
-def _airframe_probes() -> list[tuple[str, dict[str, Any], tuple[str | int, ...], type | None]]:
+def _airframe_probes() -> list[_Probe]:
     doc = tomllib.loads(resources.files("uavmpc").joinpath("data/airframes/x500.toml")
                         .read_text())
-    out: list[tuple[str, dict[str, Any], tuple[str | int, ...], type | None]] = [
+    out: list[_Probe] = [
         ("airframe", doc, (), None)]
     out += [(f"airframe.{t}", doc, (t,), None)
             for t in ("inertia", "rotors", "drag", "se3", "attitude") if t in doc]
@@ -269,7 +273,7 @@ def reference_tables() -> dict[str, list[tuple[str, str, str]]]:
     from uavmpc.plant import Airframe
 
     tables: dict[str, list[tuple[str, str, str]]] = {}
-    loaders: list[tuple[Callable[[dict[str, Any]], Any], list[Any]]] = [
+    loaders: list[tuple[Callable[[dict[str, Any]], Any], list[_Probe]]] = [
         (lambda d: scenarios.from_dict(d, "probe"), _scenario_probes()),
         (lambda d: Airframe.from_dict(d), _airframe_probes()),
     ]

@@ -13,6 +13,7 @@ import itertools
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
+from numpy.typing import ArrayLike
 
 
 def plot_axis_response(
@@ -182,7 +183,7 @@ def close_figure(fig: Figure) -> None:
     plt.close(fig)
 
 
-def plot_min_distance_trace(t_s: object, d_m: object, collision_m: float,
+def plot_min_distance_trace(t_s: ArrayLike, d_m: ArrayLike, collision_m: float,
                             xlabel: str = "time since mission start [s]",
                             title: str | None = None) -> Figure:
     """The closest pairwise distance over time, with the collision threshold (a world's

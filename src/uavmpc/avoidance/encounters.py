@@ -456,7 +456,7 @@ def _encounter_block(rows: InboxRows, store: Store, due: np.ndarray, j0: int, j1
                      e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
                      e_dz: np.ndarray, e_dxy: np.ndarray, e_hears: np.ndarray,
                      e_widen_v: np.ndarray, s_start: np.ndarray,
-                     s_col: np.ndarray) -> tuple[int, int]:
+                     s_col: np.ndarray) -> tuple[np.int64, np.int64]:
     """:func:`encounter_rows` for the receivers ``due[j0:j1]``, with the grid (``start``,
     ``entries``: :func:`build_grid`, when ``use_index``) and the widest sender's horizontal σ
     ``sigma_max`` given, in the work arrays ``sc`` (:func:`search_scratch`, its ``mark``
@@ -538,7 +538,7 @@ def encounter_rows(rows: InboxRows, store: Store, due: np.ndarray, own_times: np
                    e_silent: np.ndarray, e_near: np.ndarray, e_announced: np.ndarray,
                    e_dz: np.ndarray, e_dxy: np.ndarray, e_hears: np.ndarray,
                    e_widen_v: np.ndarray, s_start: np.ndarray,
-                   s_col: np.ndarray) -> tuple[int, int]:
+                   s_col: np.ndarray) -> tuple[np.int64, np.int64]:
     """The encounters of the receivers ``due`` (R,) (rows of ``rows``), each at its clock
     ``now_s`` (R,) with its plan (``own_times`` (R, m), ``own_pos`` (R, m, 3), z without the
     offset climbed), and its cylinder radius ``radius_m`` (R,) with per-sender overrides
@@ -596,7 +596,7 @@ def encounter_rows_threads(rows: InboxRows, store: Store, due: np.ndarray,
                            e_near: np.ndarray, e_announced: np.ndarray, e_dz: np.ndarray,
                            e_dxy: np.ndarray, e_hears: np.ndarray, e_widen_v: np.ndarray,
                            s_start: np.ndarray, s_col: np.ndarray,
-                           blocks: int) -> tuple[int, int]:
+                           blocks: int) -> tuple[np.int64, np.int64]:
     """:func:`encounter_rows` with the receivers in ``blocks`` ≥ 1 contiguous blocks, one per
     thread (the caller passes :func:`uavmpc.jit.thread_count`): the same outputs, bit for bit.
 

@@ -163,6 +163,6 @@ def first_conflict_time(own_times_s: np.ndarray, conflicts: np.ndarray) -> float
     """The earliest of ``own_times_s`` (m,) where ``conflicts`` (m,) or (k, m) holds, or None."""
     c = np.asarray(conflicts, dtype=bool)
     if c.ndim == 2:
-        c = c.any(axis=0)
+        c = np.asarray(c.any(axis=0))
     idx = np.flatnonzero(c)
     return float(np.asarray(own_times_s)[idx[0]]) if idx.size else None

@@ -266,7 +266,7 @@ def queue_copies(q: InFlight, chunks: int, used: int, draws: np.ndarray, senders
                  in_range: np.ndarray, ranged: bool, latency_s: float, jitter_s: float,
                  t_s: float, first_pid: int, first_seq: int, pids: np.ndarray,
                  counts: np.ndarray, at: np.ndarray, rcv: np.ndarray
-                 ) -> tuple[int, int, int, int]:
+                 ) -> tuple[int, int, int, int, float]:
     """The copies of broadcasts from ``senders`` (B,) at ``t_s`` onto the queue, a chunk
     each after its ``chunks`` chunks and ``used`` copies (room for B × (n − 1) more): for
     broadcast j and the k-th other member r in join order, the draws ``draws[j, 0, k]`` (lost
@@ -322,7 +322,7 @@ def queue_copies_threads(q: InFlight, chunks: int, used: int, draws: np.ndarray,
                          latency_s: float, jitter_s: float, t_s: float, first_pid: int,
                          first_seq: int, pids: np.ndarray, counts: np.ndarray,
                          at: np.ndarray, rcv: np.ndarray, blocks: int
-                         ) -> tuple[int, int, int, int]:
+                         ) -> tuple[int, int, int, int, float]:
     """:func:`queue_copies` with its first and last passes on threads, ``blocks`` contiguous
     blocks of broadcasts each. The same queue, ids, counts and chains for any number of
     blocks. With ``burst``, ``senders`` must be distinct (each broadcast steps its sender's

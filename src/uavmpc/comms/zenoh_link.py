@@ -71,7 +71,7 @@ from uavmpc.comms.message import MAX_MESSAGE_BYTES
 try:
     import zenoh
 except ImportError:  # pragma: no cover - exercised only without the extra
-    zenoh = None
+    zenoh = None  # type: ignore[assignment]  # the optional import's stand-in, checked before use
 
 __all__ = ["Subscription", "ZenohStats", "ZenohTransport"]
 

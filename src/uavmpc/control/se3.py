@@ -40,12 +40,19 @@ class PositionCommand(Protocol):
     """What the controller needs of a command; :class:`uavmpc.tracker.tracker.TrackerCommand`
     has exactly these fields (ENU, SI)."""
 
-    t_s: float
-    position_m: np.ndarray
-    velocity_mps: np.ndarray
-    acceleration_mps2: np.ndarray
-    heading_rad: float
-    heading_rate_radps: float
+    # Read-only: a frozen dataclass (TrackerCommand) provides them too.
+    @property
+    def t_s(self) -> float: ...
+    @property
+    def position_m(self) -> np.ndarray: ...
+    @property
+    def velocity_mps(self) -> np.ndarray: ...
+    @property
+    def acceleration_mps2(self) -> np.ndarray: ...
+    @property
+    def heading_rad(self) -> float: ...
+    @property
+    def heading_rate_radps(self) -> float: ...
 
 
 def pack_se3_gains(g: Se3Gains, mass_kg: float) -> np.ndarray:

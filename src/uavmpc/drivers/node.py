@@ -342,7 +342,8 @@ class Node:
             params=self.params, key=self.key, identity=self.identity, roster=self.roster,
             broadcast_phase_s=self.phase_s)
         # Hold where it is until it may fly (a mission starting later keeps this before).
-        self.stack.set_mission(Reference.goto(*first.position_m, heading, start_s=now))
+        self.stack.set_mission(Reference.goto(first.position_m[0], first.position_m[1],
+                                                  first.position_m[2], heading, start_s=now))
         self.supervisor = Supervisor(self.stack, mission=self.mission, fence=self._fence,
                                      launched=False)
         return self.stack, first
@@ -493,8 +494,8 @@ class Node:
             brake_z = lim.ascend_accel_mps2 if v[2] < 0.0 else lim.descend_accel_mps2
             here[2] += v[2] * abs(float(v[2])) / (2.0 * brake_z)
             here[2] -= stack.tracker.z_offset_m  # the mission's frame: the offset stays
-            sup.pause(Reference.goto(*here, float(heading_of(state.attitude_wxyz)),
-                                     start_s=now))
+            sup.pause(Reference.goto(here[0], here[1], here[2],
+                                     float(heading_of(state.attitude_wxyz)), start_s=now))
         elif not self.broken and sup.paused is not None:
             sup.resume()
 
@@ -575,7 +576,8 @@ class Node:
         assert self.supervisor is not None
         takeoff = None
         if self.start_m[2] - state.position_m[2] > TAKEOFF_BELOW_M:
-            takeoff = Reference.goto(*self.start_m, self.heading_rad, start_s=now)
+            takeoff = Reference.goto(self.start_m[0], self.start_m[1], self.start_m[2],
+                                     self.heading_rad, start_s=now)
         self.supervisor.launch(takeoff)
 
     def _land(self, now: float, state: VehicleState) -> None:
@@ -635,9 +637,9 @@ class Node:
         if not sup.launched:
             return  # missions wait until the vehicle is ours to fly
         with self._lock:
-            ref, self._pending_mission = self._pending_mission, None
-        if ref is not None:
-            sup.fly(ref)
+            pending, self._pending_mission = self._pending_mission, None
+        if pending is not None:
+            sup.fly(pending)
 
     def _set_checked(self, ref: Reference) -> None:
         """:meth:`set_mission`, counting a refusal by the geofence as such."""

@@ -48,7 +48,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, cast
 
 import numpy as np
 
@@ -177,14 +177,16 @@ def node_launch(spec: Any, settings: dict[str, Any], *, swarm: str, listen: str,
     return NodeLaunch(
         uav_id=spec.uav_id, priority=spec.priority, airframe=spec.airframe, swarm=swarm,
         listen=(listen,), connect=tuple(connect),
-        start_m=tuple(float(v) for v in spec.start_m), heading_rad=float(spec.heading_rad),
+        start_m=cast("tuple[float, float, float]", tuple(float(v) for v in spec.start_m)),
+        heading_rad=float(spec.heading_rad),
         duration_s=float(duration_s),
         mission_file=None if mission_file is None else str(mission_file),
         formation_file=None if formation_file is None else str(formation_file),
         avoidance=avoidance, **settings, key_file=key_file or None, ros2=ros2 or None,
         mavlink=mavlink or None, setpoints=setpoints, origin_m=origin,
         geo_origin=(None if not mavlink or geo_origin is None
-                    else tuple(float(v) for v in geo_origin)),
+                    else cast("tuple[float, float, float]",
+                              tuple(float(v) for v in geo_origin))),
         system_id=system_id if mavlink else None,
         report_file=None if report_file is None else str(report_file))
 
@@ -205,7 +207,9 @@ def px4_instances(scenario: Scenario, build: Px4SitlBuild, out: Path, *,
             f"only to instances 0..{MAX_INSTANCE} (above, all share UDP 14549)")
     return {spec.uav_id: Px4Instance(
         build, first_instance + i, out / "px4" / spec.uav_id,
-        home=enu_to_geodetic(np.array([spec.start_m[0], spec.start_m[1], 0.0]), geo_origin))
+        # one point: three floats
+        home=cast("tuple[float, float, float]", enu_to_geodetic(
+            np.array([spec.start_m[0], spec.start_m[1], 0.0]), geo_origin)))
         for i, spec in enumerate(scenario.uavs)}
 
 

@@ -327,7 +327,7 @@ def _mission_of(scenario: Scenario, spec: UavSpec, sensor_seed: int
         assert car is not None  # the scenario's validation saw to it
         ts = scenario.target_sensor
         return LandingMission(scenario.landing[1]), TargetSensor(
-            lambda t, car=car: car.state(t).position_m, rate_hz=ts.rate_hz,
+            lambda t: car.state(t).position_m, rate_hz=ts.rate_hz,
             sigma_m=ts.sigma_m, dropout=ts.dropout, seed=sensor_seed)
     if formation is not None and spec.uav_id in formation.followers:
         return FormationFollower(formation, spec.uav_id), None

@@ -30,13 +30,13 @@ class GnssNoise:
 
     def __init__(
         self,
-        position_sigma_m: float | np.ndarray = (0.01, 0.01, 0.02),
-        velocity_sigma_mps: float | np.ndarray = 0.02,
-        bias_sigma_m: float | np.ndarray = (0.02, 0.02, 0.04),
+        position_sigma_m: float | tuple[float, float, float] | np.ndarray = (0.01, 0.01, 0.02),
+        velocity_sigma_mps: float | tuple[float, float, float] | np.ndarray = 0.02,
+        bias_sigma_m: float | tuple[float, float, float] | np.ndarray = (0.02, 0.02, 0.04),
         bias_tau_s: float = 60.0,
         seed: int = 0,
     ) -> None:
-        def vec(v: float | np.ndarray, name: str) -> np.ndarray:
+        def vec(v: float | tuple[float, float, float] | np.ndarray, name: str) -> np.ndarray:
             out = np.broadcast_to(np.asarray(v, dtype=float), (3,)).copy()
             if not np.all(np.isfinite(out)) or np.any(out < 0.0):
                 raise ValueError(f"{name} must be finite and ≥ 0, got {v!r}")

@@ -187,8 +187,9 @@ def mission_from_table(table: Mapping[str, Any], where: str = "mission",
     name = f"{where}.{form}"
     try:
         if form == "goto":
-            return Reference.goto(*_row(table["goto"], name), start_s=_number(
-                now_s, "now_s", MAX_ABS_TIME_S))
+            r = _row(table["goto"], name)
+            return Reference.goto(r[0], r[1], r[2], r[3],
+                                  start_s=_number(now_s, "now_s", MAX_ABS_TIME_S))
         t = _table(table[form], name, form)
         return (_trajectory if form == "trajectory" else _path)(t, name, now_s)
     except InvalidReferenceError as exc:  # the Reference's own checks, named by our field

@@ -173,7 +173,7 @@ class FormationSpec:
         if shape not in SHAPES:
             raise ConfigError(f"{prefix}.shape: must be one of {', '.join(SHAPES)}, got "
                               f"{describe(shape)}")
-        changes = []
+        changes: list[tuple[float, str]] = []
         raw = t.get("changes", [])
         if not isinstance(raw, list):
             raise ConfigError(f"{prefix}.changes: must be a list of {{ t_s, shape }} tables")

@@ -61,7 +61,9 @@ class MissionOutput:
 class Mission(Protocol):
     """A mission: stepped every :attr:`period_s` by its driver."""
 
-    period_s: float
+    @property
+    def period_s(self) -> float:  # read-only: a mission may compute it (LandingMission)
+        ...
 
     def step(self, inp: MissionInput) -> MissionOutput:
         """One step at ``inp.t_s`` (non-decreasing between calls)."""

@@ -19,9 +19,8 @@ from typing import Any
 
 import numpy as np
 from numba import types
-from numba.extending import intrinsic
 
-from uavmpc.jit import kernel
+from uavmpc.jit import intrinsic_returning, kernel
 from uavmpc.plant.attitude import attitude_kernel
 
 N_RIGID = 13
@@ -46,7 +45,7 @@ def work_command_column(n_rotors: int) -> int:
     return 5 * (N_RIGID + n_rotors) + 3
 
 
-@intrinsic
+@intrinsic_returning(float)
 def _fma(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
     """a · b + c with one rounding (LLVM's fma: the hardware instruction where there is one,
     an exact software fallback elsewhere)."""

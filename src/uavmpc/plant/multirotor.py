@@ -37,7 +37,7 @@ a batched driver allocated for many vehicles (``rows=``, ``row=``) and may step 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -80,7 +80,7 @@ class Multirotor:
         self,
         airframe: Airframe,
         *,
-        position_m: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
+        position_m: np.ndarray | Sequence[float] = (0.0, 0.0, 0.0),
         yaw_rad: float = 0.0,
         wind: Wind | None = None,
         substep_s: float = 0.002,

@@ -279,12 +279,12 @@ def _uav(t: dict[str, Any], i: int) -> UavSpec:
     try:
         # None given: hold at the start (e.g. until a mission says where to go).
         mission = (mission_from_table(given, p) if given
-                   else Reference.goto(*start, float(heading)))
+                   else Reference.goto(start[0], start[1], start[2], float(heading)))
     except InvalidReferenceError as exc:
         raise ConfigError(str(exc)) from None
     goal = mission.points[-1]
-    return UavSpec(uav_id, priority, airframe, start, float(heading), mission,
-                   (float(goal[0]), float(goal[1]), float(goal[2])), avoidance)
+    return UavSpec(uav_id, priority, airframe, (start[0], start[1], start[2]), float(heading),
+                   mission, (float(goal[0]), float(goal[1]), float(goal[2])), avoidance)
 
 
 def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 
@@ -148,7 +148,9 @@ def apply_faults(spec: FaultSpec, scenario: Scenario, link: LinkSettings, *, dur
     if spec.burst_len:
         link = dataclasses.replace(link, burst_len=spec.burst_len)
     if spec.time_reference is not None:
+        # one of TIME_REFERENCES: FaultSpec.__post_init__ checked it
+        time_reference = cast(Literal["stamp", "receive"], spec.time_reference)
         scenario = dataclasses.replace(scenario, avoidance=dataclasses.replace(
-            scenario.avoidance, time_reference=spec.time_reference))
+            scenario.avoidance, time_reference=time_reference))
     drawn = draw_faults(spec, [u.uav_id for u in scenario.uavs], duration_s, 0.0, seed)
     return scenario, link, drawn

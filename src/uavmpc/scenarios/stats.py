@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from typing import Final
 
 import numpy as np
 
-METHOD = "inverted_cdf"
+METHOD: Final = "inverted_cdf"
 
 
 def percentile(values: Iterable[float], q: float) -> float | None:

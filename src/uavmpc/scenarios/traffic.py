@@ -151,8 +151,8 @@ def take_off(up_m: float, tau_s: np.ndarray,
     return _trapezoid(up_m, speed, accel, tau_s), _leg_time(up_m, speed, accel)
 
 
-def trip_reference(origin_xy: Sequence[float], dest_xy: Sequence[float], pad_z_m: float,
-                   cruise_z_m: float, depart_s: float,
+def trip_reference(origin_xy: Sequence[float] | np.ndarray, dest_xy: Sequence[float] | np.ndarray,
+                   pad_z_m: float, cruise_z_m: float, depart_s: float,
                    limits: DynamicLimits | None = None) -> tuple[Reference, float, float]:
     """One trip's reference (hold on the pad, climb, cruise, descend, hold), its departure
     (``depart_s`` rounded up to the sampling grid) and its nominal duration from departure to

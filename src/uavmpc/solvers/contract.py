@@ -42,8 +42,14 @@ class QpMatrices(Protocol):
     """The fixed data of every QP of one kind: any object with these two arrays (the tracker's
     :class:`~uavmpc.tracker.model.CondensedModel` is one)."""
 
-    hessian: np.ndarray  # (m, m) H, symmetric positive definite
-    constraint_matrix: np.ndarray  # (r, m) C
+    # Read-only: a frozen dataclass (the model) provides them too.
+    @property
+    def hessian(self) -> np.ndarray:  # (m, m) H, symmetric positive definite
+        ...
+
+    @property
+    def constraint_matrix(self) -> np.ndarray:  # (r, m) C
+        ...
 
 
 @runtime_checkable

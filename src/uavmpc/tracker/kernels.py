@@ -759,6 +759,14 @@ class TrackerBundle(structref.StructRefProxy):
     again when the references are repacked (:func:`make_bundle`).
     """
 
+    # The fields as compiled code reads them (kernels only: define_proxy gives the Python
+    # proxy no accessors); declared for type checkers, no attributes at run time
+    rows: TrackerRows
+    refs: ReferenceTable
+    consts: TrackerConsts
+    buf: np.ndarray
+    skip: np.ndarray
+
 
 structref.define_proxy(TrackerBundle, _BundleType, ["rows", "refs", "consts", "buf", "skip"])
 

@@ -240,7 +240,7 @@ class TrackerBatch:
         self._table: ReferenceTable | None = None
         self._table_type: tuple[object, ...] | None = None
         self._kernels: tuple[Callable[..., None], ...] | None = None
-        self._snapshot: Callable[..., None] | None = None
+        self._snapshot: Callable[..., tuple[bool, int, int, int]] | None = None
         self._alone: tuple[ReferenceTable, TrackerBundle] | None = None
         #: Work arrays of the kernels, allocated once (one row is ticked at a time): the
         #: buffers :func:`~uavmpc.tracker.kernels.scratch_views` cuts them from.

@@ -144,7 +144,7 @@ def enu_to_geodetic(p_enu: np.ndarray,
     return lat, lon, alt
 
 
-def _finite(v: float | np.ndarray, what: str) -> np.ndarray:
+def _finite(v: float | tuple[float, ...] | np.ndarray, what: str) -> np.ndarray:
     try:
         a = np.asarray(v, dtype=float)
     except (TypeError, ValueError) as e:

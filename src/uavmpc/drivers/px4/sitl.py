@@ -94,7 +94,7 @@ import struct
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -219,7 +219,7 @@ class _Hysteresis:
         self.state = state
         self._since: float | None = None
 
-    def update(self, value: bool, t_s: float) -> bool:
+    def update(self, value: bool | np.bool_, t_s: float) -> bool:
         if value == self.state:
             self._since = None
         elif not value:
@@ -256,7 +256,7 @@ class _LandDetector:
         # PX4 compares in float32 (a MAVLink thrust of 0.09 is 0.09f, not 0.0900000036).
         throttle32 = np.float32(throttle)
         low = throttle32 <= np.float32(MPC_THR_MIN + 0.3 * (self.hover - MPC_THR_MIN))
-        contact = low
+        contact: bool | np.bool_ = low
         if climb_rate_control:
             self.in_descend = math.isfinite(vz_sp_down_mps) and vz_sp_down_mps > DESCENT_VZ_MPS
             if not maybe and not self.landed.state:
@@ -352,10 +352,13 @@ class StandInPx4:
         self.system_id = int(system_id)
         self.clock_rate = float(clock_rate)
         self.geo_origin_deg = (None if geo_origin_deg is None
-                               else tuple(float(v) for v in geo_origin_deg))
+                               else cast("tuple[float, float, float]",
+                                         tuple(float(v) for v in geo_origin_deg)))
         #: The estimator's origin (this boot position) on the globe: (lat, lon, alt AMSL).
+        #: Floats: ``origin_m`` is one point.
         self.boot_geodetic = (None if self.geo_origin_deg is None
-                              else enu_to_geodetic(self.origin_m, self.geo_origin_deg))
+                              else cast("tuple[float, float, float]",
+                                        enu_to_geodetic(self.origin_m, self.geo_origin_deg)))
         if truth_port is not None and self.geo_origin_deg is None:
             raise ValueError("truth_port: the truth is sent on the globe; it needs a geo origin")
         self.link = MavlinkEndpoint(address, system_id=self.system_id, component_id=1)
@@ -619,8 +622,10 @@ class StandInPx4:
                 self._landed_since_s = None
             elif self._landed_since_s is None:
                 self._landed_since_s = t
-            if landed and t - self._landed_since_s >= COM_DISARM_LAND_S:
-                self._disarm(t, "landing")
+            if landed:
+                assert self._landed_since_s is not None  # set above when landed
+                if t - self._landed_since_s >= COM_DISARM_LAND_S:
+                    self._disarm(t, "landing")
         elif t - self.armed_s >= COM_DISARM_PRFLT_S:
             self._disarm(t, "auto preflight disarming")
 
@@ -843,6 +848,7 @@ class StandInPx4:
         if self.boot_geodetic is not None:
             due_global, due_gps = self._due("global", t), self._due("gps", t)
             if due_global or due_gps:
+                assert self.geo_origin_deg is not None  # boot_geodetic is made from it
                 lat, lon, alt = enu_to_geodetic(est.position_m, self.geo_origin_deg)
                 if due_global:
                     hdg = round(float(math.degrees(math.atan2(
@@ -928,11 +934,13 @@ class StandInPx4:
                                                             *map(float, vals))
 
     def _send_origin(self, t: float) -> bool:
+        assert self.boot_geodetic is not None  # only sent with a geo origin
         lat, lon, alt = self.boot_geodetic
         return self.link.send(_M.MAVLink_gps_global_origin_message(
             round(float(lat * 1e7)), round(float(lon * 1e7)), round(float(alt * 1e3)), 0))
 
     def _send_home(self, t: float) -> None:
+        assert self.boot_geodetic is not None  # only sent with a geo origin
         lat, lon, alt = self.boot_geodetic
         self.link.send(_M.MAVLink_home_position_message(
             round(float(lat * 1e7)), round(float(lon * 1e7)), round(float(alt * 1e3)),

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -58,7 +59,8 @@ class TruthListener:
     """
 
     def __init__(self, port: int, geo_origin: tuple[float, float, float]) -> None:
-        self.geo_origin = tuple(float(v) for v in geo_origin)
+        self.geo_origin = cast("tuple[float, float, float]",
+                               tuple(float(v) for v in geo_origin))
         self.link = MavlinkEndpoint(f"udp://127.0.0.1:{int(port)}", system_id=255,
                                     component_id=191)
         #: Samples that could not be placed (non-finite or off the globe).
