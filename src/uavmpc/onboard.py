@@ -98,6 +98,9 @@ _SCHEDULE_TOL_S = 1e-9
 #: A mission whose height changes by at most _LEVEL_DZ_M over _LEVEL_DT_S keeps its height
 #: (a hold then keeps the mission's height, :meth:`OnboardStack._rest_height_m`) [m, s].
 _LEVEL_DZ_M, _LEVEL_DT_S = 1e-3, 0.1
+#: The limits key (horizontal scale, climb speed, climb acceleration, holding) of the nominal
+#: limits (:meth:`OnboardStack.apply`).
+_NOMINAL_KEY: tuple[float, float | None, float | None, bool] = (1.0, None, None, False)
 #: The mission's point is "over" the virtual UAV (or at its height) within this distance [m].
 _OVER_M = 1.0
 
@@ -724,10 +727,9 @@ class OnboardStack:
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
         #: the broadcast flag down.
         self.cooperative = True
-        # (1.0, None, None): the nominal limits (at the start, and from follow()); a decision's
-        # key also says whether it holds
-        self._limits_key: (tuple[float, float | None, float | None]
-                           | tuple[float, float | None, float | None, bool]) = (1.0, None, None)
+        # The key of the limits in force (avoidance_limits' arguments): nominal at the start
+        # and from follow(), a decision's after.
+        self._limits_key: tuple[float, float | None, float | None, bool] = _NOMINAL_KEY
         self._ticked = False
         sched.planning[self.row] = False
         batch.resting[self.row] = False
@@ -771,8 +773,8 @@ class OnboardStack:
         self.batch.holding.discard(self.row)
         self.tracker.hold_height(None)
         self.batch.stats.avoiding[self.row] = False
-        if self._limits_key != (1.0, None, None):
-            self._limits_key = (1.0, None, None)
+        if self._limits_key != _NOMINAL_KEY:
+            self._limits_key = _NOMINAL_KEY
             self.tracker.set_limits(self.nominal_limits)
         lo, hi = self.tracker.limits.velocity_bounds()
         state = np.zeros((4, 3))
