@@ -1035,18 +1035,17 @@ class OnboardStack:
         mission's point to reach its goal 22 m higher climbed straight up to it, into the
         UAV above."""
         ref = self.tracker.reference
-        s = self.tracker.state
+        state = self.tracker.state
+        z, v = float(state[2, 0]), float(state[2, 1])
         if ref is not None:
             t = self.tracker.time_s
             at = ref.sample(np.array([t, t + _LEVEL_DT_S]))
-            z_ref, z = float(at[0, 2]), float(s[2, 0])
+            z_ref = float(at[0, 2])
             climbed = min(max(z - z_ref, 0.0), self.tracker.z_offset_m)
-            over = math.hypot(float(at[0, 0] - s[0, 0]), float(at[0, 1] - s[1, 0]))
+            over = math.hypot(float(at[0, 0] - state[0, 0]), float(at[0, 1] - state[1, 0]))
             if abs(float(at[1, 2]) - z_ref) <= _LEVEL_DZ_M and (
                     over <= _OVER_M or abs(z - climbed - z_ref) <= _OVER_M):
                 return z_ref
-        s = s[2]
-        z, v = float(s[0]), float(s[1])
         lim = self.tracker.limits
         brake = lim.descend_accel_mps2 if v > 0.0 else lim.ascend_accel_mps2
         return z + v * abs(v) / (2.0 * brake) - self.tracker.z_offset_m

@@ -344,6 +344,24 @@ def _layer_below(enc: EncounterRows, must: np.ndarray, z: float, half_h: float,
 
 
 @kernel(allocates=True)
+def _climb_blocked(enc: EncounterRows, half_h: float, ahead_s: np.ndarray, climbed: float,
+                   z: float, prm: np.ndarray, waiting: np.ndarray) -> bool:
+    """(docs/safety.md, A4.) Whether a climb under way (``climbed`` of the offset in force
+    ``z``) meets someone on its way up (:func:`_blocked_way`); the UAVs in the way into
+    ``waiting`` (k,), every other entry False. Then it stops at what it has climbed."""
+    k = enc.near.shape[0]
+    for j in range(k):
+        waiting[j] = False
+    if not climbed < z - LEVEL_M:
+        return False
+    way = np.empty((1, k), dtype=np.bool_)
+    _blocked_way(enc, np.array([z]), z, climbed, ahead_s, half_h, prm, climbed, way)
+    for j in range(k):
+        waiting[j] = way[0, j]
+    return way[0].any()
+
+
+@kernel(allocates=True)
 def _climb(enc: EncounterRows, must: np.ndarray, half_h: float, ahead_s: np.ndarray,
            climbed: float, z: float, ceiling: float, prm: np.ndarray, waiting: np.ndarray
            ) -> tuple[float, bool]:
@@ -385,15 +403,8 @@ def _climb(enc: EncounterRows, must: np.ndarray, half_h: float, ahead_s: np.ndar
     """
     k = enc.near.shape[0]
     dz = prm[P_DZ]
-    for j in range(k):
-        waiting[j] = False
-    if climbed < z - LEVEL_M:
-        way = np.empty((1, k), dtype=np.bool_)
-        _blocked_way(enc, np.array([z]), z, climbed, ahead_s, half_h, prm, climbed, way)
-        if way[0].any():
-            for j in range(k):
-                waiting[j] = way[0, j]
-            return climbed, False
+    if _climb_blocked(enc, half_h, ahead_s, climbed, z, prm, waiting):
+        return climbed, False
     steps = math.floor((_lower(prm[P_MAX_OFFSET], ceiling) - z) / dz + EPS)
     if steps < 1:
         lower = _layer_below(enc, must, z, half_h, prm)
@@ -716,18 +727,12 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
         z_new, ceiling_hit = _climb(enc, must, half_h, ahead, climbed, z_start,
                                     st.ceiling_m[i], prm, masks[:, M_WAITING])
         st.z_offset_m[i] = z_new
-    elif climbed < z_start - LEVEL_M:
+    elif _climb_blocked(enc, half_h, ahead, climbed, z_start, prm, masks[:, M_WAITING]):
         # A climb under way is checked in every round, not only in those that yield: its
         # conflict may be resolved while someone moves into its way. Found in the vertical
         # stack swap (2 × 5): uav9, climbing 15 m for those above it, went on through uav10
         # hovering 6 m over it, which had no layer left under the ceiling (0.06 m).
-        way = np.empty((1, k), dtype=np.bool_)
-        _blocked_way(enc, np.array([z_start]), z_start, climbed, ahead, half_h, prm,
-                     climbed, way)
-        if way[0].any():
-            for j in range(k):
-                masks[j, M_WAITING] = way[0, j]
-            st.z_offset_m[i] = climbed
+        st.z_offset_m[i] = climbed
     z = st.z_offset_m[i]
     if z == z_start:
         hit_end = hit_start
