@@ -61,11 +61,14 @@ from uavmpc.apps.campaign_engine import (
     run_trials,
     split_cores,
 )
+from uavmpc.apps.published import PublishedResult
 from uavmpc.avoidance import AvoidanceParams
+from uavmpc.config import ConfigError
 from uavmpc.scenarios import LinkSettings, avoidance_params, changed_fields
 from uavmpc.scenarios.faults import FaultSpec
+from uavmpc.scenarios.random_walk import ACCEL_MPS2, SPEED_MPS, WalkVariant
 from uavmpc.scenarios.run import RunSpec
-from uavmpc.scenarios.stats import percentile
+from uavmpc.scenarios.stats import bootstrap_interval, percentile
 
 PERCENTILES = (50, 75, 95, 99)
 #: Without avoidance, the world is run this many simulated seconds at a time between checks
@@ -105,6 +108,9 @@ class RandomWalkSpec:
     #: Start on the ground and take off to ``height_m`` before the walk (False: start in the
     #: air at ``height_m``, the protocol as it was).
     ground_start: bool = False
+    #: How the walk departs from the protocol (take-offs one after another, waypoints drawn
+    #: apart, slower limits, counting after the first waypoint); the default does not.
+    walk: WalkVariant = field(default_factory=WalkVariant)
 
     def __post_init__(self) -> None:
         for name in ("uavs", "seed"):
@@ -129,10 +135,15 @@ class RandomWalkSpec:
         if not isinstance(self.ground_start, bool):
             raise CampaignError(f"ground_start: must be true or false, got "
                                 f"{self.ground_start!r}")
+        if not isinstance(self.walk, WalkVariant):
+            raise CampaignError(f"walk: must be a WalkVariant, got {type(self.walk).__name__}")
+        if self.walk.takeoff_interval_s and not self.ground_start:
+            raise CampaignError("take-offs one after another (--takeoff-interval) need a start "
+                                "from the ground (--ground-start)")
         if self.ground_start:
             from uavmpc.scenarios.random_walk import walk_start_s
 
-            walk = walk_start_s(self.height_m)
+            walk = walk_start_s(self.height_m) + (self.uavs - 1) * self.walk.takeoff_interval_s
             if walk >= self.length_s:
                 shown = "trial_s" if self.avoidance else "cap_s"
                 raise CampaignError(f"{shown}: {self.length_s:g} s ends before the walk, which "
@@ -157,6 +168,8 @@ class RandomWalkSpec:
             params["launch_check_s"] = float(self.launch_check_s)
         if self.ground_start:  # absent: started in the air, as every campaign before it
             params["ground_start"] = True
+        if self.walk.changed():  # absent: the protocol's walk
+            params["walk"] = self.walk.changed()
         return params
 
     @classmethod
@@ -176,7 +189,8 @@ class RandomWalkSpec:
             avoidance_params=avoidance_params(params.get("avoidance_params", {}),
                                               "avoidance_params"),
             launch_check_s=None if lc is None else float(lc),
-            ground_start=params.get("ground_start", False))
+            ground_start=params.get("ground_start", False),
+            walk=WalkVariant.from_dict(params.get("walk", {})))
 
     def tasks(self, index: int) -> list[Task]:
         return [Task(index, 0, run_trial, (self, index))]
@@ -199,7 +213,7 @@ def trial_run(spec: RandomWalkSpec, index: int) -> RunSpec:
 
     scenario_seed, world_seed = trial_seeds(spec.seed, index)
     sc = random_walk(spec.uavs, spec.area_m, spec.height_m, spec.length_s, scenario_seed,
-                     link=spec.link, ground_start=spec.ground_start)
+                     link=spec.link, ground_start=spec.ground_start, variant=spec.walk)
     return RunSpec(dataclasses.replace(sc, avoidance=spec.avoidance_params),
                    avoidance=spec.avoidance, seed=world_seed, link=spec.link,
                    faults=spec.faults, wind_mps=spec.wind_mps,
@@ -239,10 +253,12 @@ def _fly_trial(spec: RandomWalkSpec, sc: Any, world: Any
     """(what the trial's flight gave, the goals it reached when they count)."""
     from uavmpc.scenarios.random_walk import waypoints_reached
 
+    count_from = float(getattr(sc, "count_from_s", 0.0))  # earlier collisions count for nothing
     if spec.avoidance:
         res = world.run(spec.length_s)
-        collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
-        dmin = float(res.min_distance_m.min())
+        collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions
+                      if c.t >= count_from]
+        dmin = float(res.min_distance_m[res.t_s >= count_from].min())
         sim_s = res.duration_s
     else:  # run in chunks, stop at the first collision
         collisions, dmin, sim_s = [], math.inf, 0.0
@@ -253,11 +269,13 @@ def _fly_trial(spec: RandomWalkSpec, sc: Any, world: Any
             k = min(chunk, total - done)
             res = world.run(k * world.period_s)
             done += k
-            collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions]
-            d = res.min_distance_m
+            collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions
+                          if c.t >= count_from]
+            d = res.min_distance_m[res.t_s >= count_from]
             if collisions:  # the trial ends at the first collision
-                d = d[res.t_s <= collisions[0][0] + 1e-9]
-            dmin = min(dmin, float(d.min()))
+                d = d[res.t_s[res.t_s >= count_from] <= collisions[0][0] + 1e-9]
+            if d.size:
+                dmin = min(dmin, float(d.min()))
         sim_s = done * world.period_s
         if collisions:  # flight time ends at the first collision, and so does the count
             sim_s = collisions[0][0]
@@ -288,6 +306,15 @@ def _percentiles(times: list[float | None]) -> dict[str, float | None]:
     return {f"p{q}": percentile(x, q) for q in PERCENTILES}
 
 
+def _intervals(times: list[float | None]) -> dict[str, list[float | None]] | None:
+    """The 95 % bootstrap interval of each percentile of :func:`_percentiles` (None when no
+    trial collided)."""
+    if not any(t is not None for t in times):
+        return None
+    x = [math.inf if t is None else t for t in times]
+    return {f"p{q}": list(bootstrap_interval(x, q)) for q in PERCENTILES}
+
+
 def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
               wall_s: float) -> dict[str, Any]:
     """The report dictionary of the trials ``selected`` (sorted by index)."""
@@ -311,6 +338,7 @@ def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
         "trials_censored": len(selected) - with_collision,
         "censored_at_s": length,
         "time_to_first_collision_s": _percentiles(firsts),
+        "time_to_first_collision_ci95_s": _intervals(firsts),
         "min_distance_m": float(dmins.min()) if dmins.size else None,
         "min_distance_per_trial_m": (
             {f"p{q}": percentile(dmins, q) for q in (1, 5, 50)} if dmins.size else None),
@@ -396,6 +424,9 @@ def report_rows(*reports: dict[str, Any]) -> list[tuple[str, str, str]]:
         rows.append(("start", lambda r: (
             f"on the ground, walk from {r['walk_start_s']:.1f} s"
             if r["parameters"].get("ground_start") else "in the air")))
+    if any(r["parameters"].get("walk") for r in reports):
+        rows.append(("walk", lambda r: ", ".join(
+            f"{k} {v}" for k, v in r["parameters"].get("walk", {}).items()) or "the protocol's"))
     if any(r["parameters"].get("launch_check_s") is not None for r in reports):
         rows.append(("launch check", lambda r: (
             f"up to {r['parameters']['launch_check_s']:g} s"
@@ -415,10 +446,12 @@ def markdown_table(*reports: dict[str, Any]) -> str:
 
 
 def report_markdown(*reports: dict[str, Any]) -> str:
+    from uavmpc.apps.published import comparison_markdown
+
     head = ("# random_walk campaign\n\nA collision is a 3-D distance between centres below "
             "1 m. Percentiles are those of the empirical CDF over all trials; a trial without "
             "collision counts as later than its length (\"> …\").\n\n")
-    return head + markdown_table(*reports)
+    return head + markdown_table(*reports) + "".join(comparison_markdown(r) for r in reports)
 
 
 def merge_reports(*paths: str | Path, out: str | Path | None = None) -> str:
@@ -446,6 +479,12 @@ def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) 
     else:
         ax.text(0.5, 0.5, f"no collision in {n} trials", transform=ax.transAxes,
                 ha="center", va="center")
+    ref = report.get("reference") or {}
+    published = (ref.get("time_to_first_collision_s") or {}) if not report["avoidance"] else {}
+    if published:  # its percentiles as points on its own (unknown) CDF
+        ax.plot(list(published.values()), [int(k[1:]) / 100.0 for k in published], "o",
+                color="C3", label=f"{ref['name']}: its percentiles")
+        ax.legend(loc="lower right")
     ax.set_xlim(0.0, report["censored_at_s"])
     ax.set_ylim(0.0, 1.0)
     ax.set_xlabel("time to first collision [s]")
@@ -461,6 +500,9 @@ def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) 
     if d.size:
         ax.hist(d, bins=min(50, max(5, n // 4)))
     ax.axvline(1.0, color="r", ls=":", label="collision (1 m)")
+    if report["avoidance"] and ref.get("min_distance_m") is not None:
+        ax.axvline(ref["min_distance_m"], color="C3", ls="--",
+                   label=f"{ref['name']}: its closest approach")
     ax.set_xlabel("minimal distance between any two UAVs in a trial [m]")
     ax.set_ylabel("trials")
     ax.set_title(f"{title}: per-trial minimal distance")
@@ -497,6 +539,8 @@ def run_campaign(
     launch_check_s: float | None = None,
     logs: int = 3,
     ground_start: bool = False,
+    walk: WalkVariant | None = None,
+    reference: str | Path | None = "table2",
 ) -> dict[str, Any]:
     """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
 
@@ -507,7 +551,10 @@ def run_campaign(
     UAV holds at its start until it has heard every other one, at most this long
     (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``). ``ground_start``: every UAV
     starts on the ground and takes off to ``height_m`` before its walk (times still count
-    from t = 0, the climb included). ``logs``: the ``logs``
+    from t = 0, the climb included). ``walk``: how the walk departs from the protocol
+    (:class:`~uavmpc.scenarios.random_walk.WalkVariant`). ``reference``: the published result
+    the report is set beside (:class:`~uavmpc.apps.published.PublishedResult`: ``table2``, the
+    reference design's, or a TOML file; None: none). ``logs``: the ``logs``
     trials with the closest approach are re-flown from their seeds into flight logs
     (``logs/trial_<index>.mcap``; a full campaign's would be gigabytes), linked from
     ``report.html``. ``workers`` processes each fly a trial's world on ``threads`` threads
@@ -518,6 +565,7 @@ def run_campaign(
     ``trial_s``; without, until its first collision or ``cap_s``.
     """
     _check_size(hours=hours, trials=trials, logs=logs)
+    published = None if reference is None else PublishedResult.load(reference)
     for name, v in (("trial_s", trial_s), ("cap_s", cap_s)):
         if not (math.isfinite(v) and v > 0):
             raise CampaignError(f"{name}: must be > 0, got {v}")
@@ -528,7 +576,7 @@ def run_campaign(
         faults=faults or FaultSpec(),
         avoidance_params=_avoidance(avoidance_params, faults),
         launch_check_s=None if launch_check_s is None else float(launch_check_s),
-        ground_start=ground_start)
+        ground_start=ground_start, walk=walk if walk is not None else WalkVariant())
     workers, threads = split_cores(workers, threads)
     if progress:
         print(f"campaign: {workers} worker(s) × {threads} thread(s) each", file=sys.stderr)
@@ -541,7 +589,7 @@ def run_campaign(
     from uavmpc.apps.campaign_engine import campaign_wall_s
 
     return _write_report(out, selected, spec, campaign_wall_s(out, wall0), logs,
-                         workers=workers, threads=threads)
+                         workers=workers, threads=threads, published=published)
 
 
 def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
@@ -550,11 +598,14 @@ def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
 
 
 def _write_report(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
-                  wall_s: float, logs: int, *, workers: int = 1,
-                  threads: int = 1) -> dict[str, Any]:
+                  wall_s: float, logs: int, *, workers: int = 1, threads: int = 1,
+                  published: PublishedResult | None = None) -> dict[str, Any]:
     """Write the selected trials' report, figures, flight logs and page to ``out`` (the logs
-    re-flown by ``workers`` local processes on ``threads`` threads each)."""
+    re-flown by ``workers`` local processes on ``threads`` threads each), set beside
+    ``published`` when given."""
     report = aggregate(selected, spec.to_json(), wall_s)
+    if published is not None:
+        report["reference"] = published.to_json()
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     (out / "report.md").write_text(report_markdown(report))
     _figures(out, selected, report)
@@ -616,9 +667,10 @@ def _flight_logs(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec
 
 def _write_html(out: Path, report: dict[str, Any], selected: list[dict[str, Any]],
                 logs: dict[int, str]) -> None:
+    from uavmpc.apps.published import comparison_rows
     from uavmpc.apps.report_html import report_html
 
-    page = report_html(report, report_rows(report), selected,
+    page = report_html(report, report_rows(report), comparison_rows(report), selected,
                        [out / "ttc_cdf.png", out / "min_distance_hist.png"], logs)
     (out / "report.html").write_text(page)
 
@@ -680,6 +732,24 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--logs", type=int, default=3, metavar="N",
                    help="random-walk: re-fly the N trials with the closest approach into "
                         "flight logs linked from report.html (default 3)")
+    w = p.add_argument_group("random-walk: how the walk departs from the protocol (the start "
+                             "hypotheses of docs/campaign.md; default: it does not)")
+    w.add_argument("--takeoff-interval", type=float, default=0.0, metavar="S",
+                   help="with --ground-start: the UAVs take off one after another, S seconds "
+                        "apart; each walks after its own take-off")
+    w.add_argument("--waypoint-clearance", type=float, default=0.0, metavar="M",
+                   help="a waypoint closer than M to a waypoint another UAV holds is drawn "
+                        "again")
+    w.add_argument("--walk-speed", type=float, default=SPEED_MPS, metavar="MPS",
+                   help=f"the walk's horizontal speed limit (default {SPEED_MPS:g}, Table I)")
+    w.add_argument("--walk-accel", type=float, default=ACCEL_MPS2, metavar="MPS2",
+                   help=f"the walk's horizontal acceleration limit (default {ACCEL_MPS2:g})")
+    w.add_argument("--count-after-first-waypoint", action="store_true",
+                   help="count no collision before every UAV's first waypoint was due")
+    p.add_argument("--reference", default="table2", metavar="TABLE",
+                   help="random-walk: the published result the report is set beside: 'table2' "
+                        "(the reference design's Table II, default), a TOML file in its "
+                        "format, or 'none'")
     add_fault_arguments(p)
     p.set_defaults(func=campaign_command)
     return p
@@ -724,7 +794,29 @@ def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
                         faults=fault_spec(args),
                         avoidance_params=avoidance_file(args.avoidance_file),
                         launch_check_s=args.launch_check, logs=args.logs,
-                        ground_start=args.ground_start)
+                        ground_start=args.ground_start, walk=walk_variant(args),
+                        reference=None if args.reference == "none" else args.reference)
+
+
+#: Each WalkVariant field's flag.
+_WALK_FLAGS = {"takeoff_interval_s": "--takeoff-interval", "clearance_m": "--waypoint-clearance",
+               "speed_mps": "--walk-speed", "accel_mps2": "--walk-accel",
+               "count_after_first": "--count-after-first-waypoint"}
+
+
+def walk_variant(args: argparse.Namespace) -> WalkVariant:
+    """The :class:`WalkVariant` of the walk flags (a bad value fails here, named by its
+    flag)."""
+    try:
+        return WalkVariant(takeoff_interval_s=args.takeoff_interval,
+                           clearance_m=args.waypoint_clearance, speed_mps=args.walk_speed,
+                           accel_mps2=args.walk_accel,
+                           count_after_first=args.count_after_first_waypoint)
+    except ConfigError as e:
+        msg = str(e)
+        for name, flag in _WALK_FLAGS.items():
+            msg = msg.replace(f"walk.{name}", flag)
+        raise CampaignError(msg) from None
 
 
 def avoidance_file(path: str | None) -> dict[str, Any]:
@@ -794,6 +886,9 @@ def campaign_command(args: argparse.Namespace) -> int:
     if args.kind != "random-walk" and args.ground_start:
         raise CampaignError(f"--ground-start: only for campaign random-walk (a {args.kind} "
                             "campaign flies its scenario's own start)")
+    if args.kind != "random-walk" and walk_variant(args).changed():
+        flags = ", ".join(_WALK_FLAGS[k] for k in walk_variant(args).changed())
+        raise CampaignError(f"{flags}: only for campaign random-walk")
     if args.kind == "landing":
         return _landing_command(args)
     if args.kind == "traffic":

@@ -63,9 +63,11 @@ def _cell(text: Any, sort: Any = None, numeric: bool = False) -> str:
 
 
 def report_html(report: dict[str, Any], rows: Sequence[tuple[str, str, str]],
+                beside: Sequence[tuple[str, ...]],
                 trials: Sequence[dict[str, Any]], figures: Sequence[Path],
                 logs: dict[int, str]) -> str:
-    """The page: ``rows`` as :func:`~uavmpc.apps.campaign.report_rows` gives them,
+    """The page: ``rows`` as :func:`~uavmpc.apps.campaign.report_rows` gives them, ``beside``
+    the rows of :func:`~uavmpc.apps.published.comparison_rows` (none: no such section),
     ``trials`` the records, ``figures`` PNG files to inline, ``logs`` trial index → relative
     path of its flight log."""
     esc = html.escape
@@ -108,6 +110,17 @@ def report_html(report: dict[str, Any], rows: Sequence[tuple[str, str, str]],
         "its length (\"&gt; …\").</p>",
     ]
     parts += table
+    if beside:
+        ref = report["reference"]
+        parts += [f"<h2>Beside the {esc(ref['name'])}</h2>",
+                  f"<p>Source: {esc(ref['source'])}. Its set-up: {esc(ref['setup'])}. Our "
+                  "intervals are 95 % percentile-bootstrap intervals (4 000 resamples of the "
+                  "trials, seeded).</p>",
+                  "<table><tr><th>random_walk</th><th>ours</th><th>our 95 % interval</th>"
+                  "<th>published</th><th>published inside ours?</th></tr>"]
+        parts += ["<tr><th>" + esc(r[0]) + "</th>" + "".join(f"<td>{esc(c)}</td>" for c in r[1:])
+                  + "</tr>" for r in beside]
+        parts.append("</table>")
     parts += ["<h2>Figures</h2>", '<div class="figs">']
     parts += [_img(f) for f in figures]
     parts += ["</div>",
