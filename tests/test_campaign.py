@@ -438,3 +438,27 @@ def test_collisions_found_by_the_24_hour_campaigns_no_longer_happen(
     record = run_trial(spec, index)
     assert record["collisions"] == 0, story
     assert record["min_distance_m"] > 2.0, story
+
+
+def test_a_campaign_says_what_it_does_after_its_progress_bar(tmp_path: Path, capsys) -> None:
+    """What a newcomer met: silence while the closest trials were flown again, more hours
+    than asked without a word, "the 3 closest trials" of 2, and a slow split unannounced."""
+    from uavmpc.apps.campaign_engine import split_cores
+    from uavmpc.apps.cli import main
+    from uavmpc.jit import available_threads
+
+    out = tmp_path / "c"
+    assert main(["campaign", "random-walk", "--hours", "0.005", "--trial-s", "12", "--uavs",
+                 "3", "--area", "30", "--workers", "1", "--logs", "5", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "campaign: 0.01 h flown for --hours 0.005: the trials are whole (2 of up to 12 s " \
+           "each)" in captured.err
+    assert ("campaign: flying the 2 closest trial(s) again into flight logs (logs/trial_"
+            in captured.err)
+    assert "logs/ (the 2 closest trials)" in captured.out
+    cores = available_threads()
+    assert split_cores(2, cores, say=True) == (2, cores)
+    err = capsys.readouterr().err
+    assert f"campaign: 2 workers × {cores} threads = {2 * cores} threads on {cores} cores" in err
+    split_cores(1, 1, say=True)
+    assert "parks" not in capsys.readouterr().err

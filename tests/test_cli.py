@@ -68,3 +68,27 @@ def test_swarm_kill_node_mistakes_are_one_line(kill: list[str], capsys, tmp_path
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith(f"uavmpc swarm: --kill-node {kill[0]} {kill[1]}")
     assert not (tmp_path / "run").exists()  # refused before anything flew
+
+
+def test_a_run_writes_its_own_folder_and_leaves_nothing_of_an_earlier_run(
+        tmp_path, monkeypatch, capsys) -> None:
+    """Each scenario has its folder by default, and a run's folder holds that run's outputs
+    only (a traffic run's figures beside a later swap's were read as the swap's)."""
+    from uavmpc.apps.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("UAVMPC_THREADS", raising=False)
+    monkeypatch.setattr("os.getloadavg", lambda: (9.0, 9.0, 9.0))
+    out = tmp_path / "out" / "run" / "swap_through_static"
+    out.mkdir(parents=True)
+    for stale in ("traffic.png", "landing.png", "flight.mcap"):
+        (out / stale).write_text("an earlier run's")
+    (out / "notes.txt").write_text("mine")
+    assert main(["run", "swap_through_static", "--duration", "2"]) == 0
+    assert not (out / "traffic.png").exists() and not (out / "landing.png").exists()
+    assert (out / "flight.mcap").read_bytes()[:8] != b"an earli"  # this run's log
+    assert (out / "summary.json").exists() and (out / "top_view.png").exists()
+    assert (out / "notes.txt").read_text() == "mine"  # not a run's output: left alone
+    captured = capsys.readouterr()
+    assert "uavmpc run: ticking on 1 thread(s), the cores idle now of" in captured.err
+    assert "uav1: never climbed, avoiding for" in captured.out  # not "climbed up to 0 m"

@@ -194,6 +194,42 @@ def test_compile_watch_counts_announces_and_names_the_cache() -> None:
     assert len(lines) == 1 and lines[0].startswith("compiling") and CACHE_DIR in lines[0]
 
 
+def test_compile_watch_says_when_the_compilation_is_over() -> None:
+    """A slow run after a first compilation must not look like more compiling."""
+    import time
+
+    lines: list[str] = []
+
+    @numba.njit  # not cached
+    def plus_two(x):
+        return x + 2
+
+    with CompileWatch(show=lines.append, every_s=0.02) as watch:
+        assert plus_two(1) == 3
+        deadline = time.monotonic() + 60.0
+        while not any("running" in x for x in lines) and time.monotonic() < deadline:
+            time.sleep(0.01)
+    over = [x for x in lines if "running" in x]
+    assert lines[0].startswith("compiling") and len(over) == 1
+    assert over[0].startswith(f"  compiled {watch.kernels} kernels in")
+
+
+def test_a_run_ticks_on_the_cores_left_idle(monkeypatch) -> None:
+    from uavmpc.jit import idle_threads
+
+    top = available_threads()
+    monkeypatch.delenv("UAVMPC_THREADS", raising=False)
+    monkeypatch.setattr("os.getloadavg", lambda: (5.0, 5.0, 5.0))
+    assert idle_threads() == 1  # a busy machine: one thread, never a wait for a parked one
+    monkeypatch.setattr("os.getloadavg", lambda: (0.3, 0.3, 0.3))
+    assert idle_threads() == top
+    monkeypatch.setattr("os.getloadavg", lambda: (top - 0.5, 1.0, 1.0))
+    assert idle_threads() == 1
+    monkeypatch.setenv("UAVMPC_THREADS", "1")
+    monkeypatch.setattr("os.getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert idle_threads() == 1  # the environment decides
+
+
 def test_compile_watch_is_silent_when_nothing_compiles() -> None:
     lines: list[str] = []
     with CompileWatch(show=lines.append) as watch:

@@ -577,9 +577,7 @@ def run_campaign(
         avoidance_params=_avoidance(avoidance_params, faults),
         launch_check_s=None if launch_check_s is None else float(launch_check_s),
         ground_start=ground_start, walk=walk if walk is not None else WalkVariant())
-    workers, threads = split_cores(workers, threads)
-    if progress:
-        print(f"campaign: {workers} worker(s) × {threads} thread(s) each", file=sys.stderr)
+    workers, threads = split_cores(workers, threads, say=progress)
     out = Path(out_dir)
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
@@ -588,8 +586,14 @@ def run_campaign(
                           threads=threads, ray_address=ray_address, progress=progress)
     from uavmpc.apps.campaign_engine import campaign_wall_s
 
+    flown_s = sum(r["sim_s"] for r in selected)
+    if progress and target_s is not None and flown_s > 1.05 * target_s:
+        print(f"campaign: {flown_s / 3600.0:.2f} h flown for --hours {hours:g}: the trials "
+              f"are whole ({len(selected)} of up to {spec.length_s:g} s each), and the last "
+              "one ends past the hours asked", file=sys.stderr)
     return _write_report(out, selected, spec, campaign_wall_s(out, wall0), logs,
-                         workers=workers, threads=threads, published=published)
+                         workers=workers, threads=threads, published=published,
+                         progress=progress)
 
 
 def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
@@ -599,7 +603,8 @@ def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
 
 def _write_report(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
                   wall_s: float, logs: int, *, workers: int = 1, threads: int = 1,
-                  published: PublishedResult | None = None) -> dict[str, Any]:
+                  published: PublishedResult | None = None,
+                  progress: bool = False) -> dict[str, Any]:
     """Write the selected trials' report, figures, flight logs and page to ``out`` (the logs
     re-flown by ``workers`` local processes on ``threads`` threads each), set beside
     ``published`` when given."""
@@ -610,7 +615,8 @@ def _write_report(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpe
     (out / "report.md").write_text(report_markdown(report))
     _figures(out, selected, report)
     _write_html(out, report, selected,
-                _flight_logs(out, selected, spec, logs, workers=workers, threads=threads))
+                _flight_logs(out, selected, spec, logs, workers=workers, threads=threads,
+                             progress=progress))
     return report
 
 
@@ -640,7 +646,8 @@ def _avoidance(given: dict[str, Any] | AvoidanceParams | None,
 
 
 def _flight_logs(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
-                 n: int, *, workers: int = 1, threads: int = 1) -> dict[int, str]:
+                 n: int, *, workers: int = 1, threads: int = 1,
+                 progress: bool = False) -> dict[int, str]:
     """The flight logs of the ``n`` closest trials (re-flown from their seeds when missing,
     side by side on up to ``workers`` local processes): trial index → path relative to
     ``out``."""
@@ -651,6 +658,9 @@ def _flight_logs(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec
     missing = [i for i, rel in logs.items() if not (out / rel).exists()]
     if not missing:
         return logs
+    if progress:  # minutes of flight after the progress bar's 100 %: say what they are
+        print(f"campaign: flying the {len(missing)} closest trial(s) again into flight logs "
+              f"({', '.join(logs[i] for i in missing)}; --logs 0 to skip)", file=sys.stderr)
     # A log is there whole or not at all: written as .part, renamed once its flight ended.
     part = {i: out / f"{logs[i]}.part" for i in missing}
     ex = executor(ray_address=None, workers=min(workers, len(missing)), threads=threads)
@@ -905,7 +915,9 @@ def campaign_command(args: argparse.Namespace) -> int:
           f"{r['trials']} trials, {r['simulated_hours']:.2f} h simulated, "
           f"{r['collisions']} collision(s), "
           f"closest approach {r['min_distance_m']:.2f} m; time to first collision: {pct}")
-    logs = f", logs/ (the {args.logs} closest trials)" if args.logs else ""
+    n_logs = min(args.logs, r["trials"])
+    logs = (f", logs/ (the {n_logs} closest trial{'s' if n_logs > 1 else ''})" if n_logs
+            else "")
     print(f"wrote {out}/report.html, report.json, report.md, ttc_cdf.png, "
           f"min_distance_hist.png{logs}")
     return 0 if (not r["avoidance"] or r["collisions"] == 0) else 1

@@ -83,6 +83,12 @@ def _fly_world(world: Any, sc: Any, *, duration: float | None, ros2: str | None,
                          on_scene=live.publish if live is not None else None)
 
 
+#: Every file a run may write into its folder (its figures, whichever it draws, among them).
+RUN_OUTPUTS = ("summary.json", "flight.mcap", "top_view.png", "altitude.png", "traffic.png",
+               "min_distance.png", "side_view.png", "view_3d.png", "landing.png",
+               "formation.png")
+
+
 def _save_run_figures(result: Any, sc: Any, summary: RunSummary, out: Path, *, avoidance: bool,
                       traffic: bool) -> list[str]:
     """Draw a run's figures into ``out``; their file names."""
@@ -143,6 +149,8 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                      latency=latency, wind=wind, faults=faults, launch_check=launch_check)
     sc, link = spec.flown.scenario, spec.flown.link
     out.mkdir(parents=True, exist_ok=True)
+    for name in RUN_OUTPUTS:  # none of an earlier run's outputs is left beside this one's
+        (out / name).unlink(missing_ok=True)
     meta = {"scenario": sc.name, "seed": seed, "avoidance": avoidance, "loss": link.loss,
             "latency_s": link.latency_s}
     objects = (GROUND_VEHICLE_ID,) if sc.ground_vehicle is not None else ()
@@ -200,8 +208,9 @@ def _print_world_summary(s: RunSummary, out: Path) -> None:
     # A line per UAV is unreadable for a traffic of hundreds: the traffic block says it all.
     per_uav = s.uavs.items() if traffic is None or len(s.uavs) <= 10 else ()
     for uav, u in per_uav:
-        print(f"  {uav}: climbed up to {u.max_z_offset_m:.0f} m to avoid, avoiding for "
-              f"{u.avoidance_active_s or 0.0:.1f} s, "
+        climbed = (f"climbed up to {u.max_z_offset_m:.1f} m to avoid"
+                   if u.max_z_offset_m >= 0.05 else "never climbed")
+        print(f"  {uav}: {climbed}, avoiding for {u.avoidance_active_s or 0.0:.1f} s, "
               f"{_goal_words(u.reached_goal)}, tracking RMSE "
               f"{u.tracking_rmse_m or float('nan'):.3f} m")
     live = s.sections.get("liveness")
@@ -303,7 +312,7 @@ def _demo(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from uavmpc.apps.campaign import fault_spec
 
-    out = Path(args.out)
+    out = Path(args.out) if args.out is not None else Path("out/run") / Path(args.scenario).stem
     if args.realtime is not None and not args.realtime > 0:
         print("uavmpc run: --realtime must be > 0", file=sys.stderr)
         return 2
@@ -815,8 +824,11 @@ def _add_run_parser(sub: Any) -> None:
                      help="skip the flight without avoidance that times each UAV's delay")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--duration", type=float, default=None, help="simulated seconds")
-    _add_threads_argument(run)
-    run.add_argument("--out", default="out/run", help="output folder (default out/run)")
+    _add_threads_argument(run, "the cores idle now: every core less the 1-minute load "
+                               "average, at least 1; or $UAVMPC_THREADS")
+    run.add_argument("--out", default=None,
+                     help="output folder (default out/run/SCENARIO, the scenario's name or its "
+                          "file's stem); the outputs of an earlier run there are replaced")
     run.add_argument("--loss", type=float, default=None, help="message loss probability")
     run.add_argument("--latency", type=float, default=None, help="link latency [s]")
     run.add_argument("--wind", type=float, default=0.0, help="mean wind along x [m/s]")
@@ -1194,6 +1206,14 @@ def main(argv: list[str] | None = None) -> int:
         from uavmpc.jit import THREADS_ENV
 
         args.threads = None if os.environ.get(THREADS_ENV) else 1
+    if args.command == "run" and args.threads is None:
+        from uavmpc.jit import THREADS_ENV, available_threads, idle_threads
+
+        args.threads = idle_threads()
+        why = (f"${THREADS_ENV}" if os.environ.get(THREADS_ENV, "").strip()
+               else f"the cores idle now of {available_threads()}")
+        print(f"uavmpc run: ticking on {args.threads} thread(s), {why} (--threads N to "
+              "choose)", file=sys.stderr)
     if args.command in ("demo", "run") and args.threads is not None:
         from uavmpc.jit import set_threads
 

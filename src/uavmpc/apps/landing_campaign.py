@@ -153,7 +153,7 @@ def run_landing_campaign(out: str | Path, *, trials: int, seed: int = 0,
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ConfigError(f"--trials: must be ≥ 1, got {trials}")
     spec = LandingSpec(scenario, seed, speed_kmh, duration_s)
-    workers, threads = split_cores(workers, threads)
+    workers, threads = split_cores(workers, threads, say=progress)
     landing_trial(scenario, 0, seed, speed_kmh, 0.1)  # a bad scenario fails here, at once
     out = Path(out)
     results = run_trials(out, spec, LandingSpec.from_json, trials=trials, workers=workers,

@@ -185,7 +185,7 @@ def run_traffic_campaign(out: str | Path, *, trials: int, uavs: int = 300, seed:
     spec = TrafficSpec(uavs, seed, duration_s, tuple((scenario_options or {}).items()))
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise ConfigError(f"--workers: must be ≥ 1, got {workers}")
-    workers, threads = split_cores(workers, threads)
+    workers, threads = split_cores(workers, threads, say=progress)
     for i in range(trials):  # a layout that cannot be drawn fails here, before any flight
         traffic(uavs, trial_seeds(seed, i)[0], duration_s=duration_s,
                 **(scenario_options or {}))
