@@ -17,6 +17,12 @@ from uavmpc.config import ConfigError, read_packaged_toml, read_toml, reject_unk
 
 #: The tables that ship with uavmpc (name → file in ``uavmpc/data``).
 BUILT_IN = {"table2": "table2.toml"}
+#: How our side of the comparison is computed (said in report.md and report.html).
+DEFINITION = ("Our percentiles are those of the empirical CDF (a percentile is a trial's "
+              "value, numpy's inverted_cdf; a trial without collision counts as later than "
+              "its length); the published table does not state its definition. Our intervals "
+              "are 95 % percentile-bootstrap intervals (4 000 resamples of the trials, "
+              "seeded).")
 #: The percentiles a table may give (those a campaign reports).
 PERCENTILE_KEYS = ("p50", "p75", "p95", "p99")
 
@@ -158,8 +164,7 @@ def comparison_markdown(report: dict[str, Any]) -> str:
     ref = report["reference"]
     lines = [f"\n## Beside the {ref['name']}\n",
              f"Source: {ref['source']}. Its set-up: {ref['setup']}.\n",
-             "Our intervals are 95 % percentile-bootstrap intervals (4 000 resamples of the "
-             "trials, seeded).\n",
+             f"{DEFINITION}\n",
              "| random_walk | ours | our 95 % interval | published | published inside ours? |",
              "|---|---|---|---|---|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]

@@ -12,6 +12,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from uavmpc.apps.published import DEFINITION
+
 _STYLE = """
 body{font:14px/1.45 system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
 h1{font-size:1.5em}h2{font-size:1.2em;margin-top:1.6em}
@@ -113,9 +115,8 @@ def report_html(report: dict[str, Any], rows: Sequence[tuple[str, str, str]],
     if beside:
         ref = report["reference"]
         parts += [f"<h2>Beside the {esc(ref['name'])}</h2>",
-                  f"<p>Source: {esc(ref['source'])}. Its set-up: {esc(ref['setup'])}. Our "
-                  "intervals are 95 % percentile-bootstrap intervals (4 000 resamples of the "
-                  "trials, seeded).</p>",
+                  f"<p>Source: {esc(ref['source'])}. Its set-up: {esc(ref['setup'])}. "
+                  f"{esc(DEFINITION)}</p>",
                   "<table><tr><th>random_walk</th><th>ours</th><th>our 95 % interval</th>"
                   "<th>published</th><th>published inside ours?</th></tr>"]
         parts += ["<tr><th>" + esc(r[0]) + "</th>" + "".join(f"<td>{esc(c)}</td>" for c in r[1:])
