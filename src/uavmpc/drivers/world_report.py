@@ -6,17 +6,26 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from uavmpc.drivers.summary import Formation, Landing
+from uavmpc.drivers.summary import (
+    Contact,
+    Formation,
+    Landing,
+    LinkCounts,
+    RunSummary,
+    UavSummary,
+    run_status,
+)
 from uavmpc.drivers.world_tick import STAGES, WAIT, pair_distances
 from uavmpc.missions.formation import formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 
 if TYPE_CHECKING:
-    from uavmpc.drivers.world import UavOutcome, World, WorldResult, WorldUav
+    from uavmpc.drivers.world import World, WorldUav
     from uavmpc.missions.formation import FormationSpec
     from uavmpc.plant.ground_vehicle import GroundVehicle
 
@@ -115,12 +124,115 @@ def arrival_s(t_s: np.ndarray, track_m: np.ndarray, goal_m: np.ndarray,
     return float(t_s[0 if not outside.size else outside[-1] + 1])
 
 
+@dataclass(frozen=True)
+class UavOutcome:
+    """How one UAV's flight went (``summary.json``'s per-UAV entry).
+
+    Attributes:
+        max_z_offset_m, avoidance_active_s, tracking_rmse_m, limit_violations,
+        max_limit_excess, tracker_fallbacks: from its stack (:class:`~uavmpc.onboard.StackReport`).
+        reached_goal: it ended within :data:`GOAL_TOLERANCE_M` of its goal (None for a UAV
+            whose mission sets its way, e.g. a lander or a formation's follower).
+        final_position_m: where it ended (ENU, m).
+        messages_rejected: messages its inbox rejected.
+        yielded_to: whom its avoidance yielded to, other id → [first, last] time [s].
+        goal_reached_s: when it arrived for good (within the tolerance from then to the end)
+            [s]; None if it did not, or its mission sets its way.
+    """
+
+    max_z_offset_m: float
+    avoidance_active_s: float
+    tracking_rmse_m: float
+    reached_goal: bool | None
+    final_position_m: list[float]
+    limit_violations: int
+    max_limit_excess: float
+    tracker_fallbacks: int
+    messages_rejected: int
+    yielded_to: dict[str, list[float]] = field(default_factory=dict)
+    goal_reached_s: float | None = None
+
+
+@dataclass
+class WorldResult:
+    """What a run produced (:meth:`summary` gives its :class:`~uavmpc.drivers.summary.RunSummary`).
+
+    Attributes:
+        t_s: (K,) sample times of the traces (every tick).
+        positions_m: (K, N, 3) true positions; z_offset_m: (K, N); min_distance_m: (K,).
+        sections: the reports of the parts this run had (``geofence``, ``launch``,
+            ``non_cooperative``, ``timing``), each as JSON.
+        landing: a landing's outcome (a scenario with a lander), else None.
+        formation: a formation's error (a scenario with a formation), else None.
+        ground_vehicle_m: (K, 3) the ground vehicle's position, with one.
+        members_avoiding: (K,) whether any formation member avoided, with a formation.
+        formation_t_s: (M,) the times the formation error is measured at, from
+            :data:`~uavmpc.drivers.world_report.FORMATION_SETTLE_S`; formation_error_m:
+            (M, followers) each follower's distance from its slot [m].
+    """
+
+    scenario: str
+    seed: int
+    avoidance: bool
+    duration_s: float
+    uav_ids: list[str]
+    t_s: np.ndarray
+    positions_m: np.ndarray
+    z_offset_m: np.ndarray
+    min_distance_m: np.ndarray
+    collisions: list[Collision]
+    per_uav: dict[str, UavOutcome]
+    messages: dict[str, int]
+    wall_s: float
+    sections: dict[str, Any] = field(default_factory=dict)
+    landing: Landing | None = None
+    formation: Formation | None = None
+    ground_vehicle_m: np.ndarray | None = None
+    members_avoiding: np.ndarray | None = None
+    formation_t_s: np.ndarray | None = None
+    formation_error_m: np.ndarray | None = None
+
+    def summary(self) -> RunSummary:
+        """The run's summary (driver ``world``)."""
+        uavs = {k: UavSummary(
+            max_z_offset_m=v.max_z_offset_m, avoidance_active_s=v.avoidance_active_s,
+            tracking_rmse_m=v.tracking_rmse_m, reached_goal=v.reached_goal,
+            final_position_m=_point(v.final_position_m),
+            details={"limit_violations": v.limit_violations,
+                     "max_limit_excess": v.max_limit_excess,
+                     "tracker_fallbacks": v.tracker_fallbacks,
+                     "messages_rejected": v.messages_rejected, "yielded_to": v.yielded_to,
+                     "goal_reached_s": v.goal_reached_s})
+            for k, v in self.per_uav.items()}
+        contacts = tuple(Contact(c.t, c.a, c.b, c.distance_m) for c in self.collisions)
+        return RunSummary(
+            driver="world",
+            status=run_status(collisions=len(contacts),
+                              reached_goal=[u.reached_goal for u in uavs.values()],
+                              landed=None if self.landing is None else self.landing.landed),
+            scenario=self.scenario, seed=self.seed, avoidance=self.avoidance,
+            duration_s=self.duration_s, collisions=contacts,
+            # None with a single UAV (no pair): JSON has no infinity.
+            min_distance_m=(float(self.min_distance_m.min()) if len(self.uav_ids) > 1
+                            else None),
+            uavs=uavs,
+            messages=LinkCounts(self.messages["sent"], self.messages["delivered"],
+                                self.messages["dropped"]),
+            wall_s=self.wall_s,
+            realtime_factor=self.duration_s / self.wall_s if self.wall_s > 0 else None,
+            landing=self.landing, formation=self.formation, sections=self.sections)
+
+
+def _point(p: Any) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in p)
+    return x, y, z
+
+
+
 def uav_outcomes(uavs: Sequence[WorldUav], t_s: np.ndarray,
                  positions_m: np.ndarray) -> dict[str, UavOutcome]:
     """Per UAV, how its flight ended, from its program's report and its true positions
     ``positions_m`` (K, N, 3) [m] at ``t_s`` (K,)."""
-    from uavmpc.drivers.world import UavOutcome
-
     per_uav = {}
     for i, u in enumerate(uavs):
         rep = u.stack.report()
@@ -226,8 +338,6 @@ def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
                  cycles_per_s: float) -> WorldResult:
     """The result of ``world``'s run: its traces ``tr``, its contacts, each UAV's outcome,
     the messages, the extras; ``wall_s`` it took [s], the CPU's cycles per second."""
-    from uavmpc.drivers.world import WorldResult
-
     st = world.link.stats
     messages = {"sent": st.sent, "delivered": st.delivered,
                 "dropped": st.dropped + st.dropped_range, "published": st.published}
