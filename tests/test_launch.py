@@ -74,16 +74,16 @@ def test_a_spec_reads_back_as_it_was_written(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("change", "words"), [
-    ({"priority": "1"}, "'priority' must be an integer"),
-    ({"priority": True}, "'priority' must be an integer"),
-    ({"start_m": [0.0, 0.0]}, "'start_m' must have 3 items"),
-    ({"start_m": [0.0, "x", 5.0]}, "'start_m'[1] must be a number"),
-    ({"listen": "tcp/127.0.0.1:7447"}, "'listen' must be a list"),
-    ({"avoidance": "no"}, "'avoidance' must be true or false"),
-    ({"setpoints": "velocity"}, "'setpoints' must be one of attitude, position"),
-    ({"duration_s": 0}, "'duration_s' must be > 0"),
+    ({"priority": "1"}, "launch.priority: must be an integer"),
+    ({"priority": True}, "launch.priority: must be an integer"),
+    ({"start_m": [0.0, 0.0]}, "launch.start_m: must have 3 items"),
+    ({"start_m": [0.0, "x", 5.0]}, "launch.start_m[1]: must be a number"),
+    ({"listen": "tcp/127.0.0.1:7447"}, "launch.listen: must be a list"),
+    ({"avoidance": "no"}, "launch.avoidance: must be true or false"),
+    ({"setpoints": "velocity"}, "launch.setpoints: must be one of attitude, position"),
+    ({"duration_s": 0}, "launch.duration_s: must be > 0"),
     ({"speed": 3.0}, "unknown field 'speed'"),
-    ({"kind": "router"}, "'kind' must be one of"),
+    ({"kind": "router"}, "kind: must be one of"),
     ({"avoidance_params": {"radius_m": -1.0}}, "avoidance.radius_m"),
     ({"avoidance_params": {"radius": 5.0}}, "radius"),
     ({"geofence": {"box": [0, 0, 10, 10], "min_altitude_m": 0}}, "geofence.max_altitude_m"),
@@ -118,7 +118,7 @@ def test_reports_are_typed_and_checked(tmp_path: Path) -> None:
     with pytest.raises(LaunchError, match="node report: must be"):  # the wrong kind
         read_report(tmp_path / "sitl.json", NodeStats)
     bad = {"kind": "node", "report": {**dataclasses.asdict(stats), "ticks": "many"}}
-    with pytest.raises(LaunchError, match="'ticks' must be an integer"):
+    with pytest.raises(LaunchError, match=r"node report\.ticks: must be an integer"):
         read_report(_write(tmp_path / "bad.json", bad), NodeStats)
     with pytest.raises(FileNotFoundError):  # a killed process writes none
         read_report(tmp_path / "none.json", NodeStats)
@@ -129,7 +129,7 @@ def test_the_entry_point_refuses_a_bad_spec_in_one_line(tmp_path: Path) -> None:
     run = subprocess.run(launch_command(spec), capture_output=True, text=True, timeout=60)
     assert run.returncode == 2
     (line,) = run.stderr.strip().splitlines()
-    assert "'priority' must be an integer" in line
+    assert "launch.priority: must be an integer" in line
 
 
 @pytest.mark.realtime

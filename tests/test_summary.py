@@ -53,11 +53,13 @@ def test_another_version_or_a_bad_field_is_refused_by_name(tmp_path, landing) ->
         RunSummary.from_json({k: v for k, v in data.items() if k != "status"})
     with pytest.raises(SummaryError, match="unknown field 'landing_uav'"):
         RunSummary.from_json({**data, "landing_uav": "lander"})
-    with pytest.raises(SummaryError, match=r"status: one of .*'complete', not 'fine'"):
+    with pytest.raises(SummaryError,
+                       match=r"summary\.status: must be one of .*'complete', not 'fine'"):
         RunSummary.from_json({**data, "status": "fine"})
     bad = json.loads(json.dumps(data))
     bad["landing"]["touchdowns"] = "two"
-    with pytest.raises(SummaryError, match=r"landing\.touchdowns: int, not 'two'"):
+    with pytest.raises(SummaryError,
+                       match=r"landing\.touchdowns: must be an integer, not 'two'"):
         RunSummary.from_json(bad)
     (tmp_path / "broken.json").write_text("{")
     with pytest.raises(SummaryError, match=r"broken\.json: cannot read"):

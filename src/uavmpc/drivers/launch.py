@@ -25,14 +25,13 @@ import json
 import os
 import sys
 import time
-import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar, Union
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from uavmpc.avoidance import AvoidanceParams
-from uavmpc.config import ConfigError
+from uavmpc.config import ConfigError, describe
 from uavmpc.drivers.node import NodeStats
 from uavmpc.geofence import Geofence
 from uavmpc.scenarios import (
@@ -42,6 +41,7 @@ from uavmpc.scenarios import (
     avoidance_params,
     changed_fields,
 )
+from uavmpc.typed_json import check_fields, decode_dataclass
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -112,10 +112,10 @@ class NodeLaunch:
     def __post_init__(self) -> None:
         _validate(self, "node launch")
         if self.setpoints not in SETPOINTS:
-            raise LaunchError(f"{self.KIND} launch: 'setpoints' must be one of "
+            raise LaunchError(f"{self.KIND} launch.setpoints: must be one of "
                               f"{', '.join(SETPOINTS)}, not {self.setpoints!r}")
         if self.duration_s is not None and not self.duration_s > 0:
-            raise LaunchError(f"{self.KIND} launch: 'duration_s' must be > 0, "
+            raise LaunchError(f"{self.KIND} launch.duration_s: must be > 0, "
                               f"not {self.duration_s!r}")
         self.settings()
 
@@ -186,7 +186,7 @@ class SitlLaunch:
     def __post_init__(self) -> None:
         _validate(self, "sitl launch")
         if self.duration_s is not None and not self.duration_s > 0:
-            raise LaunchError(f"{self.KIND} launch: 'duration_s' must be > 0, "
+            raise LaunchError(f"{self.KIND} launch.duration_s: must be > 0, "
                               f"not {self.duration_s!r}")
 
     def to_json(self) -> str:
@@ -215,88 +215,15 @@ T = TypeVar("T", bound="DataclassInstance")  # a dataclass type
 
 # --- checking a dataclass field by field against its annotations -------------------------
 
-def _describe(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
-def _coerce(value: Any, hint: Any, where: str) -> Any:
-    """``value`` as ``hint`` says (JSON lists become tuples where tuples are due; an integer
-    is a number, kept as it is), or LaunchError naming ``where``."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if hint is Any:
-        return value
-    if origin in (Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        rest = [a for a in args if a is not type(None)]
-        if len(rest) == 1:
-            return _coerce(value, rest[0], where)
-        raise TypeError(f"{where}: unsupported annotation {hint!r}")  # pragma: no cover
-    if hint is type(None):
-        if value is not None:
-            raise LaunchError(f"{where} must be null, not {_describe(value)}")
-        return None
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise LaunchError(f"{where} must be true or false, not {_describe(value)}")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise LaunchError(f"{where} must be an integer, not {_describe(value)}")
-        return value
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise LaunchError(f"{where} must be a number, not {_describe(value)}")
-        return value
-    if hint is str:
-        if not isinstance(value, str):
-            raise LaunchError(f"{where} must be a string, not {_describe(value)}")
-        return value
-    if origin in (tuple, list):
-        if not isinstance(value, (list, tuple)):
-            raise LaunchError(f"{where} must be a list, not {_describe(value)}")
-        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
-            if len(value) != len(args):
-                raise LaunchError(f"{where} must have {len(args)} items, not {len(value)}")
-            items = [_coerce(v, a, f"{where}[{i}]")
-                     for i, (v, a) in enumerate(zip(value, args, strict=True))]
-        else:
-            items = [_coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value)]
-        return tuple(items) if origin is tuple else items
-    if origin is dict:
-        if not isinstance(value, dict):
-            raise LaunchError(f"{where} must be an object, not {_describe(value)}")
-        return {_coerce(k, args[0], f"{where} key"): _coerce(v, args[1], f"{where}[{k!r}]")
-                for k, v in value.items()}
-    raise TypeError(f"{where}: unsupported annotation {hint!r}")  # pragma: no cover
-
-
 def _validate(obj: Any, what: str) -> None:
-    """Check (and normalise: lists to tuples where tuples are due) every field of the frozen
-    dataclass ``obj``; ``what`` begins the error message."""
-    hints = typing.get_type_hints(type(obj))
-    for f in dataclasses.fields(obj):
-        value = _coerce(getattr(obj, f.name), hints[f.name], f"{what}: {f.name!r}")
-        object.__setattr__(obj, f.name, value)
+    check_fields(obj, what, LaunchError)
 
 
 def _from_fields(cls: type[T], data: Any, what: str) -> T:
     """An instance of the dataclass ``cls`` from a JSON object, every field checked."""
     if not isinstance(data, dict):
-        raise LaunchError(f"{what}: must be a JSON object, not {_describe(data)}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise LaunchError(f"{what}: unknown field {unknown[0]!r}")
-    missing = [n for n, f in fields.items() if n not in data
-               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
-    if missing:
-        raise LaunchError(f"{what}: missing field {missing[0]!r}")
-    hints = typing.get_type_hints(cls)
-    values = {n: _coerce(v, hints[n], f"{what}: {n!r}") for n, v in data.items()}
-    return cls(**values)
+        raise LaunchError(f"{what}: must be a JSON object, not {describe(data)}")
+    return cast(T, decode_dataclass(cls, data, what, LaunchError))
 
 
 def _to_json(obj: Any) -> str:
@@ -319,8 +246,8 @@ def load_launch(source: str | Path) -> NodeLaunch | SitlLaunch:
         raise LaunchError(f"launch spec {source}: must be a JSON object")
     kind = data.pop("kind", None)
     if kind not in _KINDS:
-        raise LaunchError(f"launch spec {source}: 'kind' must be one of "
-                          f"{', '.join(map(repr, _KINDS))}, not {_describe(kind)}")
+        raise LaunchError(f"launch spec {source}: kind: must be one of "
+                          f"{', '.join(map(repr, _KINDS))}, not {describe(kind)}")
     return _from_fields(_KINDS[kind], data, f"{kind} launch")
 
 

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from uavmpc.typed_json import decode, plain
+
 __all__ = ["SUMMARY_VERSION", "CalmError", "Contact", "ErrorStats", "Formation", "Landing",
            "LinkCounts", "RunStatus", "RunSummary", "SummaryError", "Touchdown", "UavSummary",
            "run_status"]
@@ -124,7 +126,7 @@ class UavSummary:
     details: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "details", _plain(self.details))
+        object.__setattr__(self, "details", plain(self.details))
 
 
 @dataclass(frozen=True)
@@ -193,7 +195,7 @@ class Landing:
     @classmethod
     def of(cls, uav: str, outcome: Mapping[str, Any]) -> Landing:
         """The landing of ``uav`` from its outcome's dictionary (every field checked)."""
-        return _decode(cls, {"uav": uav, **outcome}, "landing")
+        return decode(cls, {"uav": uav, **outcome}, "landing", SummaryError)
 
 
 @dataclass(frozen=True)
@@ -298,7 +300,7 @@ class RunSummary:
     def __post_init__(self) -> None:
         if self.driver not in DRIVERS:
             raise ValueError(f"driver: one of {', '.join(DRIVERS)}, not {self.driver!r}")
-        object.__setattr__(self, "sections", _plain(self.sections))
+        object.__setattr__(self, "sections", plain(self.sections))
 
     def with_sections(self, **sections: Any) -> RunSummary:
         """This summary with ``sections`` added (or replaced)."""
@@ -306,7 +308,7 @@ class RunSummary:
 
     def to_json(self) -> dict[str, Any]:
         """The ``summary.json`` object (JSON has no infinity or NaN: those are refused)."""
-        return {"version": SUMMARY_VERSION, **_plain(dataclasses.asdict(self))}
+        return {"version": SUMMARY_VERSION, **plain(dataclasses.asdict(self))}
 
     def write(self, path: str | Path) -> None:
         """Write ``summary.json`` to ``path``."""
@@ -328,7 +330,7 @@ class RunSummary:
                                f"version {SUMMARY_VERSION} (re-run to write it anew)")
         body = {k: v for k, v in data.items() if k != "version"}
         try:
-            return _decode(cls, body, source)
+            return decode(cls, body, source, SummaryError)
         except (TypeError, ValueError) as exc:
             if isinstance(exc, SummaryError):
                 raise
@@ -428,73 +430,3 @@ def _type_name(tp: Any) -> str:
             return f"list of {_type_name(args[0])}"
         return f"[{', '.join(_type_name(a) for a in args)}]"
     return str(tp)
-
-
-def _plain(value: Any) -> Any:
-    """``value`` as JSON gives it back (lists for tuples, floats for numpy numbers)."""
-    return json.loads(json.dumps(value, default=_json_default))
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, enum.Enum):
-        return value.value
-    tolist = getattr(value, "tolist", None)  # numpy arrays and scalars
-    if tolist is not None:
-        return tolist()
-    raise TypeError(f"not JSON: {type(value).__name__}")
-
-
-def _decode(tp: Any, value: Any, where: str) -> Any:
-    """``value`` (JSON) as the type ``tp``, every field checked (errors name ``where``)."""
-    if tp is Any:
-        return value
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        return _decode(_strip_none(tp), value, where)
-    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
-        return _decode_dataclass(tp, value, where)
-    if isinstance(tp, type) and issubclass(tp, enum.Enum):
-        try:
-            return tp(value)
-        except ValueError:
-            raise SummaryError(f"{where}: one of {_type_name(tp)}, not {value!r}") from None
-    if origin in (Mapping, dict):
-        if not isinstance(value, dict):
-            raise SummaryError(f"{where}: an object, not {value!r}")
-        return {str(k): _decode(args[1], v, f"{where}.{k}") for k, v in value.items()}
-    if origin is tuple:
-        if not isinstance(value, list | tuple):
-            raise SummaryError(f"{where}: a list, not {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_decode(args[0], v, f"{where}[{i}]") for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise SummaryError(f"{where}: {len(args)} values, not {len(value)}")
-        return tuple(_decode(a, v, f"{where}[{i}]")
-                     for i, (a, v) in enumerate(zip(args, value, strict=True)))
-    return _decode_scalar(tp, value, where)
-
-
-def _decode_scalar(tp: type, value: Any, where: str) -> Any:
-    ok = (isinstance(value, bool) if tp is bool
-          else isinstance(value, int) and not isinstance(value, bool) if tp is int
-          else isinstance(value, int | float) and not isinstance(value, bool) if tp is float
-          else isinstance(value, str))
-    if not ok:
-        raise SummaryError(f"{where}: {_type_name(tp)}, not {value!r}")
-    return float(value) if tp is float else value
-
-
-def _decode_dataclass(cls: type, value: Any, where: str) -> Any:
-    if not isinstance(value, dict):
-        raise SummaryError(f"{where}: an object, not {value!r}")
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(value) - fields)
-    if unknown:
-        raise SummaryError(f"{where}: unknown field {unknown[0]!r}")
-    missing = sorted(fields - set(value))
-    if missing:
-        raise SummaryError(f"{where}: missing field {missing[0]!r}")
-    hints = typing.get_type_hints(cls)
-    return cls(**{k: _decode(hints[k], v, f"{where}.{k}") for k, v in value.items()})
