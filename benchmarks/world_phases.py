@@ -3,9 +3,8 @@
 
 ``python benchmarks/world_phases.py [THREADS] [UAVS] [SECONDS]`` (default 2 300 10) flies the
 random walk of ``uavmpc bench world`` (the protocol's density, avoidance on, seed 1) after a
-throw-away flight that loads the kernels, and prints the real-time factor, the wall time of
-each phase per tick, and the running mean of the link's step beside the threaded tick (0 on
-one thread). To compare two commits, check the other one out as a ``git worktree`` and
+throw-away flight that loads the kernels, and prints the real-time factor and the wall time
+of each phase per tick. To compare two commits, check the other one out as a ``git worktree`` and
 run this script with its ``src`` first on ``PYTHONPATH``, taking turns: a shared machine's
 slow spells then fall on both.
 """
@@ -33,9 +32,7 @@ def main(threads: int = 2, uavs: int = 300, seconds: float = 10.0) -> dict[str, 
     phases = result.sections["timing"]["wall_s_by_phase"]
     return {"code": str(uavmpc.__file__), "threads": threads, "uavs": uavs,
             "realtime_factor": round(seconds / result.wall_s, 3),
-            "us_per_tick_by_phase": {k: round(v / ticks * 1e6) for k, v in phases.items()},
-            # (getattr: the other commit of a comparison may predate the step)
-            "step_beside_tick_us": round(getattr(world.ticker, "beside_s", 0.0) * 1e6)}
+            "us_per_tick_by_phase": {k: round(v / ticks * 1e6) for k, v in phases.items()}}
 
 
 if __name__ == "__main__":

@@ -368,3 +368,25 @@ def test_a_world_link_refuses_an_inbox_table_without_a_row_per_stack() -> None:
     with pytest.raises(ValueError, match="1 stacks but 2 inbox rows"):
         WorldLink(SimulatedLink(["a", "b"]), InboxTable(["a", "b"]), [object()],  # type: ignore[list-item]
                   np.zeros(1), {}, None)
+
+
+def test_a_height_offset_strategy_that_overrides_decide_is_decided_by_its_override() -> None:
+    """The docstring of HeightOffsetStrategy invites a subclass to override ``decide``; the
+    world's compiled round must not decide such a one by the built-in law behind its back.
+    Here the override yields to nobody (it keeps offset 0): the UAVs it flies never climb,
+    while the same world with the built-in strategy does."""
+    from uavmpc.avoidance import AvoidanceDecision, HeightOffsetStrategy
+
+    calls = []
+
+    class NeverClimbs(HeightOffsetStrategy):
+        def decide(self, now_s, own_id, own_priority, own_prediction_times, known,
+                   climbed_m=None, *, positions=None, probes=None) -> AvoidanceDecision:
+            calls.append(own_id)
+            return AvoidanceDecision()
+
+    scenario = lambda: random_walk(8, area_m=110.0, duration_s=20.0, seed=3)  # noqa: E731
+    built_in = World(scenario(), avoidance=True, seed=3).run(20.0)
+    assert np.max(built_in.z_offset_m) > 0.0
+    own = World(scenario(), avoidance=True, seed=3, strategy=NeverClimbs).run(20.0)
+    assert calls and np.max(own.z_offset_m) == 0.0

@@ -239,22 +239,6 @@ def using_threads(n: int | None) -> Iterator[int]:
         _threads.n = before
 
 
-@contextlib.contextmanager
-def serial_kernels() -> Iterator[None]:
-    """:func:`thread_count` is 1 in this thread of Python for the ``with`` block: the drivers
-    call their kernels' serial forms (a step run beside a threaded kernel, on one of its
-    threads, must not start parallel regions of its own)."""
-    before = getattr(_threads, "n", None)
-    _threads.n = 1
-    try:
-        yield
-    finally:
-        if before is None:
-            del _threads.n
-        else:
-            _threads.n = before
-
-
 def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
     """``dispatcher`` compiled for the types of ``args``, callable without numba's per-call
     type inference.
@@ -352,26 +336,6 @@ def cycle_count() -> int:
     :data:`HAS_CYCLE_COUNTER`): a compiled loop times its own stages with it, and the caller
     converts counts to seconds against its wall clock over the same run."""
     return _read_cycle_counter()
-
-
-@intrinsic_returning(int)
-def _fetch_add(typingctx: Any, counters: Any, i: Any, value: Any) -> Any:
-    sig = types.int64(counters, types.intp, types.int64)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        arr = context.make_array(signature.args[0])(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], arr, [args[1]])
-        return builder.atomic_rmw("add", ptr, args[2], "seq_cst")
-
-    return sig, codegen
-
-
-@kernel
-def fetch_add(counters: np.ndarray, i: int, value: int) -> int:
-    """Add ``value`` to ``counters[i]`` (int64, C-contiguous) atomically, as one step for
-    every thread, and return what it held before (threads of one parallel loop sharing out
-    work)."""
-    return _fetch_add(counters, i, value)
 
 
 class CompileWatch:

@@ -698,9 +698,13 @@ class OnboardStack:
         #: the messages through ``update``).
         self._decider = avoidance if isinstance(avoidance, EncounterStrategy) else None
         #: Its strategy when a height-offset one whose state is its row of
-        #: :attr:`OnboardBatch.strategies` (a round decides it with the others).
+        #: :attr:`OnboardBatch.strategies` (a round decides it with the others, in one
+        #: compiled call). A subclass that overrides ``decide`` keeps its own state and is
+        #: decided by its own code: the compiled round is the law of ``decide`` as written
+        #: in HeightOffsetStrategy, not of an override.
         self._height: HeightOffsetStrategy | None = None
-        if isinstance(avoidance, HeightOffsetStrategy):
+        if (isinstance(avoidance, HeightOffsetStrategy)
+                and type(avoidance).decide is HeightOffsetStrategy.decide):
             home = batch.strategies_for(self.inbox.table)
             if home is not None:
                 avoidance.bind(home, self.row)

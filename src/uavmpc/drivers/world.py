@@ -425,11 +425,6 @@ class World:
         #: planning, the compiled tick, broadcasting (a kernel compiled mid-flight left out,
         #: as from the run's wall time).
         self.phase_wall_s = [0.0, 0.0, 0.0]
-        #: Whether the current run puts its broadcasts onto the link and delivers beside the
-        #: compiled tick (:meth:`_beside_tick`; :meth:`run` decides).
-        self._beside = False
-        #: The broadcasts of the last tick not yet on the link: (stacks, bytes, world time).
-        self._deferred: tuple[list[OnboardStack], list[bytes], float] | None = None
         #: The current run's compilations (:class:`~uavmpc.jit.CompileWatch`).
         self._compiling = CompileWatch()
 
@@ -494,22 +489,17 @@ class World:
         cycles0 = cycle_count() if HAS_CYCLE_COUNTER else 0
         # Kernels first called mid-flight (the avoidance's, at its first round) compile then
         # on a cold cache: their compilation is not flying, and is left out of wall_s.
-        self._beside = self._beside_possible(on_log, on_scene)
         with CompileWatch() as compiling:
             self._compiling = compiling
             wall0 = time.perf_counter()
             next_log = self.t_s
-            try:
-                for k in range(ticks):
-                    next_log = self._tick(k, tr, contacts, next_log, on_log, on_scene)
-                    if realtime is not None:
-                        ahead = ((k + 1) * self.period_s / realtime
-                                 - (time.perf_counter() - wall0))
-                        if ahead > 0.0:
-                            time.sleep(ahead)
-                self._publish_deferred()  # the link as the run left it, for whoever reads it
-            finally:
-                self._beside = False  # (left after an error: the next link step sends them)
+            for k in range(ticks):
+                next_log = self._tick(k, tr, contacts, next_log, on_log, on_scene)
+                if realtime is not None:
+                    ahead = ((k + 1) * self.period_s / realtime
+                             - (time.perf_counter() - wall0))
+                    if ahead > 0.0:
+                        time.sleep(ahead)
             elapsed = time.perf_counter() - wall0
         wall = elapsed - compiling.seconds
         cycles_per_s = ((cycle_count() - cycles0) / elapsed
@@ -517,18 +507,6 @@ class World:
         for i, u in enumerate(self.uavs):
             self._positions[u.uav_id] = tr.pos[-1, i].copy()
         return world_result(self, tr, contacts, wall, cycles_per_s)
-
-    def _beside_possible(self, on_log: Callable[[World], None] | None,
-                         on_scene: Callable[..., None] | None) -> bool:
-        """Whether a run may put its broadcasts onto the link and deliver beside the
-        threaded tick (:meth:`_beside_tick`): the batched compiled tick on threads, an
-        avoidance that plans in rounds, and nothing that reads the link or the inboxes
-        between two ticks (missions, a range check from the positions after the tick, a
-        flight log, a caller's hooks)."""
-        return (self.batched and self.onboard.inline and self.ticker.blocks() > 0
-                and self._finder is not None and not self._missions
-                and self.link.range_m is None and self.recorder is None
-                and on_log is None and on_scene is None)
 
     def rehearse(self, seconds: float = 1.0) -> None:
         """Run the parts of the batched tick around its compiled call (deliveries, missions,
@@ -591,15 +569,14 @@ class World:
             u.stack.plan(now + u.clock_offset_s)
         self._yields.note(now, range(len(self.uavs)))
 
-    def _receive_and_plan_batched(self, now: float, deliver: bool = True) -> None:
+    def _receive_and_plan_batched(self, now: float) -> None:
         """The same for every UAV at once: the tick's deliveries into the inbox rows in one
-        compiled call (``deliver``; else :meth:`_beside_tick` does them), then the missions,
-        then the avoidance of the UAVs due, their encounters found in one compiled call
-        (:mod:`uavmpc.avoidance.encounters`)."""
+        compiled call, then the missions, then the avoidance of the UAVs due, their
+        encounters found in one compiled call (:mod:`uavmpc.avoidance.encounters`)."""
         if self.ground_vehicle is not None:
             self.plants.deck[:] = self.ground_vehicle.deck_row(now)
-        if deliver:
-            self._link_step(now)
+        if now >= self.link.next_due_s:
+            self.wire.deliver(now)
         for u in self._missions:
             if u.supervisor.mission_due(now):
                 self._step_mission(u, now)
@@ -693,12 +670,7 @@ class World:
         n = bound(broadcasts_due)(sched, self._offsets, now, rows, stamps)
         if n:
             stacks = [self._stacks[i] for i in rows[:n].tolist()]
-            data = broadcast(self.onboard, stacks, stamps[:n])
-            self._publish_deferred()
-            if self._beside:  # onto the link beside the next tick (_beside_tick)
-                self._deferred = (stacks, data, now)
-            else:
-                self.wire.publish(stacks, data, now)
+            self.wire.publish(stacks, broadcast(self.onboard, stacks, stamps[:n]), now)
         # The next tick anyone can be due at (a tick early is harmless).
         self._next_emit_s = bound(next_broadcast_s)(sched, self._offsets) - self.period_s
 
@@ -706,12 +678,9 @@ class World:
         clock = time.perf_counter
         watch = self._compiling
         t0, c0 = clock(), watch.seconds
-        # Beside the tick: the last broadcasts onto the link and this tick's deliveries,
-        # when nobody plans from them before the tick (no round, mission or launch due).
-        beside = self._beside and now < self._next_round_s and not self._held
-        self._receive_and_plan_batched(now, deliver=not beside)
+        self._receive_and_plan_batched(now)
         t1, c1 = clock(), watch.seconds
-        bad = self.ticker(traces, (lambda: self._beside_tick(now)) if beside else None)
+        bad = self.ticker(traces)
         if bad >= 0:
             raise ValueError(f"invalid attitude target for {self.uavs[bad].uav_id} "
                              "(not finite): the controller got a degenerate state")
@@ -721,27 +690,6 @@ class World:
         phase[0] += (t1 - t0) - (c1 - c0)
         phase[1] += (t2 - t1) - (c2 - c1)
         phase[2] += (clock() - t2) - (watch.seconds - c2)
-
-    def _beside_tick(self, now: float) -> None:
-        """What runs beside the compiled tick (:meth:`CompiledTick.__call__`): the broadcasts
-        of the last tick onto the link, then the deliveries due now. Neither reads nor writes
-        the records the tick does (they are the link's and the inboxes'), and nobody reads
-        the inboxes before the next round: the flight is the one without it."""
-        self._link_step(now)
-
-    def _link_step(self, now: float) -> None:
-        """The broadcasts left for later onto the link, then the deliveries due now."""
-        self._publish_deferred()
-        if now >= self.link.next_due_s:
-            self.wire.deliver(now)
-
-    def _publish_deferred(self) -> None:
-        """The broadcasts :meth:`_emit` left for later onto the link (the order of the
-        link's draws is the broadcasts' order either way)."""
-        if self._deferred is not None:
-            stacks, data, at = self._deferred
-            self._deferred = None
-            self.wire.publish(stacks, data, at)
 
     def _tick_objects(self, now: float, traces: tuple[Any, ...]) -> None:
         # Receive and plan for everyone first, as the batched tick does: a UAV must not see a

@@ -6,8 +6,6 @@ Python QP solver, in the same kernels around the solver (:func:`world_pre`,
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable
 from typing import Any
 
 import numba
@@ -18,9 +16,7 @@ from uavmpc.jit import (
     HAS_CYCLE_COUNTER,
     bind,
     cycle_count,
-    fetch_add,
     kernel,
-    serial_kernels,
     thread_count,
 )
 from uavmpc.onboard import OnboardBatch, onboard_post, onboard_pre, onboard_row
@@ -70,7 +66,7 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     spent = np.zeros(N_CYCLES if timed else 0, dtype=np.int64)
-    bad = _tick_rows(n - n, n, 0, np.zeros(1, dtype=np.int64), trk, refs, consts, ctl, stats,
+    bad = _tick_rows(n - n, n, trk, refs, consts, ctl, stats,
                      plant, n_sub, dt, k, pos_out, zoff_out, est, spent)
     if bad >= 0:
         return bad
@@ -83,54 +79,26 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
     return -1
 
 
-#: The Python steps that run beside a threaded tick (:func:`world_tick_threads`), by the
-#: token the tick is handed; :meth:`CompiledTick.__call__` registers each for one call.
-_BESIDE: dict[int, Callable[[], None]] = {}
-
-
-def _run_beside(token: int) -> None:
-    """The Python step registered as ``token`` (it catches its own exceptions: none may
-    cross the compiled tick)."""
-    _BESIDE[token]()
-
-
-@kernel(allocates=True)
-def _beside(token: int) -> None:
-    """Leave the compiled tick for the Python step ``token`` (:data:`_BESIDE`), holding the
-    interpreter's lock only meanwhile."""
-    with numba.objmode():
-        _run_beside(token)
-
-
 @kernel(parallel=True, nogil=True)
 def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out,
-                       dmin_out, cycles, est, blocks, beside, first_rows):
+                       dmin_out, cycles, est, blocks):
     """:func:`world_tick` with its rows in ``blocks`` ≥ 1 contiguous blocks, one per thread
     (the caller passes :func:`uavmpc.jit.thread_count`, see :func:`uavmpc.jit.set_threads`: a
     compiled function that asks numba itself cannot be cached), the traces after them on
     the calling thread (the closest distance is a sweep, :func:`closest_distance`).
 
-    ``beside`` ≥ 0: the first block first runs that Python step (:data:`_BESIDE`; the world's
-    bookkeeping of the link and the inboxes, which reads and writes none of the records the
-    tick does) while the second starts on the rows: the serial step takes a core the tick
-    would otherwise leave idle after it (docs/scale.md). The two share their rows from both
-    ends, one at a time, so that they end together however long the step took; with more
-    blocks, they share the first ``first_rows`` rows, the others equal blocks of the rest.
-    ``beside`` −1: blocks of equal rows (``first_rows`` unused). The interpreter's lock is
-    released for the call (taken again only for the step).
+    The blocks are of equal rows (UAV rows cost about the same). The interpreter's lock is
+    released for the call.
 
     A row reads and writes only its own rows of the records, with work arrays of its
-    block's own, so the flight is bit-identical to :func:`world_tick`'s for any thread count
-    and any split. A row whose target could not be flown stops its thread; the lowest such
-    row is returned. ``cycles`` sums the CPU cycles over the threads, and counts how long the
+    block's own, so the flight is bit-identical to :func:`world_tick`'s for any thread
+    count. A row whose target could not be flown stops its thread; the lowest such row is
+    returned. ``cycles`` sums the CPU cycles over the threads, and counts how long the
     threads done first waited for the last (:data:`WAIT`: the tick's jitter, since blocks of
     equal rows cost about the same, docs/scale.md)."""
     n = plant.x.shape[0]
     timed = cycles.shape[0] > 0
     nb = max(1, min(n, blocks))
-    # Rows the first two blocks share from both ends (beside a step), the others' after.
-    shared = n if beside < 0 or nb <= 2 else min(max(first_rows, 0), n)
-    claims = np.zeros(1, dtype=np.int64)
     bad = np.full(nb, -1, dtype=np.int64)
     # Each thread's counts apart from the next one's by more than a cache line: counts
     # two cores add to in one line cost a transfer between them at every row.
@@ -138,18 +106,9 @@ def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_o
     spent = np.zeros((nb, width + 2 * _PAD), dtype=np.int64)
     done = np.zeros(nb, dtype=np.int64)
     for b in numba.prange(nb):
-        claim = 0
-        if beside < 0:
-            lo, hi = b * n // nb, (b + 1) * n // nb
-        elif b < 2:
-            if b == 0:
-                _beside(beside)
-            lo, hi, claim = 0, shared, 1 - 2 * b
-        else:
-            lo = shared + (b - 2) * (n - shared) // (nb - 2)
-            hi = shared + (b - 1) * (n - shared) // (nb - 2)
-        bad[b] = _tick_rows(lo, hi, claim, claims, trk, refs, consts, ctl, stats, plant, n_sub,
-                            dt, k, pos_out, zoff_out, est, spent[b, _PAD:_PAD + width])
+        lo, hi = b * n // nb, (b + 1) * n // nb
+        bad[b] = _tick_rows(lo, hi, trk, refs, consts, ctl, stats, plant, n_sub, dt, k,
+                            pos_out, zoff_out, est, spent[b, _PAD:_PAD + width])
         if timed:
             done[b] = cycle_count()
     fail = -1
@@ -194,39 +153,20 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
 
 
 @kernel(allocates=True)
-def _tick_rows(first, end, claim, claims, trk, refs, consts, ctl, stats, plant, n_sub, dt, k,
-               pos_out, zoff_out, est, spent):
+def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out,
+               zoff_out, est, spent):
     """Rows ``first`` … ``end`` − 1 of :func:`world_tick`, with work arrays of their own
     (one thread's block), each row's position and z offset written into row ``k`` of the
     traces as soon as it is flown (its state still in this core's cache; gathered from every
-    row after the tick they were most of the trace stage, docs/scale.md).
-
-    ``claim`` 0: the rows in order. 1 or −1: the rows shared with another thread, this one
-    taking them one at a time from the front (1) or the back (−1) until they meet; ``claims``
-    (1,) int64 counts those taken, from the front in its low 32 bits and from the back in
-    its high ones (one atomic add per row: :func:`~uavmpc.jit.fetch_add`). Returns −1, or
-    the first row this thread could not fly the target of (it takes no more rows)."""
+    row after the tick they were most of the trace stage, docs/scale.md). Returns −1, or the
+    first row this thread could not fly the target of (it takes no more rows)."""
     sc = make_scratch(consts.horizon_s.shape[0])
     qd = np.empty(4)
     ff = np.empty(3)
     cmd = np.empty((3, 3))
     timed = spent.shape[0] > 0
     estimated = est.shape[0] > 0
-    step = 1 if claim >= 0 else 1 << 32
-    i = first
-    while True:
-        if claim == 0:
-            if i >= end:
-                break
-            i += 1
-            row = i - 1
-        else:
-            taken = fetch_add(claims, 0, step)
-            front = taken & 0xFFFFFFFF
-            back = taken >> 32
-            if first + front + back >= end:
-                break
-            row = first + front if claim > 0 else end - 1 - back
+    for row in range(first, end):
         x = plant.x[row]
         if estimated:
             thrust = onboard_row(row, trk, refs, consts, ctl, stats, est[row, 0:3],
@@ -339,20 +279,10 @@ class CompiledTick:
         #: The reference table, row blocks and bound tick of the current run (:meth:`start`).
         self._run: tuple[Any, int, Any] | None = None
         self._no_estimate = np.zeros((0, 6))
-        #: Running means of a step beside the tick [s] and of a row's share of a tick's wall
-        #: time [s] (0: not measured yet): how many rows the step's block leaves to the others.
-        self._beside_s = 0.0
-        self._row_s = 0.0
 
-    def __call__(self, traces: tuple[Any, ...], beside: Callable[[], None] | None = None
-                 ) -> int:
+    def __call__(self, traces: tuple[Any, ...]) -> int:
         """One tick of every UAV, writing ``traces`` (:func:`world_tick`'s ``k`` and
-        arrays). Returns −1, or the row whose attitude target could not be flown.
-
-        ``beside``: a Python step that reads and writes none of the tick's records (the
-        world's link and inboxes), run before the tick's rows on the first thread while the
-        other threads tick theirs (:func:`world_tick_threads`), or simply first on one
-        thread. An exception it raises is raised here, after the tick."""
+        arrays). Returns −1, or the row whose attitude target could not be flown."""
         for plant in self.windy:
             plant.hold_wind(self.period_s)
         ob = self.onboard
@@ -366,65 +296,12 @@ class CompiledTick:
             args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
                     self.period_s, *traces, self.cycles, self.estimates())
             if not blocks:
-                if beside is not None:
-                    beside()
                 return tick(*args)  # type: ignore[no-any-return]
-            return self._threaded(tick, args, blocks, beside)
-        if beside is not None:
-            beside()
+            return tick(*args, blocks)  # type: ignore[no-any-return]
         world_pre(trk.rows, ob.stats, self.plants)
         trk.step()
         return world_post(trk.rows, trk.consts, ob.control, ob.stats, self.plants,
                           self.n_sub, self.period_s, *traces)
-
-    @property
-    def beside_s(self) -> float:
-        """The running mean of the steps run beside the threaded tick [s] (0 before one ran):
-        what it takes from the tick's first thread."""
-        return self._beside_s
-
-    def _threaded(self, tick: Any, args: tuple[Any, ...], blocks: int,
-                  beside: Callable[[], None] | None) -> int:
-        """:func:`world_tick_threads` with ``beside`` run on its first block. With more than
-        two blocks, the rows the first two share are two blocks' worth less what the step
-        costs (its running mean, in rows at the running mean of a row's cost), so that all
-        blocks end together."""
-        n = self.plants.x.shape[0]
-        nb = min(blocks, n)
-        clock = time.perf_counter
-        if beside is None:
-            t0 = clock()
-            bad: int = tick(*args, blocks, -1, 0)
-            self._row_s += 0.25 * ((clock() - t0) * nb / n - self._row_s)
-            return bad
-        shared = 2 * n // nb
-        if nb > 2 and self._row_s > 0.0:
-            shared = round((2 * n - self._beside_s / self._row_s * (nb - 2)) / nb)
-        failed: list[BaseException] = []
-        spent = [0.0]
-
-        def step() -> None:
-            s0 = clock()
-            try:
-                with serial_kernels():
-                    beside()
-            except BaseException as exc:  # raised again after the tick
-                failed.append(exc)
-            spent[0] = clock() - s0
-
-        token = id(step)
-        _BESIDE[token] = step
-        try:
-            t0 = clock()
-            bad = tick(*args, blocks, token, min(max(shared, 0), n))
-            wall = clock() - t0
-        finally:
-            del _BESIDE[token]
-        if failed:
-            raise failed[0]
-        self._beside_s += 0.25 * (spent[0] - self._beside_s)
-        self._row_s += 0.25 * ((wall * nb - spent[0]) / n - self._row_s)
-        return bad
 
     def start(self, traces: tuple[Any, ...]) -> tuple[Any, int, Any]:
         """Before a run (``traces``: its first tick's): the tick this thread count flies,
@@ -455,7 +332,7 @@ class CompiledTick:
             trk = ob.tracker
             args = (trk.rows, table, trk.consts, ob.control, ob.stats, self.plants, self.n_sub,
                     self.period_s, *traces, self.cycles, self.estimates(peek=True))
-            bound[threaded] = (bind(world_tick_threads, *args, 1, -1, 0) if threaded
+            bound[threaded] = (bind(world_tick_threads, *args, 1) if threaded
                                else bind(world_tick, *args))
         return bound[threaded]
 
