@@ -390,3 +390,26 @@ def test_a_height_offset_strategy_that_overrides_decide_is_decided_by_its_overri
     assert np.max(built_in.z_offset_m) > 0.0
     own = World(scenario(), avoidance=True, seed=3, strategy=NeverClimbs).run(20.0)
     assert calls and np.max(own.z_offset_m) == 0.0
+
+
+def test_one_contact_watch_for_the_world_and_the_swarm() -> None:
+    """Contacts (the world's, and the swarm's over its nodes' states or the truth) counts a
+    contact once from when it begins, keeps its closest distance, ends it when the pair parts,
+    and leaves a pair not seen now (NaN: a vehicle not heard) as it was."""
+    from uavmpc.drivers.world_report import Contacts
+
+    c = Contacts(["a", "b", "c"])  # pairs: a-b, a-c, b-c
+    nan = float("nan")
+    c.update_pairs(1.0, np.array([0.9, 5.0, 5.0]))
+    c.update_pairs(1.1, np.array([0.6, 5.0, 5.0]))
+    c.update_pairs(1.2, np.array([nan, 5.0, nan]))  # b unheard: the contact goes on
+    c.update_pairs(1.3, np.array([0.8, 5.0, 5.0]))
+    c.update_pairs(1.4, np.array([1.5, 0.5, 5.0]))  # a-b part, a-c meet
+    c.update_pairs(1.5, np.array([0.7, 0.5, 5.0]))  # a-b meet again: a second contact
+    assert [(x.t, x.a, x.b, x.distance_m) for x in c.collisions] == [
+        (1.0, "a", "b", 0.6), (1.4, "a", "c", 0.5), (1.5, "a", "b", 0.7)]
+    positions = np.array([[0.0, 0.0, 10.0], [0.0, 0.3, 10.0], [9.0, 0.0, 10.0]])
+    w = Contacts(["a", "b", "c"])
+    w.update(2.0, 0.3, positions)
+    assert [(x.t, x.a, x.b) for x in w.collisions] == [(2.0, "a", "b")]
+    assert w.collisions[0].distance_m == pytest.approx(0.3)

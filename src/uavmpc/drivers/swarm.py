@@ -37,6 +37,7 @@ process groups, after their nodes.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import os
@@ -91,12 +92,13 @@ from uavmpc.drivers.summary import (
     UavSummary,
     run_status,
 )
-from uavmpc.drivers.world import (
-    COLLISION_DISTANCE_M,
+from uavmpc.drivers.world_report import (
     FORMATION_SETTLE_S,
     GOAL_TOLERANCE_M,
-    SCENE_PERIOD_S,
+    Contacts,
 )
+from uavmpc.drivers.world_tick import pair_distances
+from uavmpc.drivers.world_view import SCENE_PERIOD_S
 from uavmpc.log import FlightRecorder
 from uavmpc.missions.format import mission_table
 from uavmpc.missions.formation import formation_error, formation_table
@@ -533,12 +535,14 @@ class _Monitor:
         #: Each UAV's highest altitude from the epoch on [m]: by its truth where a simulator
         #: gives it, else its state.
         self.top: dict[str, float] = {}
-        self.collisions: list[dict[str, Any]] = []
-        self.in_contact: set[tuple[str, str]] = set()
+        #: The contacts judged (by the truth where a simulator gives it) and by the
+        #: estimates, watched as the world watches its own (times from the epoch).
+        self.contacts = Contacts(self.ids)
+        self.contacts_est = Contacts(self.ids)
         self.closest: dict[tuple[str, str], float] = {}  # each pair's closest approach [m]
         self.closest_est: dict[tuple[str, str], float] = {}  # ... by the estimates [m]
-        self.collisions_est = 0
-        self._contact_est: set[tuple[str, str]] = set()
+        self._pair_ids = list(itertools.combinations(self.ids, 2))  # triu_indices' order
+        self._pair_d = np.empty(len(self._pair_ids))
         self.min_d = math.inf
         self.min_d_est = math.inf
         self.window: list[float] = []  # first and last time judged [s, Unix]
@@ -638,28 +642,19 @@ class _Monitor:
                 del self.kills[uav]
 
     def _pairs(self, where: dict[str, np.ndarray], closest: dict[tuple[str, str], float],
-               contact: set[tuple[str, str]], now: float,
-               collisions: list[dict[str, Any]] | None) -> float:
-        """Every pair's distance at ``where``: closest approaches and contacts; returns the
-        smallest."""
-        d_now = math.inf
-        watched = [u for u in self.ids if u in where]
-        for a in range(len(watched)):
-            for b in range(a + 1, len(watched)):
-                d = float(np.linalg.norm(where[watched[a]] - where[watched[b]]))
-                d_now = min(d_now, d)
-                pair = (watched[a], watched[b])
+               contacts: Contacts, now: float) -> float:
+        """Every pair's distance at ``where`` (a vehicle not there: no distance): closest
+        approaches and contacts; returns the smallest."""
+        nowhere = np.full(3, np.nan)
+        pos = np.array([where.get(u, nowhere) for u in self.ids], dtype=float)
+        pair_d = self._pair_d
+        pair_distances(pos, pair_d)
+        for pair, d in zip(self._pair_ids, pair_d.tolist(), strict=True):
+            if not math.isnan(d):
                 closest[pair] = min(closest.get(pair, math.inf), d)
-                if d < COLLISION_DISTANCE_M and pair not in contact:
-                    contact.add(pair)
-                    if collisions is not None:
-                        collisions.append({"t": now - self.epoch, "a": pair[0],
-                                           "b": pair[1], "distance_m": d})
-                    else:
-                        self.collisions_est += 1
-                elif d >= COLLISION_DISTANCE_M:
-                    contact.discard(pair)
-        return d_now
+        contacts.update_pairs(now - self.epoch, pair_d)
+        seen = pair_d[~np.isnan(pair_d)]
+        return float(seen.min()) if seen.size else math.inf
 
     def measure(self, nodes: dict[str, subprocess.Popen[bytes]], now: float) -> None:
         """Pairwise distances once every vehicle has been heard: collisions and closest
@@ -673,11 +668,11 @@ class _Monitor:
             alive = [u for u in self.ids if nodes[u].poll() is None or u in self.latest]
             if not (all(u in self.latest for u in alive) and len(alive) > 1):
                 return
-        self._pairs(self.latest, self.closest_est, self._contact_est, now, None)
+        self._pairs(self.latest, self.closest_est, self.contacts_est, now)
         self.min_d_est = min(self.min_d_est, min(
             (self.closest_est[p] for p in self.closest_est), default=math.inf))
         judged = self.truth if self.by_truth else self.latest
-        d_now = self._pairs(judged, self.closest, self.in_contact, now, self.collisions)
+        d_now = self._pairs(judged, self.closest, self.contacts, now)
         self.min_d = min(self.min_d, d_now)
         self.window = [self.window[0] if self.window else now, now]
         self.trace_t.append(now - self.epoch)
@@ -809,8 +804,8 @@ def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ende
         u.uav_id, np.array(u.goal_m),
         formation is not None and u.uav_id in formation.followers,
         monitor, ended, px4_reports, opts, errors) for u in scenario.uavs}
-    contacts = tuple(Contact(c["t"], c["a"], c["b"], c["distance_m"])
-                     for c in monitor.collisions)
+    contacts = tuple(Contact(c.t, c.a, c.b, c.distance_m)
+                     for c in monitor.contacts.collisions)
     sections: dict[str, Any] = {
         "transport": "zenoh (peer to peer, 127.0.0.1)",
         "vehicles": (f"real PX4 SITL firmware with SIH over MAVLink/UDP, {opts.setpoints} "
@@ -827,7 +822,7 @@ def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ende
         sections["estimate"] = {
             "min_distance_m": (round(monitor.min_d_est, 3) if math.isfinite(monitor.min_d_est)
                                else None),
-            "collisions": monitor.collisions_est,
+            "collisions": len(monitor.contacts_est.collisions),
             "closest_by_pair_m": {f"{a}-{b}": round(d, 3)
                                   for (a, b), d in sorted(monitor.closest_est.items())}}
         sections["truth"] = {"window_unix_s": [round(t, 3) for t in monitor.window]}

@@ -5,6 +5,7 @@ between UAVs, each UAV's outcome, whom each yielded to, and the extras only some
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -64,8 +65,13 @@ class Contacts:
         begins, goes on or ends."""
         if not closest_m < COLLISION_DISTANCE_M and not self._open:
             return
-        pair_d = self._pair_d
-        pair_distances(positions_m, pair_d)
+        pair_distances(positions_m, self._pair_d)
+        self.update_pairs(t_s, self._pair_d)
+
+    def update_pairs(self, t_s: float, pair_d: np.ndarray) -> None:
+        """Every pair's distance at ``t_s``, ``pair_d`` (N (N − 1) / 2,) [m] in
+        ``np.triu_indices(N, 1)``'s order (:func:`~uavmpc.drivers.world_tick.pair_distances`);
+        NaN for a pair not seen now, whose contact neither begins nor ends."""
         close = pair_d < COLLISION_DISTANCE_M
         if not close.any() and not self._open:
             return
@@ -79,7 +85,7 @@ class Contacts:
                     self._open[key] = c
                     self.collisions.append(c)
                 c.distance_m = min(c.distance_m, float(pair_d[j]))
-            else:
+            elif not math.isnan(pair_d[j]):
                 self._open.pop(key, None)
 
 
