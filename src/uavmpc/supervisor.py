@@ -36,6 +36,9 @@ from uavmpc.reference import Reference
 
 #: Tolerance of the mission's schedule against round-off in the tick times [s].
 _SCHEDULE_TOL_S = 1e-9
+#: The geofence failsafe looks every this many control ticks (10 Hz at 100 Hz, the
+#: avoidance's rate), in every driver (:meth:`Supervisor.fence_due`).
+FENCE_CHECK_TICKS = 10
 
 
 class FenceGuard:
@@ -218,6 +221,11 @@ class Supervisor:
     def _sigma_above_m(self) -> float:
         """How far above its estimate the UAV may truly be [m]: ``uncertainty_k`` σ_v."""
         return float(self.stack.params.uncertainty_k) * self.stack.position_sigma_m[1]
+
+    def fence_due(self, tick: int) -> bool:
+        """With a geofence, whether control tick ``tick`` (counted by the driver) is one the
+        failsafe looks at (:data:`FENCE_CHECK_TICKS`)."""
+        return self.fence is not None and tick % FENCE_CHECK_TICKS == 0
 
     def watch_fence(self, own_s: float, position_m: np.ndarray, heading_rad: float,
                     margin_m: float | None = None) -> bool:

@@ -456,7 +456,7 @@ class Node:
             return
         if sup.mission_due(now) and sup.paused is None:
             self._step_mission(now, state)
-        if self._fence is not None and ticks % 10 == 0:
+        if sup.fence_due(ticks):
             self._watch_fence(state)
 
     def _watch_assumptions(self, now: float, state: VehicleState, landing: bool,

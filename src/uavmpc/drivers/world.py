@@ -76,7 +76,7 @@ from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 from uavmpc.scenarios.faults import Faults
 from uavmpc.scenarios.run import RunSpec
-from uavmpc.supervisor import FenceGuard, Supervisor
+from uavmpc.supervisor import FENCE_CHECK_TICKS, FenceGuard, Supervisor
 from uavmpc.tracker import TrackerConfig
 from uavmpc.view.scene import UavView
 
@@ -84,8 +84,6 @@ __all__ = ["COLLISION_DISTANCE_M", "FORMATION_SETTLE_S", "GOAL_TOLERANCE_M",
            "GROUND_VEHICLE_ID", "SCENE_PERIOD_S", "Collision", "UavOutcome", "World",
            "WorldResult", "WorldUav", "world_faults", "world_post", "world_pre", "world_tick"]
 
-#: The geofence failsafe looks every this many ticks (10 Hz, the avoidance's rate).
-FENCE_CHECK_TICKS = 10
 #: Log rate of poses and status (predictions are logged at each broadcast).
 POSE_LOG_PERIOD_S = 0.05
 
