@@ -9,7 +9,8 @@ random-walk campaign without avoidance per start hypothesis of docs/campaign.md,
 
 - ``air``: the protocol, in the air at the walk's height;
 - ``ground``: from the ground, all taking off at once (``--ground-start``);
-- ``stagger10``, ``stagger20``: taking off one after another, 10 s or 20 s apart;
+- ``stagger10``, ``stagger15``, ``stagger20``: taking off one after another, 10, 15 or
+  20 s apart;
 - ``clearance20``: each waypoint drawn again while within 20 m of another UAV's;
 - ``first_waypoint``: no collision counted before every UAV's first waypoint was due;
 - ``speed5``: the walk at 5 m/s instead of Table I's 8.3 m/s.
@@ -29,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from uavmpc.apps.campaign import PERCENTILES, load_trials, run_campaign
+from uavmpc.apps.campaign import PERCENTILES, RandomWalkSpec, load_trials, run_campaign
 from uavmpc.apps.published import PublishedResult, inside
 from uavmpc.scenarios.random_walk import WalkVariant
 from uavmpc.scenarios.stats import bootstrap_interval, percentile
@@ -40,6 +41,8 @@ HYPOTHESES: dict[str, tuple[str, dict[str, Any]]] = {
     "ground": ("from the ground, all at once", {"ground_start": True}),
     "stagger10": ("take-offs 10 s apart", {"ground_start": True,
                                            "walk": WalkVariant(takeoff_interval_s=10.0)}),
+    "stagger15": ("take-offs 15 s apart", {"ground_start": True,
+                                           "walk": WalkVariant(takeoff_interval_s=15.0)}),
     "stagger20": ("take-offs 20 s apart", {"ground_start": True,
                                            "walk": WalkVariant(takeoff_interval_s=20.0)}),
     "clearance20": ("waypoints ≥ 20 m from the others'", {
@@ -96,8 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         what, kw = HYPOTHESES[name]
         folder = out / name
-        run_campaign(folder, avoidance=False, trials=args.trials, workers=args.workers,
-                     logs=0, progress=False, **kw)
+        run_campaign(folder, RandomWalkSpec(avoidance=False, **kw), trials=args.trials,
+                     workers=args.workers, logs=0, progress=False)
         firsts = [r["first_collision_s"] for r in
                   sorted(load_trials(folder, 0).values(), key=lambda r: r["index"])]
         print(_row(name, what, firsts, table), flush=True)

@@ -31,7 +31,13 @@ from uavmpc.scenarios.random_walk import (
     waypoints_reached,
 )
 
-SMALL = {"uavs": 3, "area_m": 30.0, "progress": False}
+
+def small(**kw) -> RandomWalkSpec:
+    """A campaign of 3 UAVs in a 30 m area, the other fields as given."""
+    return RandomWalkSpec(**{"uavs": 3, "area_m": 30.0, **kw})
+
+
+QUIET = {"progress": False}
 
 
 def test_random_walk_is_seeded_and_valid() -> None:
@@ -77,7 +83,8 @@ def test_trial_seeds_are_derived_from_the_campaign_seed() -> None:
 
 @pytest.mark.slow
 def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) -> None:
-    r = run_campaign(tmp_path, avoidance=False, trials=3, cap_s=40.0, workers=1, **SMALL)
+    r = run_campaign(tmp_path, small(avoidance=False, length_s=40.0), trials=3, workers=1,
+                     **QUIET)
     recs = sorted(load_trials(tmp_path, 0).values(), key=lambda x: x["index"])
     assert r["trials"] == 3 and r["collisions"] >= 1
     hit = [x for x in recs if x["first_collision_s"] is not None]
@@ -100,7 +107,7 @@ def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) ->
 
 @pytest.mark.slow
 def test_with_avoidance_no_collision(tmp_path: Path) -> None:
-    r = run_campaign(tmp_path, avoidance=True, trials=3, trial_s=20.0, workers=1, **SMALL)
+    r = run_campaign(tmp_path, small(length_s=20.0), trials=3, workers=1, **QUIET)
     assert r["trials"] == 3 and r["collisions"] == 0
     assert r["time_to_first_collision_s"] == {"p50": None, "p75": None, "p95": None,
                                               "p99": None}
@@ -127,8 +134,8 @@ def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
 
     from uavmpc.log import read_topics
 
-    r = run_campaign(tmp_path, avoidance=True, trials=4, trial_s=12.0, workers=workers,
-                     logs=2, **SMALL)
+    r = run_campaign(tmp_path, small(length_s=12.0), trials=4, workers=workers, logs=2,
+                     **QUIET)
     page = (tmp_path / "report.html").read_text()
     trials = {t["index"]: t for t in (json.loads(line) for line in
                                       (tmp_path / "trials.jsonl").read_text().splitlines())}
@@ -171,21 +178,20 @@ def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
     assert {k: v for k, v in again.items() if k != "wall_s"} == {
         k: v for k, v in closest[0].items() if k != "wall_s"}
     with pytest.raises(CampaignError, match="logs: must be an integer"):
-        run_campaign(tmp_path, avoidance=True, trials=4, trial_s=12.0, workers=1, logs=-1,
-                     **SMALL)
+        run_campaign(tmp_path, small(length_s=12.0), trials=4, workers=1, logs=-1, **QUIET)
 
 
 @pytest.mark.slow
 def test_hours_stop_rule(tmp_path: Path) -> None:
-    r = run_campaign(tmp_path, avoidance=True, hours=50.0 / 3600.0, trial_s=20.0, workers=1,
-                     **SMALL)
+    r = run_campaign(tmp_path, small(length_s=20.0), hours=50.0 / 3600.0, workers=1, **QUIET)
     assert r["trials"] == 3 and r["simulated_hours"] == pytest.approx(60.0 / 3600.0)
 
 
 def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> None:
     # (no flight logs: those re-fly trials on purpose, this counts the campaign's own)
-    kw = dict(avoidance=False, cap_s=20.0, workers=1, seed=3, logs=0, **SMALL)
-    run_campaign(tmp_path, trials=2, **kw)
+    spec = small(avoidance=False, length_s=20.0, seed=3)
+    kw = dict(workers=1, logs=0, **QUIET)
+    run_campaign(tmp_path, spec, trials=2, **kw)
     assert len((tmp_path / "trials.jsonl").read_text().splitlines()) == 2
     # a crash mid-write leaves a torn line: it is dropped and the trial re-run
     with open(tmp_path / "trials.jsonl", "a") as f:
@@ -199,60 +205,66 @@ def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> Non
         return run_trial(spec, index)
 
     monkeypatch.setattr(campaign, "run_trial", spy)
-    r = run_campaign(tmp_path, trials=4, **kw)
+    r = run_campaign(tmp_path, spec, trials=4, **kw)
     assert flown == [2, 3]
     assert r["trials"] == 4
     lines = (tmp_path / "trials.jsonl").read_text().splitlines()
     assert [json.loads(x)["index"] for x in lines] == [0, 1, 2, 3]
     # the same, done again: nothing to fly, same report
     flown.clear()
-    again = run_campaign(tmp_path, trials=4, **kw)
+    again = run_campaign(tmp_path, spec, trials=4, **kw)
     assert flown == []
     assert again == r  # also the wall time: the sum over the invocations that flew trials
     runs = [json.loads(x) for x in (tmp_path / "runs.jsonl").read_text().splitlines()]
     assert [x["new_trials"] for x in runs] == [2, 2]
     assert r["wall_s"] == pytest.approx(sum(x["wall_s"] for x in runs))
     # fewer trials than done: the report covers the first ones
-    assert run_campaign(tmp_path, trials=1, **kw)["trials"] == 1
+    assert run_campaign(tmp_path, spec, trials=1, **kw)["trials"] == 1
 
 
 def test_changed_parameters_are_refused(tmp_path: Path) -> None:
-    run_campaign(tmp_path, avoidance=False, trials=1, cap_s=10.0, workers=1, **SMALL)
+    run_campaign(tmp_path, small(avoidance=False, length_s=10.0), trials=1, workers=1, **QUIET)
     with pytest.raises(CampaignError, match=r"other parameters \(loss: 0\.0 there, 0\.2 now"):
-        run_campaign(tmp_path, avoidance=False, trials=2, cap_s=10.0, workers=1, loss=0.2,
-                     **SMALL)
+        run_campaign(tmp_path, small(avoidance=False, length_s=10.0,
+                                     link=LinkSettings(loss=0.2)), trials=2, workers=1, **QUIET)
     with pytest.raises(CampaignError, match="avoidance"):
-        run_campaign(tmp_path, avoidance=True, trials=2, trial_s=10.0, workers=1, **SMALL)
+        run_campaign(tmp_path, small(length_s=10.0), trials=2, workers=1, **QUIET)
     assert len((tmp_path / "trials.jsonl").read_text().splitlines()) == 1
 
 
-@pytest.mark.parametrize("kw, match", [
-    ({}, "exactly one of hours"),
-    ({"trials": 2, "hours": 1.0}, "exactly one of hours"),
-    ({"trials": 0}, "trials"),
-    ({"trials": 1, "uavs": 1}, "uavs"),
-    ({"trials": 1, "loss": 1.0}, "loss"),
-    ({"trials": 1, "workers": 0}, "workers"),
-    ({"trials": 1, "cap_s": -1.0}, "cap_s"),
+@pytest.mark.parametrize("spec, kw, match", [
+    ({}, {}, "exactly one of hours"),
+    ({}, {"trials": 2, "hours": 1.0}, "exactly one of hours"),
+    ({}, {"trials": 0}, "trials"),
+    ({"uavs": 1}, {"trials": 1}, "uavs"),
+    ({"link": {"loss": 1.0}}, {"trials": 1}, "loss"),
+    ({}, {"trials": 1, "workers": 0}, "workers"),
+    ({"avoidance": False, "length_s": -1.0}, {"trials": 1}, "cap_s"),
+    ({"length_s": -1.0}, {"trials": 1}, "trial_s"),
 ])
-def test_bad_parameters(tmp_path: Path, kw: dict, match: str) -> None:
+def test_bad_parameters(tmp_path: Path, spec: dict, kw: dict, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
-        run_campaign(tmp_path, **{"progress": False, **kw})
+        if "link" in spec:
+            spec = {**spec, "link": LinkSettings.from_dict(spec["link"])}
+        run_campaign(tmp_path, RandomWalkSpec(**spec), **{"progress": False, **kw})
+    with pytest.raises(CampaignError, match="spec: must be a RandomWalkSpec"):
+        run_campaign(tmp_path, {"uavs": 3}, trials=1)  # type: ignore[arg-type]
 
 
 @pytest.mark.slow
 def test_same_seed_same_report_with_1_or_2_workers(tmp_path: Path) -> None:
-    kw = dict(avoidance=False, trials=4, cap_s=20.0, seed=11, **SMALL)
-    one = run_campaign(tmp_path / "one", workers=1, **kw)
-    two = run_campaign(tmp_path / "two", workers=2, **kw)
+    spec = small(avoidance=False, length_s=20.0, seed=11)
+    one = run_campaign(tmp_path / "one", spec, trials=4, workers=1, **QUIET)
+    two = run_campaign(tmp_path / "two", spec, trials=4, workers=2, **QUIET)
     one.pop("wall_s"), two.pop("wall_s")
     one.pop("trial_wall_s"), two.pop("trial_wall_s")
     assert json.dumps(one) == json.dumps(two)
 
 
 def test_merge_reports_fills_both_columns(tmp_path: Path) -> None:
-    run_campaign(tmp_path / "a", avoidance=False, trials=1, cap_s=10.0, workers=1, **SMALL)
-    run_campaign(tmp_path / "b", avoidance=True, trials=1, trial_s=10.0, workers=1, **SMALL)
+    run_campaign(tmp_path / "a", small(avoidance=False, length_s=10.0), trials=1, workers=1,
+                 **QUIET)
+    run_campaign(tmp_path / "b", small(length_s=10.0), trials=1, workers=1, **QUIET)
     md = merge_reports(tmp_path / "a", tmp_path / "b", out=tmp_path / "both.md")
     row = next(x for x in md.splitlines() if x.startswith("| trials |"))
     assert row == "| trials | 1 | 1 |"
@@ -386,11 +398,10 @@ def local_ray():
 @pytest.mark.slow
 def test_ray_path_on_a_local_ray_instance_gives_the_same_report(tmp_path: Path,
                                                                 local_ray) -> None:
-    r = run_campaign(tmp_path / "ray", avoidance=False, trials=3, cap_s=10.0,
-                     ray_address="local", **SMALL)
+    spec = small(avoidance=False, length_s=10.0)
+    r = run_campaign(tmp_path / "ray", spec, trials=3, ray_address="local", **QUIET)
     assert local_ray.is_initialized()
-    ref = run_campaign(tmp_path / "ref", avoidance=False, trials=3, cap_s=10.0, workers=1,
-                       **SMALL)
+    ref = run_campaign(tmp_path / "ref", spec, trials=3, workers=1, **QUIET)
     walls = ("wall_s", "trial_wall_s")
     assert {k: v for k, v in r.items() if k not in walls} == {
         k: v for k, v in ref.items() if k not in walls}
@@ -409,8 +420,8 @@ def test_ray_missing_is_a_clear_error(tmp_path: Path, monkeypatch) -> None:
 
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(CampaignError, match=r"pip install 'uavmpc\[cluster\]'"):
-        run_campaign(tmp_path, avoidance=False, trials=1, cap_s=10.0, ray_address="auto",
-                     **SMALL)
+        run_campaign(tmp_path, small(avoidance=False, length_s=10.0), trials=1,
+                     ray_address="auto", **QUIET)
 
 
 #: Collisions found by the first 24-hour runs of (b), each fixed by a rule of the strategy

@@ -1,6 +1,7 @@
 """The one campaign engine: specs stored and reloaded as they are, every campaign resumable,
 one percentile definition, an old or unknown campaign file refused by name."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -77,15 +78,15 @@ def test_an_old_or_unknown_campaign_file_is_refused_naming_its_format(tmp_path: 
 
 
 def test_a_format_1_random_walk_folder_is_read_as_its_parameters(tmp_path: Path) -> None:
-    kw = dict(uavs=3, area_m=30.0, avoidance=False, cap_s=10.0, workers=1, logs=0,
-              progress=False)
-    run_campaign(tmp_path, trials=1, **kw)
+    spec = RandomWalkSpec(uavs=3, area_m=30.0, avoidance=False, length_s=10.0)
+    kw = dict(workers=1, logs=0, progress=False)
+    run_campaign(tmp_path, spec, trials=1, **kw)
     new = json.loads((tmp_path / CAMPAIGN_FILE).read_text())
     (tmp_path / CAMPAIGN_FILE).write_text(json.dumps(
         {"format": 1, "version": "0.0.9", "parameters": new["spec"]}))
-    assert run_campaign(tmp_path, trials=2, **kw)["trials"] == 2
+    assert run_campaign(tmp_path, spec, trials=2, **kw)["trials"] == 2
     with pytest.raises(CampaignError, match="other parameters"):
-        run_campaign(tmp_path, trials=2, **{**kw, "cap_s": 11.0})
+        run_campaign(tmp_path, dataclasses.replace(spec, length_s=11.0), trials=2, **kw)
 
 
 def _records(out: Path) -> list[dict]:

@@ -516,67 +516,35 @@ def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) 
 # ------------------------------------------------------------------------------ the runner
 def run_campaign(
     out_dir: str | Path,
+    spec: RandomWalkSpec,
     *,
-    uavs: int = 5,
-    avoidance: bool = True,
     hours: float | None = None,
     trials: int | None = None,
-    seed: int = 0,
     workers: int | None = None,
     threads: int | None = None,
-    loss: float = 0.0,
-    latency: float = 0.05,
-    jitter: float = 0.02,
-    wind: float = 0.0,
-    trial_s: float = 600.0,
-    cap_s: float = 600.0,
-    area_m: float = 100.0,
-    height_m: float = 10.0,
     ray_address: str | None = None,
     progress: bool = True,
-    faults: FaultSpec | None = None,
-    avoidance_params: dict[str, Any] | AvoidanceParams | None = None,
-    launch_check_s: float | None = None,
     logs: int = 3,
-    ground_start: bool = False,
-    walk: WalkVariant | None = None,
     reference: str | Path | None = "table2",
 ) -> dict[str, Any]:
-    """Run (or continue) a random_walk campaign in ``out_dir``; returns the report.
+    """Run (or continue) the random-walk campaign ``spec`` in ``out_dir``; returns the report.
 
-    ``faults``: what goes wrong in every trial, drawn per trial from its world seed
-    (:mod:`uavmpc.scenarios.faults`). ``avoidance_params``: fields of
-    :class:`~uavmpc.avoidance.AvoidanceParams` to fly instead of the defaults (e.g. a larger
-    cylinder for a coarser position estimate), or the parameters. ``launch_check_s``: every
-    UAV holds at its start until it has heard every other one, at most this long
-    (:class:`~uavmpc.drivers.world.World`'s ``launch_check_s``). ``ground_start``: every UAV
-    starts on the ground and takes off to ``height_m`` before its walk (times still count
-    from t = 0, the climb included). ``walk``: how the walk departs from the protocol
-    (:class:`~uavmpc.scenarios.random_walk.WalkVariant`). ``reference``: the published result
-    the report is set beside (:class:`~uavmpc.apps.published.PublishedResult`: ``table2``, the
-    reference design's, or a TOML file; None: none). ``logs``: the ``logs``
-    trials with the closest approach are re-flown from their seeds into flight logs
-    (``logs/trial_<index>.mcap``; a full campaign's would be gigabytes), linked from
-    ``report.html``. ``workers`` processes each fly a trial's world on ``threads`` threads
-    (:func:`~uavmpc.apps.campaign_engine.split_cores`; the report does not depend on them).
-
-    Stops after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest
-    prefix of trials, by index, whose flight time reaches it). With avoidance a trial lasts
-    ``trial_s``; without, until its first collision or ``cap_s``.
+    ``spec`` is what every trial flies (:class:`RandomWalkSpec`: UAVs, area, avoidance, link,
+    wind, trial length, seed, faults, avoidance parameters, launch check, start, walk); the
+    keywords say how much to fly and how. Stops after ``trials`` trials, or once the trials
+    cover ``hours`` of flight (the smallest prefix of trials, by index, whose flight time
+    reaches it). ``workers`` processes each fly a trial's world on ``threads`` threads
+    (:func:`~uavmpc.apps.campaign_engine.split_cores`; the report does not depend on them),
+    or Ray at ``ray_address``. ``logs``: the ``logs`` trials with the closest approach are
+    re-flown from their seeds into flight logs (``logs/trial_<index>.mcap``; a full
+    campaign's would be gigabytes), linked from ``report.html``. ``reference``: the published
+    result the report is set beside (:class:`~uavmpc.apps.published.PublishedResult`:
+    ``table2``, the reference design's, or a TOML file; None: none).
     """
+    if not isinstance(spec, RandomWalkSpec):
+        raise CampaignError(f"spec: must be a RandomWalkSpec, got {type(spec).__name__}")
     _check_size(hours=hours, trials=trials, logs=logs)
     published = None if reference is None else PublishedResult.load(reference)
-    for name, v in (("trial_s", trial_s), ("cap_s", cap_s)):
-        if not (math.isfinite(v) and v > 0):
-            raise CampaignError(f"{name}: must be > 0, got {v}")
-    spec = RandomWalkSpec(
-        uavs=uavs, area_m=area_m, height_m=height_m, avoidance=avoidance, seed=seed,
-        link=LinkSettings.from_dict({"loss": loss, "latency_s": latency, "jitter_s": jitter}),
-        wind_mps=wind, length_s=float(trial_s if avoidance else cap_s),
-        faults=faults or FaultSpec(),
-        avoidance_params=_avoidance(avoidance_params, faults),
-        launch_check_s=None if launch_check_s is None else float(launch_check_s),
-        ground_start=ground_start, walk=walk if walk is not None else WalkVariant())
     workers, threads = split_cores(workers, threads, say=progress)
     out = Path(out_dir)
     target_s = None if hours is None else float(hours) * 3600.0
@@ -795,17 +763,29 @@ def fault_spec(args: argparse.Namespace) -> FaultSpec:
 
 
 def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
-    return run_campaign(out, uavs=5 if args.uavs is None else args.uavs,
-                        avoidance=args.avoidance, hours=args.hours,
-                        trials=args.trials, seed=args.seed, workers=args.workers,
-                        threads=args.threads, loss=args.loss, latency=args.latency, wind=args.wind,
-                        trial_s=args.trial_s, cap_s=args.cap_s, area_m=args.area,
-                        ray_address=args.ray, progress=not args.no_progress,
-                        faults=fault_spec(args),
-                        avoidance_params=avoidance_file(args.avoidance_file),
-                        launch_check_s=args.launch_check, logs=args.logs,
-                        ground_start=args.ground_start, walk=walk_variant(args),
+    return run_campaign(out, campaign_spec(args), hours=args.hours, trials=args.trials,
+                        workers=args.workers, threads=args.threads, ray_address=args.ray,
+                        progress=not args.no_progress, logs=args.logs,
                         reference=None if args.reference == "none" else args.reference)
+
+
+def campaign_spec(args: argparse.Namespace) -> RandomWalkSpec:
+    """The :class:`RandomWalkSpec` of ``campaign random-walk``'s flags (a bad value fails
+    here, named)."""
+    for name in ("trial_s", "cap_s"):
+        v = getattr(args, name)
+        if not (math.isfinite(v) and v > 0):
+            raise CampaignError(f"{name}: must be > 0, got {v}")
+    faults = fault_spec(args)
+    return RandomWalkSpec(
+        uavs=5 if args.uavs is None else args.uavs, area_m=args.area, avoidance=args.avoidance,
+        seed=args.seed,
+        link=LinkSettings.from_dict({"loss": args.loss, "latency_s": args.latency,
+                                     "jitter_s": LinkSettings().jitter_s}),
+        wind_mps=args.wind, length_s=float(args.trial_s if args.avoidance else args.cap_s),
+        faults=faults, avoidance_params=_avoidance(avoidance_file(args.avoidance_file), faults),
+        launch_check_s=None if args.launch_check is None else float(args.launch_check),
+        ground_start=args.ground_start, walk=walk_variant(args))
 
 
 #: Each WalkVariant field's flag.
