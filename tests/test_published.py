@@ -234,3 +234,23 @@ def test_the_campaign_cli_sets_its_report_beside_table_ii_or_a_file_or_nothing(
     assert "--walk-speed: must be in (0, 30], got -1.0" in capsys.readouterr().err
     assert main(["campaign", "traffic", "--trials", "1", "--waypoint-clearance", "5"]) == 2
     assert "--waypoint-clearance: only for campaign random-walk" in capsys.readouterr().err
+
+
+def test_the_paper_start_is_the_ground_start_with_take_offs_15_s_apart(tmp_path: Path,
+                                                                       capsys) -> None:
+    from uavmpc.apps.cli import main
+    from uavmpc.scenarios.random_walk import PAPER_TAKEOFF_INTERVAL_S
+
+    args = ["campaign", "random-walk", "--no-avoidance", "--trials", "1", "--cap-s", "100",
+            "--workers", "1", "--no-progress", "--uavs", "3", "--area", "30", "--logs", "0"]
+    assert main([*args, "--paper-start", "--out", str(tmp_path / "p")]) == 0
+    spec = json.loads((tmp_path / "p" / "campaign.json").read_text())["spec"]
+    assert spec["ground_start"] is True
+    assert spec["walk"] == {"takeoff_interval_s": PAPER_TAKEOFF_INTERVAL_S} == {
+        "takeoff_interval_s": 15.0}
+    capsys.readouterr()
+    assert main([*args, "--paper-start", "--takeoff-interval", "10", "--out",
+                 str(tmp_path / "q")]) == 2
+    assert "--paper-start takes off 15 s apart" in capsys.readouterr().err
+    assert main(["campaign", "traffic", "--trials", "1", "--paper-start"]) == 2
+    assert "--paper-start: only for campaign random-walk" in capsys.readouterr().err

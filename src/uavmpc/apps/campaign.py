@@ -66,7 +66,12 @@ from uavmpc.avoidance import AvoidanceParams
 from uavmpc.config import ConfigError
 from uavmpc.scenarios import LinkSettings, avoidance_params, changed_fields
 from uavmpc.scenarios.faults import FaultSpec
-from uavmpc.scenarios.random_walk import ACCEL_MPS2, SPEED_MPS, WalkVariant
+from uavmpc.scenarios.random_walk import (
+    ACCEL_MPS2,
+    PAPER_TAKEOFF_INTERVAL_S,
+    SPEED_MPS,
+    WalkVariant,
+)
 from uavmpc.scenarios.run import RunSpec
 from uavmpc.scenarios.stats import bootstrap_interval, percentile
 
@@ -712,6 +717,11 @@ def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
                         "flight logs linked from report.html (default 3)")
     w = p.add_argument_group("random-walk: how the walk departs from the protocol (the start "
                              "hypotheses of docs/campaign.md; default: it does not)")
+    w.add_argument("--paper-start", action="store_true",
+                   help="the start that reproduces the reference design's Table II: from the "
+                        f"ground, taking off one after another {PAPER_TAKEOFF_INTERVAL_S:g} s "
+                        "apart (--ground-start --takeoff-interval "
+                        f"{PAPER_TAKEOFF_INTERVAL_S:g})")
     w.add_argument("--takeoff-interval", type=float, default=0.0, metavar="S",
                    help="with --ground-start: the UAVs take off one after another, S seconds "
                         "apart; each walks after its own take-off")
@@ -873,9 +883,17 @@ def _interruptible(out: str, run: Callable[[], dict[str, Any]]) -> dict[str, Any
 
 
 def campaign_command(args: argparse.Namespace) -> int:
-    if args.kind != "random-walk" and args.ground_start:
-        raise CampaignError(f"--ground-start: only for campaign random-walk (a {args.kind} "
-                            "campaign flies its scenario's own start)")
+    for flag, given in (("--ground-start", args.ground_start),
+                        ("--paper-start", args.paper_start)):
+        if args.kind != "random-walk" and given:
+            raise CampaignError(f"{flag}: only for campaign random-walk (a {args.kind} "
+                                "campaign flies its scenario's own start)")
+    if args.paper_start:
+        if args.takeoff_interval not in (0.0, PAPER_TAKEOFF_INTERVAL_S):
+            raise CampaignError(f"--paper-start takes off {PAPER_TAKEOFF_INTERVAL_S:g} s "
+                                f"apart: give it or --takeoff-interval "
+                                f"{args.takeoff_interval:g}, not both")
+        args.ground_start, args.takeoff_interval = True, PAPER_TAKEOFF_INTERVAL_S
     if args.kind != "random-walk" and walk_variant(args).changed():
         flags = ", ".join(_WALK_FLAGS[k] for k in walk_variant(args).changed())
         raise CampaignError(f"{flags}: only for campaign random-walk")
