@@ -14,6 +14,12 @@ The vertical stack swaps of docs/safety.md (2 × 3 and 2 × 5, 3 seeds, clean an
     python benchmarks/sweep_dense.py --seeds 3 --links 0,0.3:0.2 --workers 2 \
         --scenarios vertical_3,vertical_5
 
+A grid of 16 shuffled (``grid_<N>``: each UAV flies to another grid point, 10 m apart,
+the assignment drawn from the run's seed; a 25 m ceiling unless ``--ceiling``):
+
+    python benchmarks/sweep_dense.py --seeds 3 --links 0,0.3:0.2 --workers 2 \
+        --scenarios grid_16
+
 The antipodal swaps of docs/safety.md (N = 8 … 32 under a 30 m ceiling):
 
 
@@ -44,25 +50,33 @@ import numpy as np
 from uavmpc import ConfigError, scenarios
 from uavmpc.drivers.world import World, WorldResult
 from uavmpc.scenarios import Scenario
-from uavmpc.scenarios.dense import antipodal, time_to_goals, vertical_swap
+from uavmpc.scenarios.dense import antipodal, grid_shuffle, time_to_goals, vertical_swap
 
 DENSE = ("antipodal_8", "antipodal_12", "noncooperative_crossing")
 _ANTIPODAL = re.compile(r"^antipodal_(\d+)$")
 _VERTICAL = re.compile(r"^vertical_(\d+)$")
+_GRID = re.compile(r"^grid_(\d+)$")
 
 
-def load(name: str, ceiling_m: float | None = None) -> Scenario:
-    """A built-in scenario, ``antipodal_<N>`` for any N, or ``vertical_<K>``: two stacks of K
-    swapping places and heights (uavmpc.scenarios.dense), under a ``ceiling_m`` geofence when
-    given (generated ones only; a vertical swap's default: 12 m above its top)."""
+def load(name: str, ceiling_m: float | None = None, seed: int = 0) -> Scenario:
+    """A built-in scenario, ``antipodal_<N>`` for any N, ``vertical_<K>``: two stacks of K
+    swapping places and heights, or ``grid_<N>``: N UAVs on a grid each flying to another
+    grid point, the assignment drawn from ``seed`` (uavmpc.scenarios.dense), under a
+    ``ceiling_m`` geofence when given (generated ones only; a vertical swap's default: 12 m
+    above its top; a grid's: 25 m)."""
     m = _ANTIPODAL.match(name)
     v = _VERTICAL.match(name)
+    g = _GRID.match(name)
+    if g is not None:
+        return grid_shuffle(int(g.group(1)), seed=seed,
+                            ceiling_m=25.0 if ceiling_m is None else ceiling_m)
     if name in scenarios.BUILTIN and (ceiling_m is None or (m is None and v is None)):
         return scenarios.load(name)
     if v is not None:
         return vertical_swap(int(v.group(1)), duration_s=90.0, ceiling_m=ceiling_m)
     if m is None:
-        raise ValueError(f"{name}: neither a built-in scenario, antipodal_<N> nor vertical_<K>")
+        raise ValueError(f"{name}: neither a built-in scenario, antipodal_<N>, vertical_<K> "
+                         "nor grid_<N>")
     return antipodal(int(m.group(1)), duration_s=120.0, ceiling_m=ceiling_m)
 
 
@@ -75,7 +89,7 @@ def fly(job: tuple[str, int, float, float | None, float | None]) -> dict[str, An
     """One run's numbers (JSON-serialisable): (name, seed, loss, latency or None, ceiling or
     None)."""
     name, seed, loss, latency, ceiling = job
-    sc = load(name, ceiling)
+    sc = load(name, ceiling, seed)  # a grid's assignment is the seed's too
     link = dataclasses.replace(sc.link, loss=loss)
     if latency is not None:
         link = dataclasses.replace(link, latency_s=latency)
@@ -178,10 +192,10 @@ def main() -> None:
                      f"got {exc}")
     names = [v for v in args.scenarios.split(",") if v]
     unknown = [v for v in names if v not in scenarios.BUILTIN and not _ANTIPODAL.match(v)
-               and not _VERTICAL.match(v)]
+               and not _VERTICAL.match(v) and not _GRID.match(v)]
     if unknown:
-        parser.error("--scenarios: neither built-in, antipodal_<N> nor vertical_<K>: "
-                     f"{', '.join(unknown)}")
+        parser.error("--scenarios: neither built-in, antipodal_<N>, vertical_<K> nor "
+                     f"grid_<N>: {', '.join(unknown)}")
     try:
         for name in names:
             load(name, args.ceiling)

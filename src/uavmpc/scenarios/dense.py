@@ -1,4 +1,5 @@
-"""Dense and adversarial scenarios: the antipodal circle for any N, and when goals are reached.
+"""Dense and adversarial scenarios: the antipodal circle for any N, vertical stack swaps, a
+grid shuffled, and when goals are reached.
 
 ``antipodal(n)``: N UAVs evenly on a circle, all at one height, each flying a straight path to
 the point diametrically opposite its start, all at the same speed from the same time, so that
@@ -133,6 +134,57 @@ def vertical_swap(per_stack: int, gap_m: float = 40.0, bottom_m: float = 6.0,
     fence = Geofence.from_dict({"box": [-side_m, -10.0, side_m, 10.0], "min_altitude_m": 0.0,
                                 "max_altitude_m": top}, "geofence")
     return Scenario(f"vertical_swap_{per_stack}", duration, tuple(uavs),
+                    link if link is not None else LinkSettings(), geofence=fence)
+
+
+def grid_shuffle(n_uavs: int, spacing_m: float = 10.0, height_m: float = 10.0,
+                 speed_mps: float = SPEED_MPS, start_s: float = START_S,
+                 duration_s: float = 120.0, seed: int = 0, *,
+                 link: LinkSettings | None = None, ceiling_m: float | None = 25.0
+                 ) -> Scenario:
+    """``n_uavs`` (a square number) UAVs on a square grid of ``spacing_m`` [m] around the
+    origin at ``height_m`` [m], each flying straight to another grid point (a random
+    permutation without a fixed point, from ``seed``) at ``speed_mps`` [m/s] from ``start_s``
+    [s]: paths crossing in every direction and at every distance, where an antipodal circle's
+    all cross at one point. Priorities in grid order. ``ceiling_m``: a geofence from the
+    ground up to it, 10 m around the grid (None: none)."""
+    if isinstance(n_uavs, bool) or not isinstance(n_uavs, int) or not 4 <= n_uavs <= 400:
+        raise ConfigError(f"uavs: must be an integer in [4, 400], got {n_uavs!r}")
+    side = math.isqrt(n_uavs)
+    if side * side != n_uavs:
+        raise ConfigError(f"uavs: a square grid needs a square number, got {n_uavs}")
+    spacing = positive(spacing_m, "spacing_m", upper=1e3)
+    if spacing < 2.0:
+        raise ConfigError(f"spacing_m: grid points {spacing:g} m apart, need ≥ 2 m")
+    height = positive(height_m, "height_m", upper=1e4)
+    speed = positive(speed_mps, "speed_mps", upper=100.0)
+    start = positive(start_s, "start_s", upper=3600.0, allow_zero=True)
+    duration = positive(duration_s, "duration_s", upper=7 * 24 * 3600.0)
+    half = 0.5 * spacing * (side - 1)
+    points = [(round(-half + spacing * (k % side), _DECIMALS) + 0.0,
+               round(-half + spacing * (k // side), _DECIMALS) + 0.0) for k in range(n_uavs)]
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
+    while True:  # a derangement: nobody's goal is its start
+        goal_of = rng.permutation(n_uavs)
+        if not np.any(goal_of == np.arange(n_uavs)):
+            break
+    uavs = []
+    for i in range(n_uavs):
+        (x, y), (gx, gy) = points[i], points[int(goal_of[i])]
+        here, there = (x, y, height), (gx, gy, height)
+        heading = round(math.atan2(gy - y, gx - x), _DECIMALS) + 0.0
+        mission = Reference.along_path(np.array([here, there]), speed, start)
+        uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550", here, heading, mission, there))
+    fence = None
+    if ceiling_m is not None:
+        top = positive(ceiling_m, "ceiling_m", upper=1e4)
+        if top < height + 2.0:
+            raise ConfigError(f"ceiling_m: {top:g} m leaves no room above the grid's "
+                              f"{height:g} m (need ≥ {height + 2.0:g} m)")
+        box = half + 10.0
+        fence = Geofence.from_dict({"box": [-box, -box, box, box], "min_altitude_m": 0.0,
+                                    "max_altitude_m": top}, "geofence")
+    return Scenario(f"grid_{n_uavs}", duration, tuple(uavs),
                     link if link is not None else LinkSettings(), geofence=fence)
 
 

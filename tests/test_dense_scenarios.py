@@ -1,0 +1,34 @@
+"""The generated dense scenarios' geometry (uavmpc.scenarios.dense)."""
+
+import numpy as np
+import pytest
+
+from uavmpc.config import ConfigError
+from uavmpc.scenarios.dense import grid_shuffle
+
+
+def test_a_shuffled_grid_sends_every_uav_to_another_grid_point() -> None:
+    sc = grid_shuffle(16, spacing_m=10.0, seed=4)
+    starts = np.array([u.start_m for u in sc.uavs])
+    goals = np.array([u.goal_m for u in sc.uavs])
+    assert len(sc.uavs) == 16 and np.allclose(starts[:, 2], 10.0)
+    # the goals are the starts, each used once, and nobody's goal is its own start
+    assert sorted(map(tuple, goals.round(9))) == sorted(map(tuple, starts.round(9)))
+    assert np.all(np.linalg.norm(goals - starts, axis=1) >= 10.0 - 1e-9)
+    assert sc.geofence is not None and sc.geofence.max_altitude_m == 25.0
+    for u in sc.uavs:  # a straight path, ending at the goal
+        assert np.allclose(u.mission.points[-1, :3], u.goal_m)
+    again = grid_shuffle(16, spacing_m=10.0, seed=4)
+    other = grid_shuffle(16, spacing_m=10.0, seed=5)
+    assert [u.goal_m for u in again.uavs] == [u.goal_m for u in sc.uavs]
+    assert [u.goal_m for u in other.uavs] != [u.goal_m for u in sc.uavs]
+
+
+@pytest.mark.parametrize(("kw", "match"), [
+    ({"n_uavs": 15}, "square number"),
+    ({"n_uavs": 16, "spacing_m": 1.0}, "need ≥ 2 m"),
+    ({"n_uavs": 16, "ceiling_m": 11.0}, "leaves no room"),
+])
+def test_a_bad_grid_is_named(kw: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        grid_shuffle(**kw)
