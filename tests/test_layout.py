@@ -21,7 +21,7 @@ ROOT = Path(uavmpc.__file__).parent
 #: Each unit of the package (a top-level module or package) and its tier; a unit may import
 #: units of its own tier or below, never above.
 TIERS: dict[str, int] = {
-    "config": 0, "jit": 0, "data": 0,
+    "config": 0, "jit": 0, "data": 0, "typed_json": 0,
     "reference": 1, "solvers": 1, "plant": 1, "estimation": 1,
     "tracker": 2, "control": 2, "comms": 2, "missions": 2, "geofence": 2,
     "avoidance": 3,

@@ -340,6 +340,9 @@ def _run(args: argparse.Namespace) -> int:
             print(f"uavmpc run: --cruise-heights: comma-separated metres, e.g. 30,40; got "
                   f"{args.cruise_heights!r}", file=sys.stderr)
             return 2
+    note = getattr(args, "threads_note", None)
+    if note is not None:
+        print(note, file=sys.stderr)
     try:
         with _compiling() as watch:
             s = _run_scenario(args.scenario, out, avoidance=not args.no_avoidance,
@@ -1212,8 +1215,9 @@ def main(argv: list[str] | None = None) -> int:
         args.threads = idle_threads()
         why = (f"${THREADS_ENV}" if os.environ.get(THREADS_ENV, "").strip()
                else f"the cores idle now of {available_threads()}")
-        print(f"uavmpc run: ticking on {args.threads} thread(s), {why} (--threads N to "
-              "choose)", file=sys.stderr)
+        # Said when the run sets off (_run), not before a bad flag's one-line error.
+        args.threads_note = (f"uavmpc run: ticking on {args.threads} thread(s), {why} "
+                             "(--threads N to choose)")
     if args.command in ("demo", "run") and args.threads is not None:
         from uavmpc.jit import set_threads
 
