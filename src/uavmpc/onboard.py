@@ -42,6 +42,7 @@ from uavmpc.avoidance.decide import (
     N_FLAGS,
     N_MASKS,
     NEW_KIND,
+    EncounterRows,
     decide_rows,
 )
 from uavmpc.avoidance.encounters import EncounterFinder, Encounters, FoundRows, heard_columns
@@ -1219,9 +1220,10 @@ def _decide_round(batch: OnboardBatch, stacks: Sequence[OnboardStack] | Mapping[
     bound(decide_rows)(
         strategy_rows, rows, plan_s[cand], times[cand], own[cand],
         np.ones(d_count, dtype=np.bool_), climbed[cand], batch.senders.priority[rows],
-        out.e_col[:e_count], out.e_silent[:e_count], out.e_near[:e_count],
-        out.e_announced[:e_count], out.e_dz[:e_count], out.e_dxy[:e_count],
-        out.e_hears[:e_count], out.e_widen_v[:e_count], priority, avoiding, before_us,
+        EncounterRows(out.e_col[:e_count], out.e_silent[:e_count], out.e_near[:e_count],
+                      out.e_announced[:e_count], out.e_dz[:e_count], out.e_dxy[:e_count],
+                      out.e_hears[:e_count], out.e_widen_v[:e_count], priority, avoiding,
+                      before_us),
         e_start, cand, q_lo[cand], q_hi[cand], has_probes[cand], out.s_start, out.s_col,
         kind, z, first, flags, masks)
     batch.resting[rows] = kind == CALM_KIND

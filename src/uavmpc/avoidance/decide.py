@@ -832,11 +832,8 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
 @kernel(allocates=True)
 def decide_rows(st: StrategyRows, rows: np.ndarray, now_s: np.ndarray, times: np.ndarray,
                 pos: np.ndarray, has_pos: np.ndarray, climbed_m: np.ndarray,
-                own_priority: np.ndarray, e_col: np.ndarray, e_silent: np.ndarray,
-                e_near: np.ndarray, e_announced: np.ndarray, e_dz: np.ndarray,
-                e_dxy: np.ndarray, e_hears: np.ndarray, e_widen_v: np.ndarray,
-                e_priority: np.ndarray, e_avoiding: np.ndarray, e_before_us: np.ndarray,
-                e_start: np.ndarray, plan: np.ndarray, q_lo: np.ndarray, q_hi: np.ndarray,
+                own_priority: np.ndarray, e: EncounterRows, e_start: np.ndarray,
+                plan: np.ndarray, q_lo: np.ndarray, q_hi: np.ndarray,
                 has_probes: np.ndarray, s_start: np.ndarray, s_col: np.ndarray,
                 kind: np.ndarray, z_out: np.ndarray, first_out: np.ndarray, flags: np.ndarray,
                 masks: np.ndarray) -> None:
@@ -845,7 +842,7 @@ def decide_rows(st: StrategyRows, rows: np.ndarray, now_s: np.ndarray, times: np
     (m,) and ``pos[j]`` (m, 3) (``has_pos[j]``: without them it never holds short), has
     climbed ``climbed_m[j]`` of its offset (NaN: all of it), its priority
     ``own_priority[j]``; its encounters are the rows of plan ``plan[j]`` of the encounter
-    rows ``e_*`` (:class:`EncounterRows`' fields, grouped by ``e_start``), its probes' plans
+    rows ``e`` (:class:`EncounterRows`, grouped by ``e_start``), its probes' plans
     ``q_lo[j]`` … ``q_hi[j]`` − 1 (``has_probes[j]``: it was handed probes), the silent
     columns it knows of ``s_col[s_start[f]:s_start[f + 1]]`` (f = ``plan[j]``).
 
@@ -853,8 +850,6 @@ def decide_rows(st: StrategyRows, rows: np.ndarray, now_s: np.ndarray, times: np
     last decision's, else :data:`NEW_KIND`), ``z_out[j]`` the offset, ``first_out[j]`` the
     first conflict's time from now (NaN: none), ``flags[j]`` (6,) (``F_*``), and per
     encounter row ``masks`` (E, 5) (``M_*``): its plan's rows name its decision's UAVs."""
-    e = EncounterRows(e_col, e_silent, e_near, e_announced, e_dz, e_dxy, e_hears, e_widen_v,
-                      e_priority, e_avoiding, e_before_us)
     cols = st.unlisted_s.shape[1]
     deaf_col = np.zeros(max(cols, 1), dtype=np.bool_)
     key = np.empty(KEY_LEN)

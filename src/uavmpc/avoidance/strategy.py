@@ -416,7 +416,7 @@ class StrategyTable:
 
 
 def _packed(plans: Sequence[Encounters], own_id: str, col_of: Callable[[str], int]
-            ) -> tuple[Any, np.ndarray]:
+            ) -> tuple[EncounterRows, np.ndarray]:
     """The encounters of ``plans`` as one call's rows (:func:`~uavmpc.avoidance.decide.
     decide_rows`' ``e`` and ``e_start``)."""
     e_start = np.zeros(len(plans) + 1, dtype=np.int64)
@@ -660,7 +660,7 @@ class HeightOffsetStrategy:
                     rows, np.array([self._row], dtype=np.int64), np.array([float(now_s)]),
                     times.reshape(1, m), pos, np.array([positions is not None]),
                     np.array([np.nan if climbed_m is None else float(climbed_m)]),
-                    np.array([own_priority], dtype=np.int64), *enc, e_start,
+                    np.array([own_priority], dtype=np.int64), enc, e_start,
                     np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.int64),
                     np.array([len(plans)], dtype=np.int64), np.array([probes is not None]),
                     np.array([0, s_col.shape[0]], dtype=np.int64), s_col, kind, z, first,
