@@ -155,8 +155,11 @@ def test_a_swap_of_three_node_processes_is_collision_free_and_watched_live(tmp_p
         got: dict[str, list[tuple[int, dict]]] = {}
 
         def seen(g: dict) -> bool:
+            # (the nodes preview the mission over their horizon: uav3 may yield before the
+            # epoch, while every scene is still stamped 0; wait for the mission's clock too)
             scenes = got.get("/scene", []) + g.get("/scene", [])
-            return len(scenes) >= 10 and _yielding(scenes[-1][1], "uav3/cylinder")
+            return (len(scenes) >= 10 and scenes[-1][0] > scenes[0][0]
+                    and _yielding(scenes[-1][1], "uav3/cylinder"))
 
         while swarm.poll() is None and not seen({}):
             try:
