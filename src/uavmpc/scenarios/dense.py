@@ -48,6 +48,21 @@ START_S = 2.0
 DURATION_S = 90.0
 
 
+def _fence(box: list[float], ceiling_m: float | None, highest_m: float,
+           what: str) -> Geofence | None:
+    """The operational volume of a generated scenario: ``box`` [x0, y0, x1, y1] [m] from the
+    ground up to ``ceiling_m`` [m] (None: no geofence), which must leave 2 m above
+    ``highest_m``, the highest start (``what``, for the error)."""
+    if ceiling_m is None:
+        return None
+    top = positive(ceiling_m, "ceiling_m", upper=1e4)
+    if top < highest_m + 2.0:
+        raise ConfigError(f"ceiling_m: {top:g} m leaves no room above {what} "
+                          f"{highest_m:g} m (need ≥ {highest_m + 2.0:g} m)")
+    return Geofence.from_dict({"box": box, "min_altitude_m": 0.0, "max_altitude_m": top},
+                              "geofence")
+
+
 def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
               speed_mps: float = SPEED_MPS, start_s: float = START_S,
               duration_s: float = DURATION_S, *, link: LinkSettings | None = None,
@@ -82,15 +97,8 @@ def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
         goal = tuple(float(v) for v in mission.points[-1, :3])
         uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550", here, heading, mission,
                             (goal[0], goal[1], goal[2])))
-    fence = None
-    if ceiling_m is not None:
-        top = positive(ceiling_m, "ceiling_m", upper=1e4)
-        if top < height + 2.0:
-            raise ConfigError(f"ceiling_m: {top:g} m leaves no room above the circle's "
-                              f"{height:g} m (need ≥ {height + 2.0:g} m)")
-        side = radius + 10.0
-        fence = Geofence.from_dict({"box": [-side, -side, side, side], "min_altitude_m": 0.0,
-                                    "max_altitude_m": top}, "geofence")
+    side = radius + 10.0
+    fence = _fence([-side, -side, side, side], ceiling_m, height, "the circle's")
     return Scenario(f"antipodal_{n_uavs}", duration, tuple(uavs),
                     link if link is not None else LinkSettings(), geofence=fence)
 
@@ -117,11 +125,10 @@ def vertical_swap(per_stack: int, gap_m: float = 40.0, bottom_m: float = 6.0,
     start = positive(start_s, "start_s", upper=3600.0, allow_zero=True)
     duration = positive(duration_s, "duration_s", upper=7 * 24 * 3600.0)
     heights = [bottom + spacing * k for k in range(per_stack)]
-    top = positive(heights[-1] + 12.0 if ceiling_m is None else ceiling_m, "ceiling_m",
-                   upper=1e4)
-    if top < heights[-1] + 2.0:
-        raise ConfigError(f"ceiling_m: {top:g} m leaves no room above the stack's top "
-                          f"{heights[-1]:g} m (need ≥ {heights[-1] + 2.0:g} m)")
+    side_m = 0.5 * gap + 10.0
+    fence = _fence([-side_m, -10.0, side_m, 10.0],
+                   heights[-1] + 12.0 if ceiling_m is None else ceiling_m, heights[-1],
+                   "the stack's top")
     uavs = []
     for side, x in enumerate((-0.5 * gap, 0.5 * gap)):
         heading = 0.0 if x < 0.0 else math.pi
@@ -130,9 +137,6 @@ def vertical_swap(per_stack: int, gap_m: float = 40.0, bottom_m: float = 6.0,
             mission = Reference.along_path(np.array([here, there]), speed, start)
             n = side * per_stack + k + 1
             uavs.append(UavSpec(f"uav{n}", n, "f550", here, heading, mission, there))
-    side_m = 0.5 * gap + 10.0
-    fence = Geofence.from_dict({"box": [-side_m, -10.0, side_m, 10.0], "min_altitude_m": 0.0,
-                                "max_altitude_m": top}, "geofence")
     return Scenario(f"vertical_swap_{per_stack}", duration, tuple(uavs),
                     link if link is not None else LinkSettings(), geofence=fence)
 
@@ -175,15 +179,8 @@ def grid_shuffle(n_uavs: int, spacing_m: float = 10.0, height_m: float = 10.0,
         heading = round(math.atan2(gy - y, gx - x), _DECIMALS) + 0.0
         mission = Reference.along_path(np.array([here, there]), speed, start)
         uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550", here, heading, mission, there))
-    fence = None
-    if ceiling_m is not None:
-        top = positive(ceiling_m, "ceiling_m", upper=1e4)
-        if top < height + 2.0:
-            raise ConfigError(f"ceiling_m: {top:g} m leaves no room above the grid's "
-                              f"{height:g} m (need ≥ {height + 2.0:g} m)")
-        box = half + 10.0
-        fence = Geofence.from_dict({"box": [-box, -box, box, box], "min_altitude_m": 0.0,
-                                    "max_altitude_m": top}, "geofence")
+    box = half + 10.0
+    fence = _fence([-box, -box, box, box], ceiling_m, height, "the grid's")
     return Scenario(f"grid_{n_uavs}", duration, tuple(uavs),
                     link if link is not None else LinkSettings(), geofence=fence)
 
