@@ -276,9 +276,10 @@ def _fly_trial(spec: RandomWalkSpec, sc: Any, world: Any
             done += k
             collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions
                           if c.t >= count_from]
-            d = res.min_distance_m[res.t_s >= count_from]
+            counted = res.t_s >= count_from
             if collisions:  # the trial ends at the first collision
-                d = d[res.t_s[res.t_s >= count_from] <= collisions[0][0] + 1e-9]
+                counted &= res.t_s <= collisions[0][0] + 1e-9
+            d = res.min_distance_m[counted]
             if d.size:
                 dmin = min(dmin, float(d.min()))
         sim_s = done * world.period_s
@@ -307,7 +308,7 @@ def _percentiles(times: list[float | None]) -> dict[str, float | None]:
     no trial collided, as the report's schema asks)."""
     if not any(t is not None for t in times):
         return {f"p{q}": None for q in PERCENTILES}
-    x = [math.inf if t is None else t for t in times]
+    x = _censored(times)
     return {f"p{q}": percentile(x, q) for q in PERCENTILES}
 
 
@@ -316,8 +317,13 @@ def _intervals(times: list[float | None]) -> dict[str, list[float | None]] | Non
     trial collided)."""
     if not any(t is not None for t in times):
         return None
-    x = [math.inf if t is None else t for t in times]
+    x = _censored(times)
     return {f"p{q}": list(bootstrap_interval(x, q)) for q in PERCENTILES}
+
+
+def _censored(times: list[float | None]) -> list[float]:
+    """Times to first collision with a trial without one as later than any (infinite)."""
+    return [math.inf if t is None else t for t in times]
 
 
 def aggregate(selected: list[dict[str, Any]], params: dict[str, Any],
