@@ -18,8 +18,8 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-import uavmpc.onboard as onboard
 from uavmpc import scenarios
+from uavmpc.avoidance.round import Steering
 from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.random_walk import random_walk
@@ -40,15 +40,15 @@ def decisions() -> dict[str, tuple[list[tuple[str, float, dict[str, Any]]], byte
     """Per world: every change of decision as (UAV, tracker time [s], fields), in order, and
     the final positions' bytes."""
     changes: list[tuple[str, float, dict[str, Any]]] = []
-    apply = onboard.OnboardStack.apply
+    apply = Steering.apply
 
-    def recorded(self: onboard.OnboardStack, decision: Any) -> None:
+    def recorded(self: Steering, decision: Any) -> None:
         if decision != self.decision:
             changes.append((self.uav_id, float(self.tracker.time_s),
                             dataclasses.asdict(decision)))
         apply(self, decision)
 
-    onboard.OnboardStack.apply = recorded  # type: ignore[method-assign]
+    Steering.apply = recorded  # type: ignore[method-assign]
     try:
         out = {}
         for name, make, kwargs, seconds in WORLDS:
@@ -57,7 +57,7 @@ def decisions() -> dict[str, tuple[list[tuple[str, float, dict[str, Any]]], byte
             out[name] = (list(changes), result.positions_m[-1].tobytes())
         return out
     finally:
-        onboard.OnboardStack.apply = apply  # type: ignore[method-assign]
+        Steering.apply = apply  # type: ignore[method-assign]
 
 
 def main(argv: list[str]) -> int:

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 import uavmpc.avoidance.encounters as encounters
+import uavmpc.avoidance.round as avoidance_round
 import uavmpc.comms.inbox as inbox
 import uavmpc.comms.link as link
 import uavmpc.drivers.delivery as delivery
@@ -30,11 +31,11 @@ from uavmpc.scenarios.random_walk import random_walk
 TIMED: list[tuple[Any, str, str]] = [
     (world.World, "_receive_and_plan_batched", "receive and plan"),
     (world.World, "_plan_round", "  avoidance round"),
-    (onboard, "avoidance_plans", "    plans"),
-    (onboard, "avoidance_plans_threads", "    plans"),
+    (avoidance_round, "avoidance_plans", "    plans"),
+    (avoidance_round, "avoidance_plans_threads", "    plans"),
     (encounters.EncounterFinder, "find_rows", "    encounter search"),
-    (onboard, "decide_rows", "    decisions (compiled)"),
-    (onboard.OnboardStack, "steer_round", "    steering by them"),
+    (avoidance_round, "decide_rows", "    decisions (compiled)"),
+    (avoidance_round.Steering, "steer_by_kind", "    steering by them"),
     (delivery.WorldLink, "deliver", "  delivery"),
     (link.SimulatedLink, "take_due", "    copies due"),
     (inbox.InboxTable, "slot_for", "    decode (once per broadcast)"),

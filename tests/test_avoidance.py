@@ -177,7 +177,7 @@ def test_equal_altitudes_lower_priority_climbs_one_dz_higher_priority_only_slows
 
 
 def test_a_decision_like_the_last_one_is_that_one_and_a_different_one_is_new() -> None:
-    """The stack skips a decision it steers by already (``OnboardStack.apply``): a round that
+    """The stack skips a decision it steers by already (``Steering.apply``): a round that
     decides what the last one did hands back that very object, field for field the same."""
     a, b = head_on()
     t = NOW + REL
@@ -873,7 +873,8 @@ def test_a_stuck_uav_broadcasts_its_flag_down_and_the_others_yield_to_it() -> No
     world = World.from_spec(trial_run(RandomWalkSpec(avoidance=True), 42))
     flags = []
     world.wire.publish = lambda stacks, data, now, send=world.wire.publish: (
-        flags.extend((s.uav_id, s.decision is not None and s.decision.stuck) for s in stacks),
+        flags.extend((s.uav_id, s.steering.decision is not None
+                      and s.steering.decision.stuck) for s in stacks),
         send(stacks, data, now))
     r = world.run(60.0)
     assert not r.collisions and float(np.min(r.min_distance_m)) > 2.0

@@ -235,7 +235,8 @@ def test_antipodal_12_more_uavs_than_layers_hold_short_and_every_goal_is_reached
 
     def watch(world: World) -> None:
         held.update(u.uav_id for u in world.uavs
-                    if u.stack.decision is not None and u.stack.decision.holding)
+                    if u.stack.steering.decision is not None
+                    and u.stack.steering.decision.holding)
 
     result = World(sc).run(45.0, on_log=watch)
     s = result.summary()

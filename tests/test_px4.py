@@ -309,7 +309,7 @@ def test_lost_setpoints_make_the_stand_in_fail_safe_and_the_node_stop_and_say_so
         stack = f.node.stack
         assert not stack.cooperative  # its broadcasts now say: I will not yield
         # ... and what it will really do: hold where the stand-in holds it.
-        plan = stack.prediction().position_m
+        plan = stack.tracker.prediction().position_m
         where = f.sitl.plant.state().position_m
         assert np.abs(plan - where).max() < 1.0, (plan[[0, -1]], where)
         sent_after = [t for t, d, m in f.hop.dropped if m == SET_ATTITUDE_TARGET

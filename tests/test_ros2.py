@@ -132,11 +132,11 @@ def test_the_avoidance_status_carries_what_the_prediction_messages_do() -> None:
     topics.avoidance = Sink(topics.sent)
     decision = AvoidanceDecision(z_offset_m=2.0, avoiding=True, yielding_to=("uav1",),
                                  deaf=("uav4",), holding=True)
-    stack = SimpleNamespace(decision=decision, heard=("uav1", "uav4"),
+    stack = SimpleNamespace(steering=SimpleNamespace(decision=decision), heard=("uav1", "uav4"),
                             position_sigma_m=(0.5, 0.9),
                             tracker=SimpleNamespace(z_offset_m=2.0))
     publish_status(topics, 3.0, stack, ("A4 vehicle: tracking 3.40 m > 3 m",))
-    stack.decision, stack.heard = None, ()  # before its first decision and broadcast
+    stack.steering.decision, stack.heard = None, ()  # before its first decision and broadcast
     publish_status(topics, 3.1, stack)
     first, before = (codec.decode(c, kind) for c in topics.sent)
     assert (first.active, first.z_offset_m, list(first.yielding_to)) == (True, 2.0, ["uav1"])

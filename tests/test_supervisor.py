@@ -131,7 +131,7 @@ def test_the_mission_steps_at_its_period_and_a_motor_cut_turns_the_stack_to_foll
     rest = plant.state()
     assert sup.step_mission(0.1, 0.6, rest, touching=True)  # the first cut: the driver cuts
     assert sup.motors_cut and not stack.cooperative
-    assert stack.decision is None
+    assert stack.steering.decision is None
     # It broadcasts where it rests, flag down.
     assert np.allclose(stack.tracker.reference.points[:, :3], [rest.position_m])
     assert not sup.step_mission(0.2, 0.7, rest, touching=True)  # cut already
@@ -148,7 +148,7 @@ def test_the_ceiling_caps_the_climb_over_the_mission_flown() -> None:
     _fly(stacks, plants, 4.0)
     ceiling = FENCE.offset_ceiling_m(np.array([5.0]))
     assert 0.0 < ceiling < 5.0  # below the ceiling, less its margin
-    decisions = [s.decision for s in stacks]
+    decisions = [s.steering.decision for s in stacks]
     climbed = max(s.report().max_z_offset_m for s in stacks)
     assert any(d is not None and d.avoiding for d in decisions)  # they met
     assert 0.0 < climbed <= ceiling + 1e-9
@@ -160,7 +160,8 @@ def test_the_ceiling_caps_the_climb_over_the_mission_flown() -> None:
     _fly(stacks2, plants2, 4.0)
     low = FENCE.offset_ceiling_m(np.array([9.0]))
     assert low < ceiling
-    assert any(s.decision is not None and s.decision.avoiding for s in stacks2)
+    assert any(s.steering.decision is not None and s.steering.decision.avoiding
+               for s in stacks2)
     assert all(s.report().max_z_offset_m <= low + 1e-9 for s in stacks2)
 
 

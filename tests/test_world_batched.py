@@ -46,14 +46,14 @@ def test_a_resting_uav_is_not_asked_again_and_flies_the_same(monkeypatch) -> Non
     fewer UAVs handed to the compiled decisions (those with someone near are handed over
     either way: 12 UAVs in 160 m × 160 m meet often), the same decisions at the same times
     and the same flight as asking every UAV every round."""
+    import uavmpc.avoidance.round as round_module
     import uavmpc.drivers.world as world_module
-    import uavmpc.onboard as onboard
     from uavmpc.jit import bound
 
     def fly(skip: bool):
         asked, decisions = [0], []
-        decide_rows, avoidance_round = onboard.decide_rows, world_module.avoidance_round
-        apply = onboard.OnboardStack.apply
+        decide_rows, avoidance_round = round_module.decide_rows, world_module.avoidance_round
+        apply = round_module.Steering.apply
 
         def counted_decide_rows(strategies, rows, *args):
             asked[0] += rows.shape[0]
@@ -70,9 +70,9 @@ def test_a_resting_uav_is_not_asked_again_and_flies_the_same(monkeypatch) -> Non
             apply(self, decision)
 
         with monkeypatch.context() as m:
-            m.setattr(onboard, "decide_rows", counted_decide_rows)
+            m.setattr(round_module, "decide_rows", counted_decide_rows)
             m.setattr(world_module, "avoidance_round", every_round)
-            m.setattr(onboard.OnboardStack, "apply", recorded_apply)
+            m.setattr(round_module.Steering, "apply", recorded_apply)
             r = World(random_walk(12, area_m=160.0, duration_s=20.0, seed=2), avoidance=True,
                       seed=2).run(20.0)
         return r, asked[0], decisions

@@ -13,7 +13,8 @@ are a clock, a transport and a plant around N stacks.
 
 A driver that ticks many UAVs in one compiled call (the simulated world) splits :meth:`tick`
 into its three phases: :meth:`OnboardStack.receive` and :meth:`OnboardStack.plan` per UAV
-(the avoidance of every UAV due at once: :func:`avoidance_round`), then the numerical part of
+(the avoidance of every UAV due at once: :func:`~uavmpc.avoidance.round.avoidance_round`
+over their :class:`~uavmpc.avoidance.round.Steering`), then the numerical part of
 every UAV at once (:func:`onboard_row` on the rows of an :class:`OnboardBatch`, the same
 function :meth:`tick` runs on its own row), then the broadcasts of every UAV due at once
 (:func:`broadcast`, what :meth:`OnboardStack.emit` runs for its own row).
@@ -21,10 +22,8 @@ function :meth:`tick` runs on its own row), then the broadcasts of every UAV due
 
 from __future__ import annotations
 
-import dataclasses
-import functools
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -32,24 +31,18 @@ import numba
 import numpy as np
 
 from uavmpc.avoidance import (
-    AvoidanceDecision,
     AvoidanceParams,
-    EncounterStrategy,
     ResolutionStrategy,
 )
-from uavmpc.avoidance.decide import (
-    CALM_KIND,
-    N_FLAGS,
-    N_MASKS,
-    NEW_KIND,
-    EncounterRows,
-    decide_rows,
+from uavmpc.avoidance.encounters import heard_columns
+from uavmpc.avoidance.round import (
+    AVOIDANCE_PERIOD_S,
+    SCHEDULE_TOL_S,
+    Steering,
+    avoidance_plans,
+    avoidance_round,
 )
-from uavmpc.avoidance.encounters import EncounterFinder, Encounters, FoundRows, heard_columns
 from uavmpc.avoidance.strategy import (
-    CALM,
-    HOLD_SPEED_MPS,
-    HeightOffsetStrategy,
     StrategyTable,
 )
 from uavmpc.comms.auth import Identity, Roster, seal, sign
@@ -68,9 +61,8 @@ from uavmpc.control.se3 import ControlRows, Se3Controller, se3_row
 from uavmpc.jit import bind, bound, cycle_count, kernel, thread_count
 from uavmpc.plant import Airframe, AttitudeTarget, VehicleState
 from uavmpc.plant.interface import heading_of
-from uavmpc.reference import Reference, sample_reference
+from uavmpc.reference import Reference
 from uavmpc.tracker import (
-    DynamicLimits,
     MpcTracker,
     Prediction,
     TrackerBatch,
@@ -88,22 +80,10 @@ from uavmpc.tracker.kernels import (
 )
 from uavmpc.tracker.tracker import TrackerOutput, prediction_from
 
-#: How often the avoidance re-plans (the tracker ticks at 100 Hz, predictions arrive at 2 Hz).
-AVOIDANCE_PERIOD_S = 0.1
 #: Predictions are broadcast at 2 Hz (SPEC §5.1).
 BROADCAST_PERIOD_S = 0.5
 #: A virtual-UAV state outside its limits by more than this (when not braking) is a violation.
 LIMIT_TOL = 1e-6
-#: Tolerance of the schedules (avoidance, broadcast) against round-off in the tick times.
-_SCHEDULE_TOL_S = 1e-9
-#: A mission whose height changes by at most _LEVEL_DZ_M over _LEVEL_DT_S keeps its height
-#: (a hold then keeps the mission's height, :meth:`OnboardStack._rest_height_m`) [m, s].
-_LEVEL_DZ_M, _LEVEL_DT_S = 1e-3, 0.1
-#: The limits key (horizontal scale, climb speed, climb acceleration, holding) of the nominal
-#: limits (:meth:`OnboardStack.apply`).
-_NOMINAL_KEY: tuple[float, float | None, float | None, bool] = (1.0, None, None, False)
-#: The mission's point is "over" the virtual UAV (or at its height) within this distance [m].
-_OVER_M = 1.0
 
 
 class StackStats(NamedTuple):
@@ -206,63 +186,6 @@ def onboard_one(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerC
     sc = scratch_views(buf, skip, consts.horizon_s.shape[0])
     return onboard_row(i, trk, refs, consts, ctl, stats, p, v, q, dt, sc, q_out, ff_out,
                        np.empty((3, 3)), np.empty(0, dtype=np.int64))
-
-
-@kernel(allocates=True)
-def avoidance_plans(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
-                    consts: TrackerConsts, times_out: np.ndarray, pos_out: np.ndarray,
-                    climbed_out: np.ndarray) -> None:
-    """What rows ``idx`` (R,) hand their avoidance: each one's plan of its last tick (times
-    ``times_out`` (R, m), positions ``pos_out`` (R, m, 3)) without the part of its z offset
-    the virtual UAV has already climbed at each point (plan minus mission reference, clipped
-    to [0, offset]). Subtracting the whole offset would put the early, still-climbing points
-    below the mission and make the strategy climb again and again for a conflict the climb in
-    progress already resolves. ``climbed_out`` (R,): the part of the offset climbed at the
-    plan's first point (where a climb raised again starts from) [m]."""
-    h = consts.horizon_s
-    m = h.shape[0]
-    out = np.empty((4, m, 3))
-    nominal = np.empty((m, 4))
-    for j in range(idx.shape[0]):
-        i = idx[j]
-        # The very plan the UAV broadcasts (one law: the positions are not summed again here).
-        plan(trk.rel[i], trk.u_plan[i], trk.p0[i], consts.free_t, consts.forced_t, out)
-        t0 = trk.t_s[i] - h[0]
-        for k in range(m):
-            times_out[j, k] = t0 + h[k]
-            for ax in range(3):
-                pos_out[j, k, ax] = out[ax, k, 0]
-        offset = trk.z_offset_m[i]
-        climbed_out[j] = offset
-        if offset == 0.0:
-            continue
-        n_ref = refs.length[i, 0]
-        if n_ref == 0:
-            for k in range(m):
-                pos_out[j, k, 2] -= offset
-            continue
-        a0 = refs.start[i, 0]
-        sample_reference(refs.knots_s[a0:a0 + n_ref], refs.values[a0:a0 + n_ref],
-                         refs.period_s[i, 0], refs.loop[i, 0], times_out[j], nominal)
-        for k in range(m):
-            up = min(max(pos_out[j, k, 2] - nominal[k, 2], 0.0), offset)
-            if k == 0:
-                climbed_out[j] = up
-            pos_out[j, k, 2] -= up
-
-
-@kernel(parallel=True)
-def avoidance_plans_threads(idx: np.ndarray, trk: TrackerRows, refs: ReferenceTable,
-                            consts: TrackerConsts, times_out: np.ndarray, pos_out: np.ndarray,
-                            climbed_out: np.ndarray, blocks: int) -> None:
-    """:func:`avoidance_plans` with the rows in ``blocks`` contiguous blocks, one per thread
-    (each row's outputs are its own: the same for any number)."""
-    r_count = idx.shape[0]
-    nb = max(1, min(r_count, blocks))
-    for b in numba.prange(nb):
-        lo, hi = b * r_count // nb, (b + 1) * r_count // nb
-        avoidance_plans(idx[lo:hi], trk, refs, consts, times_out[lo:hi], pos_out[lo:hi],
-                        climbed_out[lo:hi])
 
 
 class SentRows(NamedTuple):
@@ -483,7 +406,7 @@ def broadcasts_due(sched: Schedule, offsets_s: np.ndarray, now_s: float, rows_ou
     n = 0
     for i in range(offsets_s.shape[0]):
         own = now_s + offsets_s[i]
-        if own >= sched.next_broadcast_s[i] - _SCHEDULE_TOL_S:
+        if own >= sched.next_broadcast_s[i] - SCHEDULE_TOL_S:
             rows_out[n] = i
             stamps_out[n] = own
             n += 1
@@ -528,7 +451,7 @@ class OnboardBatch:
         #: :meth:`~uavmpc.avoidance.EncounterStrategy.hold_probes` to find.
         self.holding: set[int] = set()
         #: (N,) bool the row's strategy came to rest at a round with nobody near or silent
-        #: (:meth:`OnboardStack.rest`) and has not decided since. Rest is idempotent
+        #: (:meth:`~uavmpc.avoidance.round.Steering.rest`) and has not decided since. Rest is idempotent
         #: (:meth:`~uavmpc.avoidance.EncounterStrategy.rest`): a round that finds nobody near
         #: or silent again changes nothing for it, and is not asked of it.
         self.resting = np.zeros(n, dtype=np.bool_)
@@ -694,26 +617,12 @@ class OnboardStack:
         self.inbox = Inbox(uav_id, time_reference=params.time_reference,
                            max_age_s=params.timeout_s, key=key, table=inbox_table,
                            row=self.row, roster=roster)
-        #: The strategy when it decides from encounters found for it (the whole contract,
-        #: :class:`~uavmpc.avoidance.EncounterStrategy`) and its finder; else None (it gets
-        #: the messages through ``update``).
-        self._decider = avoidance if isinstance(avoidance, EncounterStrategy) else None
-        #: Its strategy when a height-offset one whose state is its row of
-        #: :attr:`OnboardBatch.strategies` (a round decides it with the others, in one
-        #: compiled call). A subclass that overrides ``decide`` keeps its own state and is
-        #: decided by its own code: the compiled round is the law of ``decide`` as written
-        #: in HeightOffsetStrategy, not of an override.
-        self._height: HeightOffsetStrategy | None = None
-        if (isinstance(avoidance, HeightOffsetStrategy)
-                and type(avoidance).decide is HeightOffsetStrategy.decide):
-            home = batch.strategies_for(self.inbox.table)
-            if home is not None:
-                avoidance.bind(home, self.row)
-                self._height = avoidance
-        self._finder = (self._decider.finder(self.inbox.table) if self._decider is not None
-                        else None)
+        #: Its avoidance: the decision it steers by and what that sets on its tracker
+        #: (:class:`~uavmpc.avoidance.round.Steering`; a round of many rows calls it).
+        self.steering = Steering(avoidance, self.tracker, batch, self.row, self.inbox.table,
+                                 uav_id, priority, batch.stats.avoiding)
         # Its messages list whom its finder counts (docs/safety.md, A2); without one, nobody.
-        f = self._finder
+        f = self.steering.own_finder
         senders = batch.senders
         senders.inbox_row[self.row] = self.inbox.row
         senders.priority[self.row] = _as_int64(priority)
@@ -721,8 +630,6 @@ class OnboardStack:
         senders.use_received[self.row] = f is not None and f.use_received
         senders.timeout_s[self.row] = f.timeout_s if f is not None else 0.0
         senders.silent_hold_s[self.row] = f.silent_hold_s if f is not None else 0.0
-        self.nominal_limits = self.tracker.limits
-        self.decision: AvoidanceDecision | None = None
         self.broadcast_period_s = float(broadcast_period_s)
         sched = batch.schedule
         sched.next_broadcast_s[self.row] = float(t0_s) + float(broadcast_phase_s)
@@ -732,9 +639,6 @@ class OnboardStack:
         #: False while the vehicle is not ours to steer (:meth:`follow`): no avoidance, and
         #: the broadcast flag down.
         self.cooperative = True
-        # The key of the limits in force (avoidance_limits' arguments): nominal at the start
-        # and from follow(), a decision's after.
-        self._limits_key: tuple[float, float | None, float | None, bool] = _NOMINAL_KEY
         self._ticked = False
         sched.planning[self.row] = False
         batch.resting[self.row] = False
@@ -773,14 +677,7 @@ class OnboardStack:
         heading = float(heading_of(_estimate_part(estimate, "attitude_wxyz", 4)))
         self.cooperative = False
         self.batch.schedule.planning[self.row] = False
-        self.batch.resting[self.row] = False
-        self.decision = None
-        self.batch.holding.discard(self.row)
-        self.tracker.hold_height(None)
-        self.batch.stats.avoiding[self.row] = False
-        if self._limits_key != _NOMINAL_KEY:
-            self._limits_key = _NOMINAL_KEY
-            self.tracker.set_limits(self.nominal_limits)
+        self.steering.release()
         lo, hi = self.tracker.limits.velocity_bounds()
         state = np.zeros((4, 3))
         state[:3, 0] = p
@@ -800,13 +697,15 @@ class OnboardStack:
     def plan(self, now_s: float) -> None:
         """Avoidance (every :data:`AVOIDANCE_PERIOD_S`, once there is a plan): the z offset
         and the limits for the next tracker tick."""
-        if self._finder is not None:  # the encounters found for it: the round of one row
-            avoidance_round(self.batch, {self.row: self}, self._finder, rows=self._idx)
+        steering = self.steering
+        if steering.own_finder is not None:  # the encounters found for it: a round of one row
+            avoidance_round(self.batch, {self.row: steering}, steering.own_finder,
+                            rows=self._idx)
             return
         if self.avoidance is None or not self.cooperative or not self._ticked:
             return
         plan_s = self.tracker.time_s
-        if not self.avoidance_due():
+        if not steering.due():
             return
         self.batch.schedule.next_avoidance_s[self.row] = plan_s + AVOIDANCE_PERIOD_S
         trk = self.batch.tracker
@@ -815,86 +714,13 @@ class OnboardStack:
         climbed = np.empty(1)
         avoidance_plans(self._idx, trk.rows, trk.table(), trk.consts, times, own, climbed)
         # only ``update``: the messages
-        self.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times[0], own[0],
-                                         self.inbox.latest))
-
-    def decide(self, plan_s: float, times_s: np.ndarray, found: Encounters,
-               climbed_m: float, positions_m: np.ndarray | None = None,
-               probes: list[Encounters] | None = None) -> None:
-        """Steer by its encounter strategy's decision on ``found``, the encounters of its plan
-        of times ``times_s`` (m,) and positions ``positions_m`` (m, 3) at ``plan_s`` (an
-        avoidance round, :func:`avoidance_round`); ``probes``: while it holds short, the
-        encounters of its :meth:`hold_probes`."""
-        assert self._decider is not None, "decide: the stack's strategy takes encounters"
-        self.batch.resting[self.row] = False
-        self.apply(self._decider.decide(plan_s, self.uav_id, self.priority, times_s, found,
-                                        climbed_m=climbed_m, positions=positions_m,
-                                        probes=probes))
-
-    def rest(self, plan_s: float) -> bool:
-        """Its avoidance round at ``plan_s`` when nobody is near or silent: if its strategy
-        has nothing left to do (:meth:`~uavmpc.avoidance.EncounterStrategy.rest`), steered by
-        the calm decision, marked :attr:`OnboardBatch.resting`, and True; else False, nothing
-        done (:meth:`decide` must run)."""
-        assert self._decider is not None, "rest: the stack's strategy takes encounters"
-        if not self._decider.rest(plan_s):
-            return False
-        self.apply(CALM)
-        self.batch.resting[self.row] = True
-        return True
-
-    def hold_probes(self, plan_s: float, times_s: np.ndarray, here_m: np.ndarray
-                    ) -> np.ndarray | None:
-        """While its strategy holds short: (D, m, 3) the plans it would fly going on now or
-        later (:meth:`~uavmpc.avoidance.HeightOffsetStrategy.hold_probes`); else None."""
-        return (None if self._decider is None
-                else self._decider.hold_probes(plan_s, times_s, here_m))
-
-    def steer_round(self, kind: int, z_offset_m: float = 0.0, first_s: float = math.nan,
-                    flags: np.ndarray | None = None, masks: np.ndarray | None = None,
-                    ids: Sequence[str] = (), silent: tuple[str, ...] = ()) -> None:
-        """Steer by its decision of an avoidance round (:func:`avoidance_round`): what
-        :func:`~uavmpc.avoidance.decide.decide_rows` said of its row (``kind``; for a new
-        decision its fields, see :meth:`~uavmpc.avoidance.HeightOffsetStrategy.decision_of`);
-        the caller marks :attr:`OnboardBatch.resting` (at rest: :data:`~uavmpc.avoidance.
-        decide.CALM_KIND`, as :meth:`rest` does)."""
-        assert self._height is not None
-        self.apply(self._height.decision_of(kind, z_offset_m, first_s, flags, masks, ids,
-                                            silent))
-
-    def encounter_overrides(self) -> dict[int, float]:
-        """Its strategy's per-pair radii by its inbox table's columns (none without one)."""
-        return ({} if self._decider is None
-                else self._decider.overrides(self.inbox.table))
-
-    @property
-    def decides_from_encounters(self) -> bool:
-        """Its strategy decides from encounters found for it (an
-        :class:`~uavmpc.avoidance.EncounterStrategy`)."""
-        return self._decider is not None
-
-    def encounter_finder(self, use_index: bool | None = True) -> EncounterFinder | None:
-        """A finder of its strategy's encounters among its inbox table's messages (for every
-        row of the table when all its stacks fly the same parameters), or None."""
-        if self._decider is None:
-            return None
-        return self._decider.finder(self.inbox.table, use_index=use_index)
-
-    def limit_offset(self, ceiling_m: float) -> None:
-        """Its avoidance climbs no higher than ``ceiling_m`` [m] over its mission (a
-        geofence's ceiling); without an encounter strategy, nothing to limit."""
-        if self._decider is not None:
-            self._decider.limit_offset(ceiling_m)
-
-    def avoidance_due(self) -> bool:
-        """The avoidance runs at this tick (its period has passed on the tracker's clock)."""
-        return bool(self.tracker.time_s
-                    >= self.batch.schedule.next_avoidance_s[self.row] - _SCHEDULE_TOL_S)
+        steering.apply(self.avoidance.update(plan_s, self.uav_id, self.priority, times[0],
+                                             own[0], self.inbox.latest))
 
     def emit(self, now_s: float) -> bytes | None:
         """After the tick: the prediction message when a broadcast is due (stamped ``now_s``)."""
         self.mark_ticked()
-        if now_s < self.batch.schedule.next_broadcast_s[self.row] - _SCHEDULE_TOL_S:
+        if now_s < self.batch.schedule.next_broadcast_s[self.row] - SCHEDULE_TOL_S:
             return None
         return broadcast(self.batch, (self,), np.array([now_s]))[0]
 
@@ -908,7 +734,8 @@ class OnboardStack:
     def flag_up(self) -> bool:
         """What its messages' flag says: "I will make way" (it runs avoidance on a vehicle
         it steers), down while its hold cannot (:attr:`AvoidanceDecision.stuck`)."""
-        stuck = self.decision is not None and self.decision.stuck
+        decision = self.steering.decision
+        stuck = decision is not None and decision.stuck
         return self.avoidance is not None and self.cooperative and not stuck
 
     def sent(self, now_s: float, data: bytes | None, avoiding: bool) -> bytes:
@@ -920,8 +747,9 @@ class OnboardStack:
         self.batch.schedule.next_broadcast_s[self.row] += self.broadcast_period_s
         if data is None:  # raises, naming the field the compiled checks stopped at
             data = encode(from_prediction(
-                self.prediction(), uav_id=self.uav_id, priority=self.priority, stamp_s=now_s,
-                avoiding=avoiding, heard=self.heard, position_sigma_m=self.position_sigma_m))
+                self.tracker.prediction(), uav_id=self.uav_id, priority=self.priority,
+                stamp_s=now_s, avoiding=avoiding, heard=self.heard,
+                position_sigma_m=self.position_sigma_m))
         if self.key is not None:
             data = sign(data, self.key)
         elif self.identity is not None:
@@ -952,37 +780,29 @@ class OnboardStack:
             self.batch.schedule.planning[self.row] = (self.avoidance is not None
                                                       and self.cooperative)
 
-    @property
-    def next_broadcast_s(self) -> float:
-        """When the next broadcast is due, on this stack's clock [s]."""
-        return float(self.batch.schedule.next_broadcast_s[self.row])
-
-    def state_uncertainty(self, sigma_h_m: float, sigma_v_m: float) -> None:
-        """State this (horizontal, vertical) 1σ of its position [m] from now on: in its
-        broadcasts, which every receiver widens the pair's cylinder by, and in its own
-        encounters (docs/safety.md, A3; :mod:`uavmpc.assumptions`)."""
-        if not (math.isfinite(sigma_h_m) and math.isfinite(sigma_v_m)
-                and sigma_h_m >= 0.0 and sigma_v_m >= 0.0):
-            raise ValueError(f"state_uncertainty: 1σ must be finite and ≥ 0, got "
-                             f"({sigma_h_m}, {sigma_v_m})")
-        self.batch.position_sigma_m[self.row, 0] = sigma_h_m
-        self.batch.position_sigma_m[self.row, 1] = sigma_v_m
-
     # ------------------------------------------------------------------ views
     @property
     def position_sigma_m(self) -> tuple[float, float]:
-        """The position uncertainty its messages state: (horizontal, vertical) 1σ [m]."""
+        """The position uncertainty it states: (horizontal, vertical) 1σ [m]. Set from now
+        on in its broadcasts, which every receiver widens the pair's cylinder by, and in its
+        own encounters (docs/safety.md, A3; :mod:`uavmpc.assumptions`)."""
         sigma = self.batch.position_sigma_m[self.row]
         return float(sigma[0]), float(sigma[1])
+
+    @position_sigma_m.setter
+    def position_sigma_m(self, sigma_m: tuple[float, float]) -> None:
+        sigma_h_m, sigma_v_m = sigma_m
+        if not (math.isfinite(sigma_h_m) and math.isfinite(sigma_v_m)
+                and sigma_h_m >= 0.0 and sigma_v_m >= 0.0):
+            raise ValueError(f"position_sigma_m: 1σ must be finite and ≥ 0, got "
+                             f"({sigma_h_m}, {sigma_v_m})")
+        self.batch.position_sigma_m[self.row, 0] = sigma_h_m
+        self.batch.position_sigma_m[self.row, 1] = sigma_v_m
 
     @property
     def last_output(self) -> TrackerOutput | None:
         """The tracker's last tick (None before the first)."""
         return self.tracker.batch.output(self.row) if self._ticked else None
-
-    def prediction(self) -> Prediction:
-        """The current plan (the last tick's), stamped."""
-        return self.tracker.prediction()
 
     def command(self) -> TrackerCommand:
         """The virtual UAV's current state: the command the controller follows."""
@@ -1005,56 +825,6 @@ class OnboardStack:
             messages_superseded=self.inbox.superseded,
             messages_rejected=dict(self.inbox.rejected))
 
-    # ------------------------------------------------------------------ internals
-    def apply(self, decision: AvoidanceDecision) -> None:
-        """Steer by an avoidance decision: its z offset and limits from the next tick on."""
-        if decision is self.decision:
-            return  # steering by it already (only this and follow() change what it sets)
-        self.decision = decision
-        if decision.z_offset_m != self.tracker.z_offset_m:
-            self.tracker.set_z_offset(decision.z_offset_m)
-        if decision.holding:
-            if self.row not in self.batch.holding:
-                self.tracker.hold_height(self._rest_height_m())
-            self.batch.holding.add(self.row)
-        else:
-            self.batch.holding.discard(self.row)
-            self.tracker.hold_height(None)
-        key = (decision.horizontal_scale, decision.climb_speed_mps, decision.climb_accel_mps2,
-               decision.holding)
-        if key != self._limits_key:
-            self._limits_key = key
-            self.tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
-        self.batch.stats.avoiding[self.row] = bool(decision.avoiding)
-
-    def _rest_height_m(self) -> float:
-        """The height a hold keeps, in the mission's frame (before the offset). While the
-        mission climbs or descends, where the virtual UAV's vertical motion comes to rest
-        braking at its limits (a hold at the height of now would overshoot and come back);
-        while the mission keeps its height (a go-to, a level path) right over the virtual
-        UAV, the mission's height: a UAV held during its take-off still climbs to where its
-        mission is (found on real PX4: held at its height mid take-off, a UAV flew its whole
-        mission 2.5 m above the ground), or at the mission's height already (the part of
-        the offset climbed aside). Not when the mission's point is elsewhere, at another
-        height: found in the vertical stack swap (2 × 5), a UAV held long enough for its
-        mission's point to reach its goal 22 m higher climbed straight up to it, into the
-        UAV above."""
-        ref = self.tracker.reference
-        state = self.tracker.state
-        z, v = float(state[2, 0]), float(state[2, 1])
-        if ref is not None:
-            t = self.tracker.time_s
-            at = ref.sample(np.array([t, t + _LEVEL_DT_S]))
-            z_ref = float(at[0, 2])
-            climbed = min(max(z - z_ref, 0.0), self.tracker.z_offset_m)
-            over = math.hypot(float(at[0, 0] - state[0, 0]), float(at[0, 1] - state[1, 0]))
-            if abs(float(at[1, 2]) - z_ref) <= _LEVEL_DZ_M and (
-                    over <= _OVER_M or abs(z - climbed - z_ref) <= _OVER_M):
-                return z_ref
-        lim = self.tracker.limits
-        brake = lim.descend_accel_mps2 if v > 0.0 else lim.ascend_accel_mps2
-        return z + v * abs(v) / (2.0 * brake) - self.tracker.z_offset_m
-
 
 def _estimate_part(estimate: VehicleState, name: str, n: int) -> np.ndarray:
     """A fresh, writable float64 (n,) copy of one field of the estimate (the exact array type
@@ -1068,179 +838,3 @@ def _estimate_part(estimate: VehicleState, name: str, n: int) -> np.ndarray:
         raise ValueError(f"estimate.{name}: not finite ({out.tolist()}); the stack refuses to "
                          "steer on it")
     return out
-
-
-@functools.lru_cache(maxsize=256)
-def avoidance_limits(nominal: DynamicLimits, horizontal_scale: float,
-                     climb_speed_mps: float | None, climb_accel_mps2: float | None,
-                     holding: bool = False) -> DynamicLimits:
-    """Nominal limits, horizontally tightened and with the climb lifted while avoiding; while
-    holding short, the horizontal speed limit :data:`~uavmpc.avoidance.strategy.
-    HOLD_SPEED_MPS` at the nominal acceleration (the tracker brakes as hard as it may).
-
-    Remembered for the process (a frozen value of frozen inputs): a world's UAVs share a
-    few nominal limits and switch between a few decisions' limits, and building one
-    validates eight numbers (~13 µs). With a memo per stack, 454 of the 579 changes of
-    limits in 4 s of the 300-UAV world built one."""
-    limits = nominal.scaled(horizontal=horizontal_scale)
-    if holding:
-        limits = dataclasses.replace(limits, horizontal_speed_mps=HOLD_SPEED_MPS,
-                                     horizontal_accel_mps2=nominal.horizontal_accel_mps2)
-    if climb_speed_mps is None and climb_accel_mps2 is None:
-        return limits
-    # A climb lifted is braked as hard as it may start: a multirotor stops a climb by easing
-    # its thrust. Found in the vertical stack swap (2 × 5): a climb at 5 m/s told to stop
-    # where it was went on for 5 m at the nominal 1 m/s² downwards, into the UAV above.
-    climb_accel = max(limits.ascend_accel_mps2, climb_accel_mps2 or 0.0)
-    return DynamicLimits(
-        limits.horizontal_speed_mps, limits.horizontal_accel_mps2,
-        max(limits.ascend_speed_mps, climb_speed_mps or 0.0), climb_accel,
-        limits.descend_speed_mps, max(limits.descend_accel_mps2, climb_accel),
-        limits.heading_rate_radps, limits.heading_accel_radps2,
-    )
-
-
-def avoidance_round(batch: OnboardBatch,
-                    stacks: Sequence[OnboardStack] | Mapping[int, OnboardStack],
-                    finder: EncounterFinder, rows: np.ndarray | None = None,
-                    overrides: Sequence[dict[int, float]] | None = None) -> np.ndarray:
-    """The avoidance of the stacks of ``batch`` due now (among ``rows`` (R,), default all),
-    each on its tracker's clock: their plans (:func:`avoidance_plans`), their encounters in
-    one call of ``finder`` (one finder for the rows of one inbox table), and each one's own
-    decision (:meth:`OnboardStack.decide`). ``stacks[i]`` is row i's stack; ``overrides``:
-    per row, its per-pair radii (default: asked of each stack). Returns the rows whose
-    strategies decided (D,): every other row due is at rest (steered by :data:`CALM`)."""
-    sched = batch.schedule
-    trk = batch.tracker
-    t = trk.rows.t_s
-    if rows is None:
-        due = np.flatnonzero(sched.planning & (t >= sched.next_avoidance_s - _SCHEDULE_TOL_S))
-    else:
-        due = rows[sched.planning[rows] & (t[rows] >= sched.next_avoidance_s[rows]
-                                           - _SCHEDULE_TOL_S)]
-    if not due.size:
-        return due
-    plan_s = t[due]
-    sched.next_avoidance_s[due] = plan_s + AVOIDANCE_PERIOD_S
-    m = trk.config.steps
-    times = np.empty((due.size, m))
-    own = np.empty((due.size, m, 3))
-    climbed = np.empty(due.size)
-    threads = thread_count()
-    if threads > 1 and due.size > 1:
-        bound(avoidance_plans_threads)(due, trk.rows, trk.table(), trk.consts, times, own, climbed,
-                                threads)
-    else:
-        bound(avoidance_plans)(due, trk.rows, trk.table(), trk.consts, times, own, climbed)
-    which = due.tolist()
-    # A UAV holding short also has its probes found (docs/safety.md, A6): the same receiver
-    # row again, once per probe, after the plans of this round.
-    held = []
-    if batch.holding:
-        for j, i in enumerate(which):
-            if i in batch.holding:
-                p = stacks[i].hold_probes(float(plan_s[j]), times[j], own[j, 0])
-                if p is not None:
-                    held.append((j, p))
-    # Per-pair radii are rare (a formation's): none to hand over when no row has any.
-    ov: list[dict[int, float]] | None = (
-        [stacks[i].encounter_overrides() for i in which] if overrides is None
-        else [overrides[i] for i in which] if any(overrides) else None)
-    radius = batch.radius_m[due]
-    sigma = batch.position_sigma_m[due]
-    if held:
-        at = [*range(due.size)] + [j for j, p in held for _ in range(p.shape[0])]
-        found = finder.find_rows(due[at], times[at],
-                                 np.concatenate([own, *(p for _, p in held)]), plan_s[at],
-                                 radius[at], None if ov is None else [ov[j] for j in at],
-                                 sigma[at])
-    else:  # most rounds: the rows once each, as they are
-        found = finder.find_rows(due, times, own, plan_s, radius, ov, sigma)
-    quiet = found.quiet[:due.size]
-    # Nobody near nor silent, and at rest since its last round: nothing happens to it
-    # (rest is idempotent, :attr:`OnboardBatch.resting`). Most UAVs, most rounds.
-    cand = np.flatnonzero(~(quiet & batch.resting[due]))
-    home = batch.strategies
-    if home is not None and home.table is finder.table and home.bound[due[cand]].all():
-        return _decide_round(batch, stacks, home, found, due, cand, plan_s, times, own,
-                             climbed, held)
-    # Another encounter strategy: each stack decides by itself, from Encounters objects.
-    probes: dict[int, list[Encounters]] = {}
-    k = due.size
-    for j, p in held:
-        probes[j] = [found.encounters(q) for q in range(k, k + p.shape[0])]
-        k += p.shape[0]
-    decided = []
-    for j in cand.tolist():
-        i = which[j]
-        if quiet[j] and stacks[i].rest(float(plan_s[j])):
-            continue  # come to rest now
-        stacks[i].decide(float(plan_s[j]), times[j], found.encounters(j), float(climbed[j]),
-                         own[j], probes.get(j))
-        decided.append(i)
-    return np.array(decided, dtype=np.int64)
-
-
-def _decide_round(batch: OnboardBatch, stacks: Sequence[OnboardStack] | Mapping[int, OnboardStack],
-                  home: StrategyTable, found: FoundRows, due: np.ndarray, cand: np.ndarray,
-                  plan_s: np.ndarray, times: np.ndarray, own: np.ndarray, climbed: np.ndarray,
-                  held: list[tuple[int, np.ndarray]]) -> np.ndarray:
-    """:func:`avoidance_round`'s decisions of the rows ``due[cand]`` in one compiled call
-    (:func:`~uavmpc.avoidance.decide.decide_rows`: their strategies' state is ``home``'s
-    rows); each stack then steers by its decision, made into an object only when it is not
-    its last one. Returns the rows that decided (not come to rest)."""
-    out = found.out
-    f_count = found.due.shape[0]
-    e_start = out.e_start[:f_count + 1]
-    e_count = int(e_start[f_count])
-    priority, avoiding = found.sender_flags()
-    # A tie of priorities (which a valid set-up never has) is broken by id.
-    receivers = np.repeat(found.due, np.diff(e_start))
-    before_us = np.zeros(e_count, dtype=np.bool_)
-    ties = np.flatnonzero(priority == batch.senders.priority[receivers])
-    if ties.size:
-        ids = home.ids
-        for e in ties.tolist():
-            before_us[e] = ids[out.e_col[e]] < stacks[int(receivers[e])].uav_id
-    q_lo = np.zeros(due.size, dtype=np.int64)
-    q_hi = np.zeros(due.size, dtype=np.int64)
-    has_probes = np.zeros(due.size, dtype=np.bool_)
-    k = due.size
-    for j, p in held:
-        q_lo[j], q_hi[j], has_probes[j] = k, k + p.shape[0], True
-        k += p.shape[0]
-    rows = due[cand]
-    d_count = rows.shape[0]
-    kind = np.empty(d_count, dtype=np.int8)
-    z = np.empty(d_count)
-    first = np.empty(d_count)
-    flags = np.empty((d_count, N_FLAGS), dtype=np.bool_)
-    masks = np.empty((e_count, N_MASKS), dtype=np.bool_)
-    strategy_rows = home.ensure(times.shape[1])
-    bound(decide_rows)(
-        strategy_rows, rows, plan_s[cand], times[cand], own[cand],
-        np.ones(d_count, dtype=np.bool_), climbed[cand], batch.senders.priority[rows],
-        EncounterRows(out.e_col[:e_count], out.e_silent[:e_count], out.e_near[:e_count],
-                      out.e_announced[:e_count], out.e_dz[:e_count], out.e_dxy[:e_count],
-                      out.e_hears[:e_count], out.e_widen_v[:e_count], priority, avoiding,
-                      before_us),
-        e_start, cand, q_lo[cand], q_hi[cand], has_probes[cand], out.s_start, out.s_col,
-        kind, z, first, flags, masks)
-    batch.resting[rows] = kind == CALM_KIND
-    decided = []
-    ids = home.ids
-    kinds = kind.tolist()
-    for j, i in enumerate(rows.tolist()):
-        c = kinds[j]
-        if c == NEW_KIND:
-            f = int(cand[j])
-            lo, hi = int(e_start[f]), int(e_start[f + 1])
-            s_lo, s_hi = int(out.s_start[f]), int(out.s_start[f + 1])
-            stacks[i].steer_round(c, float(z[j]), float(first[j]), flags[j], masks[lo:hi],
-                                  tuple(map(ids.__getitem__, out.e_col[lo:hi].tolist())),
-                                  tuple(map(ids.__getitem__, out.s_col[s_lo:s_hi].tolist())))
-        else:
-            stacks[i].steer_round(c)
-        if c != CALM_KIND:
-            decided.append(i)
-    return np.array(decided, dtype=np.int64)

@@ -216,7 +216,8 @@ class Supervisor:
         (A3: where its estimate is at the ceiling, its truth may lie that far above; found
         with single-band GNSS, a UAV raised to the ceiling was outside by its truth)."""
         if self.fence is not None:
-            self.stack.limit_offset(max(0.0, self.fence.ceiling_m(z_m) - self._sigma_above_m()))
+            room_m = self.fence.ceiling_m(z_m) - self._sigma_above_m()
+            self.stack.steering.limit_offset(max(0.0, room_m))
 
     def _sigma_above_m(self) -> float:
         """How far above its estimate the UAV may truly be [m]: ``uncertainty_k`` σ_v."""

@@ -5,7 +5,7 @@ decisions one call of :func:`decide_rows` for every UAV that decides (docs/scale
 A strategy object is a view of its row: it packs what it is handed (its
 :class:`~uavmpc.avoidance.encounters.Encounters`) into the arrays below and calls the same
 kernel for its one row; a world's avoidance round hands the kernel the encounters it found
-for all its UAVs at once (:func:`uavmpc.onboard.avoidance_round`). Every rule and the safety
+for all its UAVs at once (:func:`uavmpc.avoidance.round.avoidance_round`). Every rule and the safety
 argument behind it is documented on the strategy (docs/safety.md: A1 … A7); the comments here
 only say where the arrays differ from the objects.
 

@@ -481,7 +481,7 @@ class Node:
         if fresh:  # an old estimate would read as a tracking error (PX4 flies on a fresh one)
             w.tracking(now, state.position_m, stack.command().position_m,
                        airborne=bool(state.position_m[2] - vehicle.ground_z_m > TAKEOFF_BELOW_M))
-        stack.state_uncertainty(*w.stated_sigma_m())
+        stack.position_sigma_m = w.stated_sigma_m()
         self.broken = w.broken(now)
         if self.broken and sup.paused is None:
             # Hold where the virtual UAV comes to rest braking at its limits from now (a
@@ -678,7 +678,7 @@ class Node:
     def _publish_state(self, now: float, state: VehicleState) -> None:
         stack = self.stack
         assert stack is not None
-        decision = stack.decision
+        decision = stack.steering.decision
         cmd = stack.command()
         p, v, c = state.position_m, state.velocity_mps, cmd.position_m
         self.transport.put("state", NodeState(

@@ -92,7 +92,7 @@ def publish_status(topics: UavTopics, stamp_s: float, stack: OnboardStack,
     """The avoidance's state of ``stack`` on ``/<id>/avoidance``: its decision's, what its
     prediction messages carry (the ids heard, the stated position uncertainty), and the
     assumptions its driver finds ``broken`` now (:mod:`uavmpc.assumptions`)."""
-    d = stack.decision
+    d = stack.steering.decision
     sigma_h, sigma_v = stack.position_sigma_m
     topics.publish_avoidance(stamp_s, bool(d is not None and d.avoiding),
                              stack.tracker.z_offset_m,

@@ -34,6 +34,7 @@ from uavmpc.avoidance import (
     ResolutionStrategy,
 )
 from uavmpc.avoidance.encounters import EncounterFinder
+from uavmpc.avoidance.round import avoidance_round
 from uavmpc.comms.inbox import InboxTable
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.config import ConfigError
@@ -63,7 +64,6 @@ from uavmpc.onboard import (
     BROADCAST_PERIOD_S,
     OnboardBatch,
     OnboardStack,
-    avoidance_round,
     broadcast,
     broadcasts_due,
     next_broadcast_s,
@@ -227,10 +227,10 @@ def _world_finder(stacks: Sequence[OnboardStack],
     decides from encounters (an :class:`~uavmpc.avoidance.EncounterStrategy`); else None
     (each plans alone)."""
     planners = [s for s in stacks if s.avoidance is not None]
-    if not (planners and all(s.decides_from_encounters for s in planners)):
+    if not (planners and all(s.steering.own_finder is not None for s in planners)):
         return None
     # Every stack flies the world's parameters: the first one's finder is everyone's.
-    return planners[0].encounter_finder(use_index=index)
+    return planners[0].steering.finder(use_index=index)
 
 
 def _ticks_of(duration_s: float, realtime: float | None, period_s: float) -> int:
@@ -414,7 +414,8 @@ class World:
         self.shown = WorldScene(self)
         self._missions = [u for u in self.uavs if u.supervisor.mission is not None]
         self._finder = _world_finder(self._stacks, index)
-        self._overrides = [s.encounter_overrides() for s in self._stacks]
+        self._steering = [s.steering for s in self._stacks]
+        self._overrides = [s.overrides() for s in self._steering]
         self._next_round_s = -math.inf
         self._next_emit_s = -math.inf
         self._yields = Yields(self.uavs)
@@ -591,10 +592,10 @@ class World:
             self._yields.note(now, ())
 
     def _plan_round(self, now: float) -> None:
-        """The avoidance round of every UAV due at this tick (:func:`~uavmpc.onboard.
+        """The avoidance round of every UAV due at this tick (:func:`~uavmpc.avoidance.round.
         avoidance_round`, one finder for all), and when the next one can be due."""
         assert self._finder is not None
-        decided = avoidance_round(self.onboard, self._stacks, self._finder,
+        decided = avoidance_round(self.onboard, self._steering, self._finder,
                                   overrides=self._overrides)
         self._yields.add(decided.tolist())  # the others are calm: they yield to nobody
         sched = self.onboard.schedule

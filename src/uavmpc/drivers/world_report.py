@@ -100,7 +100,7 @@ class Yields:
     def add(self, decided: Iterable[int]) -> None:
         """``decided``: UAVs that may have decided since (those yielding are followed)."""
         for i in decided:
-            d = self.uavs[i].stack.decision
+            d = self.uavs[i].stack.steering.decision
             if d is not None and d.yielding_to:
                 self._yielding.add(i)
 
@@ -109,7 +109,7 @@ class Yields:
         self.add(decided)
         for i in sorted(self._yielding):
             u = self.uavs[i]
-            d = u.stack.decision
+            d = u.stack.steering.decision
             if d is None or not d.yielding_to:
                 self._yielding.discard(i)
                 continue

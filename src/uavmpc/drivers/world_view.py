@@ -61,7 +61,7 @@ class WorldScene:
             if stack.last_output is None:
                 continue
             s = u.plant.state()
-            d = stack.decision
+            d = stack.steering.decision
             plan = stack.last_broadcast
             desired = np.zeros((0, 3))
             ref = stack.tracker.reference
@@ -118,8 +118,8 @@ class WorldScene:
             row: dict[str, Any] = {"z_offset_m": u.stack.tracker.z_offset_m,
                                    "limit_excess": u.stack.tracker.limit_excess(),
                                    "tracker_fallbacks": u.stack.tracker.fallback_count,
-                                   "avoiding": bool(u.stack.decision is not None
-                                                    and u.stack.decision.avoiding)}
+                                   "avoiding": bool(u.stack.steering.decision is not None
+                                                    and u.stack.steering.decision.avoiding)}
             if u.uav_id in shown:
                 row.update(state=shown[u.uav_id].state, detail=shown[u.uav_id].detail)
             out[u.uav_id] = row
@@ -146,7 +146,7 @@ class WorldScene:
             if ref is not None:
                 r = ref.sample(np.array([w.t_s]))[0]
                 rec.pose(u.uav_id, "reference", w.t_s, r[:3], float(r[3]))
-            decision = u.stack.decision
+            decision = u.stack.steering.decision
             sigma_h, sigma_v = u.stack.position_sigma_m
             rec.status(u.uav_id, w.t_s,
                        velocity_mps=s.velocity_mps.tolist(),
