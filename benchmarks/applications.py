@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from uavmpc import scenarios
+from uavmpc.scenarios.run import RunSpec
 
 
 class _IgnoreMembers(dict):
@@ -42,7 +43,7 @@ def member_rule() -> dict:
     out = {}
     for name, strategy in (("with_member_cylinder", HeightOffsetStrategy),
                            ("without", without)):
-        s = World(scenarios.load("formation"), seed=0, strategy=strategy).run().summary()
+        s = World(RunSpec(scenarios.load("formation"), seed=0), strategy=strategy).run().summary()
         assert s.formation is not None and s.formation.error is not None
         out[name] = {"formation_error_rms_m": s.formation.error.rms_m,
                      "formation_error_max_m": s.formation.error.max_m,

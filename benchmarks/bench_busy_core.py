@@ -20,12 +20,13 @@ import sys, time
 from uavmpc.drivers.world import World
 from uavmpc.jit import set_threads
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 n, seconds, threads = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
 set_threads(threads)
 sc = random_walk(n, area_m=100.0 * (n / 5) ** 0.5, duration_s=seconds, seed=3)
-World(sc, seed=3).run(1.0)  # kernels loaded before the clock starts
+World(RunSpec(sc, seed=3)).run(1.0)  # kernels loaded before the clock starts
 t = time.perf_counter()
-r = World(sc, seed=3).run(seconds)
+r = World(RunSpec(sc, seed=3)).run(seconds)
 print(time.perf_counter() - t, float(r.min_distance_m.min()))
 """
 

@@ -15,6 +15,7 @@ from numba import njit
 from uavmpc.drivers.world import World
 from uavmpc.jit import set_threads
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 
 def flown(uavs: int, seconds: float) -> World:
@@ -22,8 +23,8 @@ def flown(uavs: int, seconds: float) -> World:
     avoidance, flown ``seconds`` on one thread (10 s of its mission left)."""
     set_threads(1)
     area = 100.0 * math.sqrt(uavs / 5.0)
-    w = World(random_walk(uavs, area_m=area, duration_s=seconds + 10.0, seed=1),
-              avoidance=True, seed=1)
+    w = World(RunSpec(random_walk(uavs, area_m=area, duration_s=seconds + 10.0, seed=1),
+                      avoidance=True, seed=1))
     w.run(seconds)
     return w
 

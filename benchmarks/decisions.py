@@ -23,6 +23,7 @@ from uavmpc.avoidance.round import Steering
 from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 #: (name, the scenario, World's keywords, seconds flown (None: the scenario's)).
 WORLDS: list[tuple[str, Callable[[], Any], dict[str, Any], float | None]] = [
@@ -53,7 +54,7 @@ def decisions() -> dict[str, tuple[list[tuple[str, float, dict[str, Any]]], byte
         out = {}
         for name, make, kwargs, seconds in WORLDS:
             changes.clear()
-            result = World(make(), **kwargs).run(seconds)
+            result = World(RunSpec(make(), **kwargs)).run(seconds)
             out[name] = (list(changes), result.positions_m[-1].tobytes())
         return out
     finally:

@@ -16,6 +16,7 @@ import numpy as np
 from uavmpc.drivers.world import World
 from uavmpc.jit import set_threads
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 #: (UAVs, area side [m], seconds flown)
 WORLDS = ((5, 100.0, 60.0), (20, 200.0, 30.0), (60, 346.0, 15.0))
@@ -25,7 +26,8 @@ def final_states() -> dict[str, np.ndarray]:
     set_threads(1)
     out = {}
     for n, area, seconds in WORLDS:
-        w = World(random_walk(n, area_m=area, duration_s=seconds, seed=3), avoidance=True, seed=3)
+        w = World(RunSpec(random_walk(n, area_m=area, duration_s=seconds, seed=3), avoidance=True,
+                          seed=3))
         w.run(seconds)
         out[f"plants_{n}"] = w.plants.x.copy()
         out[f"trackers_{n}"] = w.onboard.tracker.rows.state.copy()

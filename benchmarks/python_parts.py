@@ -26,6 +26,7 @@ import uavmpc.drivers.world as world
 import uavmpc.onboard as onboard
 from uavmpc.jit import bound, set_threads
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 #: (owner, attribute, label): the functions timed; module functions where they are called.
 TIMED: list[tuple[Any, str, str]] = [
@@ -70,12 +71,12 @@ def main(uavs: int = 300, threads: int = 2, seconds: float = 6.0) -> None:
     calls: collections.Counter[str] = collections.Counter()
     # Load (or compile) the kernels before wrapping them: a kernel calling a wrapped one
     # would not compile. 120 UAVs: several broadcast in one tick, as below.
-    world.World(random_walk(120, area_m=490.0, duration_s=1.0), avoidance=True).run(0.6)
+    world.World(RunSpec(random_walk(120, area_m=490.0, duration_s=1.0), avoidance=True)).run(0.6)
     for owner, name, label in TIMED:
         setattr(owner, name, _timed(getattr(owner, name), label, spent, calls))
     area = 100.0 * math.sqrt(uavs / 5.0)  # 5 UAVs per 100 m × 100 m
-    w = world.World(random_walk(uavs, area_m=area, duration_s=seconds, seed=1), avoidance=True,
-                    seed=1)
+    w = world.World(RunSpec(random_walk(uavs, area_m=area, duration_s=seconds, seed=1),
+                            avoidance=True, seed=1))
     t0 = time.perf_counter()
     w.run(seconds)
     wall = time.perf_counter() - t0

@@ -14,13 +14,15 @@ import sys
 from uavmpc.drivers.world import World
 from uavmpc.jit import set_threads
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 
 def main(sizes: list[int]) -> None:
     set_threads(1)
     for n in sizes:
         area = 100.0 * math.sqrt(n / 5.0)  # the protocol's density
-        w = World(random_walk(n, area_m=area, duration_s=30.0, seed=1), avoidance=True, seed=1)
+        w = World(RunSpec(random_walk(n, area_m=area, duration_s=30.0, seed=1), avoidance=True,
+                          seed=1))
         solves = iterations = samples = 0
         for _ in range(20):
             w.run(1.0)

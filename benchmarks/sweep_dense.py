@@ -51,6 +51,7 @@ from uavmpc import ConfigError, scenarios
 from uavmpc.drivers.world import World, WorldResult
 from uavmpc.scenarios import Scenario
 from uavmpc.scenarios.dense import antipodal, grid_shuffle, time_to_goals, vertical_swap
+from uavmpc.scenarios.run import RunSpec
 
 DENSE = ("antipodal_8", "antipodal_12", "noncooperative_crossing")
 _ANTIPODAL = re.compile(r"^antipodal_(\d+)$")
@@ -93,7 +94,7 @@ def fly(job: tuple[str, int, float, float | None, float | None]) -> dict[str, An
     link = dataclasses.replace(sc.link, loss=loss)
     if latency is not None:
         link = dataclasses.replace(link, latency_s=latency)
-    result = World(sc, seed=seed, link=link).run()
+    result = World(RunSpec(sc, seed=seed, link=link)).run()
     s = result.summary()
     goals = time_to_goals(result, sc)
     reached = {uid: bool(u.reached_goal) for uid, u in s.uavs.items()}

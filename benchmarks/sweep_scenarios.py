@@ -9,6 +9,7 @@ import json
 from uavmpc import scenarios
 from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
+from uavmpc.scenarios.run import RunSpec
 
 LINKS = {
     "ideal (50 ms)": None,
@@ -24,8 +25,8 @@ def main() -> None:
     for name in scenarios.CONFLICTS:
         for link_name, link in LINKS.items():
             for avoidance in (False, True):
-                runs = [World(scenarios.load(name), avoidance=avoidance, seed=seed,
-                              link=link).run().summary() for seed in range(args.seeds)]
+                runs = [World(RunSpec(scenarios.load(name), avoidance=avoidance, seed=seed,
+                                      link=link)).run().summary() for seed in range(args.seeds)]
                 row = {
                     "scenario": name, "link": link_name, "avoidance": avoidance,
                     "runs": len(runs),

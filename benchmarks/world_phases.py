@@ -19,14 +19,15 @@ import uavmpc
 from uavmpc.drivers.world import World
 from uavmpc.jit import set_threads
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 
 def main(threads: int = 2, uavs: int = 300, seconds: float = 10.0) -> dict[str, object]:
     set_threads(threads)
-    World(random_walk(2, duration_s=1.0), avoidance=True).run(0.5)
+    World(RunSpec(random_walk(2, duration_s=1.0), avoidance=True)).run(0.5)
     area = 100.0 * math.sqrt(uavs / 5.0)
-    world = World(random_walk(uavs, area_m=area, duration_s=seconds, seed=1), avoidance=True,
-                  seed=1)
+    world = World(RunSpec(random_walk(uavs, area_m=area, duration_s=seconds, seed=1),
+                          avoidance=True, seed=1))
     result = world.run(seconds)
     ticks = round(seconds / world.period_s)
     phases = result.sections["timing"]["wall_s_by_phase"]

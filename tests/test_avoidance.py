@@ -870,7 +870,7 @@ def test_a_stuck_uav_broadcasts_its_flag_down_and_the_others_yield_to_it() -> No
     from uavmpc.apps.campaign import RandomWalkSpec, trial_run
     from uavmpc.drivers.world import World
 
-    world = World.from_spec(trial_run(RandomWalkSpec(avoidance=True), 42))
+    world = World(trial_run(RandomWalkSpec(avoidance=True), 42))
     flags = []
     world.wire.publish = lambda stacks, data, now, send=world.wire.publish: (
         flags.extend((s.uav_id, s.steering.decision is not None

@@ -12,6 +12,7 @@ from uavmpc import scenarios
 from uavmpc.comms.link import SimulatedLink
 from uavmpc.config import ConfigError
 from uavmpc.scenarios import LinkSettings
+from uavmpc.scenarios.run import RunSpec
 
 P, L = 0.3, 4.0
 
@@ -178,4 +179,4 @@ def test_scenario_burst_len_reaches_the_world_link(tmp_path: Path) -> None:
     sc = scenarios.load(path)
     assert sc.link == LinkSettings(latency_s=0.05, jitter_s=0.02, loss=0.3, burst_len=4.0)
     assert LinkSettings.from_dict({}).burst_len == 0.0
-    assert World(sc).link.burst_len == 4.0
+    assert World(RunSpec(sc)).link.burst_len == 4.0

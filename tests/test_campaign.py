@@ -30,6 +30,7 @@ from uavmpc.scenarios.random_walk import (
     walk_start_s,
     waypoints_reached,
 )
+from uavmpc.scenarios.run import RunSpec
 
 
 def small(**kw) -> RandomWalkSpec:
@@ -100,8 +101,8 @@ def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) ->
     from uavmpc.scenarios.random_walk import random_walk as rw
 
     x = hit[0]
-    res = World(rw(3, 30.0, 10.0, 40.0, x["scenario_seed"]), avoidance=False,
-                seed=x["world_seed"]).run(x["first_collision_s"] + 0.1)
+    res = World(RunSpec(rw(3, 30.0, 10.0, 40.0, x["scenario_seed"]), avoidance=False,
+                        seed=x["world_seed"])).run(x["first_collision_s"] + 0.1)
     assert res.collisions[0].t == x["first_collision_s"]
 
 
@@ -309,7 +310,7 @@ def test_from_the_ground_the_uavs_climb_side_by_side_then_set_off() -> None:
     from uavmpc.drivers.world import World
 
     sc = random_walk(5, 12.0, 10.0, 30.0, seed=7, ground_start=True)
-    res = World(sc, avoidance=False, seed=3).run(30.0)
+    res = World(RunSpec(sc, avoidance=False, seed=3)).run(30.0)
     t, p = res.t_s, res.positions_m
     assert np.all(p[0, :, 2] < 0.01)  # resting on the ground
     assert np.all(np.abs(p[(t > 9.0) & (t < sc.walk_start_s), :, 2] - 10.0) < 0.1)  # up in time

@@ -5,6 +5,8 @@ import pytest
 
 from uavmpc import scenarios
 from uavmpc.drivers.world import World
+from uavmpc.scenarios.faults import Faults
+from uavmpc.scenarios.run import RunSpec
 
 HEAD_ON = """
 name = "head_on"
@@ -30,7 +32,8 @@ OFFSETS_S = (0.7, 0.0)
 def _fly(tmp_path, reference: str, extra: str = ""):
     path = tmp_path / f"{reference}{len(extra)}.toml"
     path.write_text(HEAD_ON.format(reference=reference, extra=extra))
-    world = World(scenarios.load(path), clock_offsets_s=OFFSETS_S, seed=1)
+    world = World(RunSpec(scenarios.load(path), seed=1,
+                          drawn=Faults.given(clock_offsets_s=OFFSETS_S)))
     return world, world.run()
 
 

@@ -51,6 +51,7 @@ from uavmpc.plant.interface import AttitudeTarget, Plant, VehicleState
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.plant.sensors import TargetFix
 from uavmpc.reference import Reference
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.solvers import AxisQpSolver, BatchAxisSolver, ClarabelSolver, DaqpSolver, QpResult
 from uavmpc.solvers.contract import check_solution
 from uavmpc.tracker import CondensedModel, TrackerConfig
@@ -323,7 +324,7 @@ def test_a_formation_refuses_a_strategy_without_per_pair_radii() -> None:
     from uavmpc.drivers.world import World
 
     with pytest.raises(ConfigError, match="_UpdateOnly has no per-pair radii"):
-        World(scenarios.load("formation"), strategy=_UpdateOnly)
+        World(RunSpec(scenarios.load("formation")), strategy=_UpdateOnly)
 
 
 # ---------------------------------------------------------------- QP solvers

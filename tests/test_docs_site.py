@@ -11,6 +11,7 @@ from pathlib import Path
 
 from uavmpc import scenarios
 from uavmpc.drivers.world import World
+from uavmpc.scenarios.run import RunSpec
 
 ROOT = Path(__file__).parents[1]
 
@@ -31,7 +32,7 @@ def test_the_getting_started_scenario_does_what_the_page_says() -> None:
     page = (ROOT / "docs" / "getting-started.md").read_text()
     toml = re.search(r"```toml\n(.*?)```", page, re.S).group(1)
     sc = scenarios.from_dict(tomllib.loads(toml), "crossing")
-    res = World(sc, seed=0).run()
+    res = World(RunSpec(sc, seed=0)).run()
     assert not res.collisions and res.min_distance_m.min() > 2.0
     s = res.summary().uavs
     assert "`north` climbs 3 m while `east` passes" in page

@@ -13,6 +13,7 @@ from uavmpc.comms.inbox import InboxTable, accept_copies
 from uavmpc.comms.message import SCHEMA_VERSION, InvalidMessageError, PredictionMessage, encode
 from uavmpc.drivers.world import World
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 HORIZON = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
 
@@ -314,7 +315,7 @@ def test_a_world_flown_with_the_index_equals_the_same_world_flown_all_pairs() ->
     """A dense 30-UAV random walk (several UAVs climbing at once), 20 s."""
     def fly(index: bool):
         sc = random_walk(30, area_m=120.0, duration_s=30.0, seed=3)
-        return World(sc, seed=3, index=index).run(20.0)  # 30 < 32: both forced
+        return World(RunSpec(sc, seed=3), index=index).run(20.0)  # 30 < 32: both forced
 
     a, b = fly(True), fly(False)
     assert np.array_equal(a.positions_m, b.positions_m)

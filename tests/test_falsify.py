@@ -36,7 +36,7 @@ def test_a_case_is_its_scenario_file_and_a_worst_case_replays_to_the_same_separa
     assert f"--seed {worst.seed}" in text.splitlines()[1]
     # the file flies the case the search flew: the same closest approach, by the truth
     sc = scenarios.load(paths[0])
-    res = World.from_spec(RunSpec(sc, seed=worst.seed)).run()
+    res = World(RunSpec(sc, seed=worst.seed)).run()
     assert float(res.min_distance_m.min()) == pytest.approx(worst.min_distance_m, abs=1e-9)
     # and the search's own flight of it agrees (θ → the same file)
     again = fly_case(space, np.array(worst.theta), worst.seed)
@@ -94,7 +94,7 @@ def test_the_falsifier_s_case_of_clocks_apart_keeps_2_m(loss: float) -> None:
     from uavmpc.scenarios.run import RunSpec
 
     sc = scenarios.load(Path(__file__).parent / "data" / "falsify_clocks_apart.toml")
-    res = World.from_spec(RunSpec(
+    res = World(RunSpec(
         sc, seed=47, link=LinkSettings(loss=loss, latency_s=0.2),
         faults=FaultSpec(clock_offset_s=0.5, gnss="single",
                          burst_len=3.0 if loss else 0.0))).run()
@@ -120,7 +120,7 @@ def test_the_falsifier_s_case_of_a_uav_held_in_the_way_keeps_2_m(all_faults: boo
               else FaultSpec(gnss="single"))
     link = (LinkSettings(loss=0.3, latency_s=0.2) if all_faults
             else LinkSettings(loss=0.0, latency_s=0.05))
-    res = World.from_spec(RunSpec(sc, seed=16, link=link, faults=faults)).run()
+    res = World(RunSpec(sc, seed=16, link=link, faults=faults)).run()
     assert not res.collisions
     assert float(res.min_distance_m.min()) >= 2.0
 
@@ -138,7 +138,7 @@ def test_the_falsifier_s_case_of_a_uav_released_while_holding_keeps_2_m() -> Non
     from uavmpc.scenarios.run import RunSpec
 
     sc = scenarios.load(Path(__file__).parent / "data" / "falsify_held_while_releasing.toml")
-    res = World.from_spec(RunSpec(
+    res = World(RunSpec(
         sc, seed=221, link=LinkSettings(loss=0.3, latency_s=0.2, jitter_s=0.02),
         faults=FaultSpec(clock_offset_s=0.5, gnss="single", burst_len=3.0))).run()
     assert not res.collisions

@@ -11,10 +11,11 @@ from uavmpc.apps.campaign import RandomWalkSpec, run_campaign
 from uavmpc.apps.cli import main
 from uavmpc.config import ConfigError
 from uavmpc.drivers.summary import RunSummary
-from uavmpc.drivers.world import World, world_faults
+from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
-from uavmpc.scenarios.faults import FaultSpec, draw_faults
+from uavmpc.scenarios.faults import Faults, FaultSpec, draw_faults
 from uavmpc.scenarios.random_walk import random_walk, waypoints_reached
+from uavmpc.scenarios.run import RunSpec
 
 IDS = [f"uav{i}" for i in range(1, 6)]
 
@@ -29,7 +30,7 @@ def test_draws_are_seeded_separate_and_within_their_bounds() -> None:
     assert not set(a.non_cooperative) & set(a.silent_from_s)  # a UAV has one fault of these
     assert all(0.0 <= t <= 600.0 for t in a.silent_from_s.values())
     assert draw_faults(FaultSpec(), IDS, 600.0, 0.0, 11).summary() == {}
-    world = World(random_walk(5, duration_s=10.0, seed=1), **world_faults(a))
+    world = World(RunSpec(random_walk(5, duration_s=10.0, seed=1), drawn=a))
     assert world.non_cooperative == a.non_cooperative
     assert world.silent_from_s == a.silent_from_s
     assert [u.clock_offset_s for u in world.uavs] == list(a.clock_offsets_s)
@@ -50,12 +51,12 @@ def test_bad_fault_specs_name_the_field(kw, needle) -> None:
 
 def test_a_silent_radio_sends_nothing_from_its_time_on_and_its_uav_flies_on() -> None:
     sc = random_walk(3, duration_s=20.0, seed=4)
-    world = World(sc, seed=1, silent_from_s={"uav2": 8.0})
+    world = World(RunSpec(sc, seed=1, drawn=Faults.given(silent_from_s={"uav2": 8.0})))
     res = world.run(20.0)
     assert world.silenced == pytest.approx(24, abs=1)  # 2 Hz for the last 12 s
     heard = world.uavs[0].stack.inbox.latest["uav2"]
     assert 7.0 < heard.stamp_s < 8.0  # the last prediction before the radio died
-    clean = World(sc, seed=1).run(20.0)
+    clean = World(RunSpec(sc, seed=1)).run(20.0)
     # uav2 itself flies its mission (its own stack never knew); at first the same flight.
     k = np.searchsorted(res.t_s, 8.0)
     assert np.array_equal(res.positions_m[:k], clean.positions_m[:k])
@@ -65,28 +66,28 @@ def test_a_silent_radio_sends_nothing_from_its_time_on_and_its_uav_flies_on() ->
     assert sc.uavs[1].mission.times_s[1] > 8.0
     assert np.linalg.norm(res.positions_m[k:, 1] - waypoint, axis=1).min() < 1.0
     with pytest.raises(ValueError, match="'uav9' not UAVs"):
-        World(sc, silent_from_s={"uav9": 1.0})
+        World(RunSpec(sc, drawn=Faults.given(silent_from_s={"uav9": 1.0})))
 
 
 def test_gnss_estimates_are_flown_the_same_batched_or_uav_by_uav() -> None:
     sc = random_walk(3, duration_s=15.0, seed=5)
-    a = World(sc, seed=2, gnss="rtk")
+    a = World(RunSpec(sc, seed=2, drawn=Faults.given(gnss="rtk")))
     ra = a.run(15.0)
-    rb = World(sc, seed=2, gnss="rtk", batched=False).run(15.0)
+    rb = World(RunSpec(sc, seed=2, drawn=Faults.given(gnss="rtk")), batched=False).run(15.0)
     assert np.array_equal(ra.positions_m, rb.positions_m)
     true = a.plants.x[:, 0:3]
     err = np.linalg.norm(a.estimator.estimate[:, 0:3] - true, axis=1)
     assert np.all(err < 0.1)  # RTK: centimetres
-    s = World(sc, seed=2, gnss="single")
+    s = World(RunSpec(sc, seed=2, drawn=Faults.given(gnss="single")))
     s.run(15.0)
     err = np.linalg.norm(s.estimator.estimate[:, 0:3] - s.plants.x[:, 0:3], axis=1)
     assert np.all(err < 10.0) and np.any(err > 0.2)  # metres, and not the truth
-    assert not np.array_equal(ra.positions_m, World(sc, seed=2).run(15.0).positions_m)
+    assert not np.array_equal(ra.positions_m, World(RunSpec(sc, seed=2)).run(15.0).positions_m)
 
 
 def test_waypoints_reached_counts_misses() -> None:
     sc = random_walk(2, duration_s=60.0, seed=3)
-    res = World(sc, seed=1).run(60.0)
+    res = World(RunSpec(sc, seed=1)).run(60.0)
     reached, due = waypoints_reached(sc, res.t_s, res.positions_m)
     assert due >= 4 and reached == due
     # A UAV that never moves reaches only the waypoint it starts at, if any.
@@ -160,14 +161,15 @@ def test_single_band_gnss_widens_every_pair_from_what_the_predictions_state() ->
     in its predictions, and every pair's cylinder widens by both (docs/safety.md, A3)."""
     from uavmpc.estimation.observer import ObserverParams
 
-    world = World(random_walk(3, duration_s=4.0, seed=1), gnss="single")
+    world = World(RunSpec(random_walk(3, duration_s=4.0, seed=1),
+                          drawn=Faults.given(gnss="single")))
     sigma = ObserverParams.preset("single").position_sigma_m
     assert sigma[0] > 1.0 and sigma[1] > sigma[0]  # metres, worse vertically
     np.testing.assert_array_equal(world.onboard.position_sigma_m, np.tile(sigma, (3, 1)))
     world.run(2.0)
     held = [world.inboxes.message(0, world.inboxes.col_of(u)) for u in ("uav2", "uav3")]
     assert all(m is not None and m.position_sigma_m == sigma for m in held)
-    rtk = World(random_walk(3, duration_s=4.0, seed=1), gnss="rtk")
+    rtk = World(RunSpec(random_walk(3, duration_s=4.0, seed=1), drawn=Faults.given(gnss="rtk")))
     assert rtk.onboard.position_sigma_m.max() < 0.05  # centimetres: next to no widening
 
 
@@ -177,7 +179,7 @@ def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> Non
     its start until its inbox holds a prediction from every other UAV, or until the longest
     wait; a radio silent from the start is waited for that long, and named."""
     sc = random_walk(3, duration_s=30.0, seed=4)
-    res = World(sc, seed=1, launch_check_s=5.0).run(30.0)
+    res = World(RunSpec(sc, seed=1, launch_check_s=5.0)).run(30.0)
     launch = res.sections["launch"]
     assert launch["max_wait_s"] == 5.0
     # A clean link: everyone heard within a broadcast period and the latency.
@@ -185,7 +187,8 @@ def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> Non
                == [] for u in sc.uavs)
     # uav2's radio is silent from the start: the others wait the full 5 s for it, uav2
     # itself (which hears them) sets off at once; everyone still flies its mission.
-    world = World(sc, seed=1, launch_check_s=5.0, silent_from_s={"uav2": 0.0})
+    world = World(RunSpec(sc, seed=1, launch_check_s=5.0,
+                          drawn=Faults.given(silent_from_s={"uav2": 0.0})))
     res = world.run(30.0)
     launch = res.sections["launch"]
     assert launch["uav2"]["launched_s"] < 1.0 and launch["uav2"]["not_heard"] == []
@@ -199,16 +202,18 @@ def test_the_launch_check_holds_each_uav_until_it_has_heard_every_other() -> Non
         assert np.linalg.norm(res.positions_m[~before, i, :2]
                               - np.array(sc.uavs[i].start_m[:2]), axis=1).max() > 5.0
     # Batched or UAV by UAV: the same flight, the same launches.
-    objects = World(sc, seed=1, launch_check_s=5.0, silent_from_s={"uav2": 0.0},
+    objects = World(RunSpec(sc, seed=1, launch_check_s=5.0,
+                            drawn=Faults.given(silent_from_s={"uav2": 0.0})),
                     batched=False).run(30.0)
     assert np.array_equal(objects.positions_m, res.positions_m)
     assert objects.sections["launch"] == launch
-    assert "launch" not in World(sc, seed=1).run(1.0).sections
+    assert "launch" not in World(RunSpec(sc, seed=1)).run(1.0).sections
     # A UAV flying without avoidance ignores the others: it is not held.
-    alone = World(sc, seed=1, launch_check_s=5.0, non_cooperative=["uav1"]).run(1.0)
+    alone = World(RunSpec(sc, seed=1, launch_check_s=5.0,
+                          drawn=Faults.given(non_cooperative=["uav1"]))).run(1.0)
     assert "uav1" not in alone.sections["launch"] and "uav2" in alone.sections["launch"]
     with pytest.raises(ValueError, match="launch_check_s"):
-        World(sc, launch_check_s=-1.0)
+        World(RunSpec(sc, launch_check_s=-1.0))
 
 
 def test_a_campaign_records_its_launch_check(tmp_path, capsys) -> None:
@@ -244,7 +249,7 @@ def test_a_uav_nobody_hears_yields_to_the_one_that_does_not_list_it() -> None:
                           "speed_mps": 3.0}},
             ]})
         # high's radio is dead from the start: low never hears it; high hears low
-        return World(sc, seed=0, silent_from_s={"high": 0.0}).run()
+        return World(RunSpec(sc, seed=0, drawn=Faults.given(silent_from_s={"high": 0.0}))).run()
 
     off = head_on(0.0)  # low does not know high is there; high waits for low to climb
     assert off.collisions
@@ -272,7 +277,16 @@ def test_apply_faults_is_the_one_split_of_a_spec() -> None:
     assert out_sc.uavs is sc.uavs and sc.avoidance.time_reference == "stamp"
     # the rest is the draw of the flight, as draw_faults makes it from the same seed
     assert drawn == draw_faults(spec, [u.uav_id for u in sc.uavs], 30.0, 0.0, 7)
-    assert world_faults(drawn)["gnss"] == "rtk"
+    assert drawn.spec.gnss == "rtk"
+    # Faults given (a test's, a replay's) are taken as they are, checked against the scenario
+    given = Faults.given(clock_offsets_s=[0.1, -0.1, 0.0, 0.2], non_cooperative=["uav2"])
+    assert apply_faults(given.spec, sc, link, duration_s=30.0, seed=7, given=given)[2] is given
+    with pytest.raises(ConfigError, match="'uav9' not UAVs of the scenario"):
+        RunSpec(sc, drawn=Faults.given(silent_from_s={"uav9": 1.0}))
+    with pytest.raises(ConfigError, match="need 4 offsets"):
+        RunSpec(sc, drawn=Faults.given(clock_offsets_s=[0.1]))
+    with pytest.raises(ConfigError, match="not the string 'uav1'"):
+        Faults.given(non_cooperative="uav1")
     with pytest.raises(ConfigError, match="burst-loss needs a loss rate"):
         apply_faults(spec, sc, LinkSettings(), duration_s=30.0, seed=7)
     with pytest.raises(ConfigError, match="non_cooperative"):

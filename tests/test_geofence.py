@@ -11,6 +11,7 @@ from waiting import wait_until
 from uavmpc.config import ConfigError
 from uavmpc.geofence import Geofence, GeofenceError
 from uavmpc.reference import Reference
+from uavmpc.scenarios.run import RunSpec
 
 BOX = Geofence.box((0.0, 100.0), (0.0, 50.0), (2.0, 40.0))
 # An L: the square [0, 60]² without its quarter [30, 60] × [30, 60].
@@ -212,7 +213,7 @@ def test_in_the_world_a_uav_outside_flies_back_in_and_offsets_respect_the_ceilin
     # above the 5 m missions, so uav3, which yields to both, cannot take the second (6 m).
     fence = {"box": [-30, -10, 30, 10], "min_altitude_m": 1.0, "max_altitude_m": 10.0}
     sc = scenarios.from_dict(_swap(fence, start1=(-40.0, 0.0, 5.0)))
-    world = World(sc, seed=1)
+    world = World(RunSpec(sc, seed=1))
     res = world.run(50.0)
     report = res.sections["geofence"]
     assert report["uav1"]["breaches"] == 1 and report["uav1"]["holding"]
@@ -223,7 +224,8 @@ def test_in_the_world_a_uav_outside_flies_back_in_and_offsets_respect_the_ceilin
     assert all(o.max_z_offset_m <= ceiling + 1e-9 for o in res.per_uav.values())
     assert np.all(res.positions_m[:, :, 2] <= 10.0)
     # Without the volume uav1 flies its mission from outside, and uav3 climbs two layers.
-    free = World(scenarios.from_dict(_swap(None, start1=(-40.0, 0.0, 5.0))), seed=1).run(50.0)
+    free = World(RunSpec(scenarios.from_dict(_swap(None, start1=(-40.0, 0.0, 5.0))),
+                         seed=1)).run(50.0)
     assert "geofence" not in free.sections
     assert np.linalg.norm(free.positions_m[-1, 0] - [25.0, 0.0, 5.0]) < 0.5
 
@@ -263,7 +265,7 @@ def test_a_uav_on_single_band_gnss_stays_under_the_ceiling_by_its_truth() -> Non
 
     fence = {"box": [-30, -10, 30, 10], "min_altitude_m": 1.0, "max_altitude_m": 10.0}
     sc = scenarios.from_dict(_swap(fence))
-    world = World.from_spec(RunSpec(sc, seed=0, faults=FaultSpec(gnss="single")))
+    world = World(RunSpec(sc, seed=0, faults=FaultSpec(gnss="single")))
     sigma_v = world.uavs[0].stack.position_sigma_m[1]
     assert sigma_v > 1.0  # single-band GNSS states metres
     res = world.run(50.0)

@@ -18,7 +18,9 @@ from uavmpc.comms.message import SCHEMA_VERSION, PredictionMessage, encode
 from uavmpc.drivers.world import World
 from uavmpc.jit import kernel, using_threads
 from uavmpc.scenarios import load
+from uavmpc.scenarios.faults import Faults
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 
 @kernel
@@ -87,13 +89,13 @@ def test_the_allocation_count_sees_an_array_lost_between_two_kernels() -> None:
 def _flights() -> list[tuple[str, World]]:
     landing = load("moving_target_landing")
     return [
-        ("batched, avoidance", World(random_walk(6, area_m=60.0, duration_s=20.0, seed=2),
-                                     avoidance=True, seed=2)),
-        ("per object", World(random_walk(3, area_m=40.0, duration_s=20.0, seed=2),
-                             avoidance=True, seed=2, batched=False)),
-        ("observer", World(random_walk(4, area_m=50.0, duration_s=20.0, seed=2),
-                           avoidance=True, seed=2, gnss="single")),
-        ("landing", World(landing, avoidance=True, seed=1)),
+        ("batched, avoidance", World(RunSpec(random_walk(6, area_m=60.0, duration_s=20.0, seed=2),
+                                             avoidance=True, seed=2))),
+        ("per object", World(RunSpec(random_walk(3, area_m=40.0, duration_s=20.0, seed=2),
+                                     avoidance=True, seed=2), batched=False)),
+        ("observer", World(RunSpec(random_walk(4, area_m=50.0, duration_s=20.0, seed=2),
+                                   avoidance=True, seed=2, drawn=Faults.given(gnss="single")))),
+        ("landing", World(RunSpec(landing, avoidance=True, seed=1))),
     ]
 
 

@@ -21,6 +21,7 @@ from uavmpc import scenarios
 from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.drivers.swarm import free_ports
 from uavmpc.drivers.world import World
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.view.live import LiveView
 
 pytestmark = pytest.mark.realtime  # flies on the wall clock
@@ -101,7 +102,7 @@ def test_a_client_receives_the_scene_while_a_run_flies_and_clients_do_not_distur
     assert late["/scene"]
     # The flight is the one flown without anyone watching.
     summary = RunSummary.read(tmp_path / "summary.json")
-    reference = World(scenarios.load("swap_through_static"), seed=0).run(12.0).summary()
+    reference = World(RunSpec(scenarios.load("swap_through_static"), seed=0)).run(12.0).summary()
     assert summary.min_distance_m == reference.min_distance_m
     assert summary.uavs == reference.uavs
 

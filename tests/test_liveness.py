@@ -56,7 +56,7 @@ speed_mps = 3.0
 start_s = 1.0
 """)
     spec = RunSpec(sc)
-    flown = World.from_spec(spec).run()
+    flown = World(spec).run()
     live = liveness(spec, flown)
     uav2 = live["per_uav"]["uav2"]
     assert uav2["free_s"] is not None and uav2["free_s"] < 15.0  # alone it flies there
@@ -90,8 +90,8 @@ speed_mps = 3.0
 start_s = 1.0
 """)
     spec = RunSpec(sc)
-    flown = World.from_spec(spec).run()
-    free = World.from_spec(RunSpec(sc, avoidance=False)).run()
+    flown = World(spec).run()
+    free = World(RunSpec(sc, avoidance=False)).run()
     live = liveness(spec, flown)
     for uav in ("a", "b"):
         e = live["per_uav"][uav]

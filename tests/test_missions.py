@@ -22,6 +22,7 @@ from uavmpc.plant.ground_vehicle import GroundVehicle
 from uavmpc.plant.interface import VehicleState
 from uavmpc.plant.sensors import TargetFix
 from uavmpc.reference import Reference
+from uavmpc.scenarios.run import RunSpec
 
 
 def _state(p: np.ndarray, v: np.ndarray, t: float = 0.0) -> VehicleState:
@@ -318,7 +319,7 @@ def test_a_second_uav_can_share_the_landing_arena() -> None:
         mission=Reference.along_path(np.array([[-40.0, 20.0, 3.5], [45.0, -20.0, 3.5]]), 4.0),
         goal_m=(45.0, -20.0, 3.5))
     sc = dataclasses.replace(sc, uavs=(*sc.uavs, crossing), duration_s=45.0)
-    r = World(sc, seed=1).run()
+    r = World(RunSpec(sc, seed=1)).run()
     s = r.summary()
     assert s.collisions == () and s.min_distance_m is not None and s.min_distance_m > 1.0
     assert s.landing is not None and s.landing.landed is True
@@ -329,7 +330,7 @@ def test_the_formation_keeps_its_slots_and_gives_way_to_an_outsider_as_a_whole()
     from uavmpc.drivers.world import World
 
     sc = dataclasses.replace(scenarios.load("formation"), duration_s=70.0)
-    r = World(sc, seed=0).run()
+    r = World(RunSpec(sc, seed=0)).run()
     s = r.summary()
     assert s.collisions == ()
     fe = s.formation
@@ -349,8 +350,8 @@ def test_the_landing_world_flies_the_same_batched_and_object_by_object() -> None
     from uavmpc.drivers.world import World
 
     sc = scenarios.load("moving_target_landing")
-    a = World(sc, seed=3).run(12.0)
-    b = World(sc, seed=3, batched=False).run(12.0)
+    a = World(RunSpec(sc, seed=3)).run(12.0)
+    b = World(RunSpec(sc, seed=3), batched=False).run(12.0)
     assert np.array_equal(a.positions_m, b.positions_m)
     assert a.landing is not None and b.landing is not None
     assert a.landing.transitions == b.landing.transitions

@@ -1,4 +1,4 @@
-"""Non-cooperative UAVs (``avoidance = false``, ``World(non_cooperative=...)``) and the dense,
+"""Non-cooperative UAVs (``avoidance = false``, ``Faults.given(non_cooperative=...)``) and the dense,
 adversarial built-in scenarios (antipodal circles, a non-cooperative crossing)."""
 
 import dataclasses
@@ -12,6 +12,8 @@ from uavmpc.drivers import world as world_module
 from uavmpc.drivers.world import World
 from uavmpc.scenarios import dense
 from uavmpc.scenarios.dense import antipodal, time_to_goals
+from uavmpc.scenarios.faults import Faults
+from uavmpc.scenarios.run import RunSpec
 
 DZ = 3.0
 
@@ -51,7 +53,7 @@ def _flags_heard(world: World) -> dict[str, bool]:
 def test_the_toml_flag_makes_a_uav_fly_without_avoidance(tmp_path) -> None:
     sc = _swap(tmp_path, "avoidance = false")
     assert [u.avoidance for u in sc.uavs] == [True, False]
-    world = World(sc)
+    world = World(RunSpec(sc))
     assert world.non_cooperative == ("b",)
     assert world.uavs[0].stack.avoidance is not None
     assert world.uavs[1].stack.avoidance is None
@@ -60,11 +62,11 @@ def test_the_toml_flag_makes_a_uav_fly_without_avoidance(tmp_path) -> None:
 
 
 def test_the_keyword_is_the_same_as_the_toml_flag(tmp_path) -> None:
-    by_keyword = World(_swap(tmp_path), non_cooperative=["b"])
+    by_keyword = World(RunSpec(_swap(tmp_path), drawn=Faults.given(non_cooperative=["b"])))
     assert by_keyword.non_cooperative == ("b",)
     r1 = by_keyword.run(12.0)
     assert _flags_heard(by_keyword) == {"a": True, "b": False}
-    r2 = World(_swap(tmp_path, "avoidance = false")).run(12.0)
+    r2 = World(RunSpec(_swap(tmp_path, "avoidance = false"))).run(12.0)
     np.testing.assert_array_equal(r1.positions_m, r2.positions_m)
     for r in (r1, r2):
         s = r.summary()
@@ -74,34 +76,37 @@ def test_the_keyword_is_the_same_as_the_toml_flag(tmp_path) -> None:
 
 def test_cooperative_is_world_avoidance_and_spec_and_not_listed(tmp_path) -> None:
     sc = _swap(tmp_path, "avoidance = true")
-    assert World(sc).non_cooperative == ()
-    assert World(sc, non_cooperative=("a", "b")).non_cooperative == ("a", "b")
-    off = World(sc, avoidance=False)
+    assert World(RunSpec(sc)).non_cooperative == ()
+    assert World(RunSpec(sc, drawn=Faults.given(non_cooperative=("a",
+                                                                 "b")))).non_cooperative == ("a",
+                                                                                             "b")
+    off = World(RunSpec(sc, avoidance=False))
     assert off.non_cooperative == ("a", "b")
     assert all(u.stack.avoidance is None for u in off.uavs)
     # Nobody singled out: the summary says nothing (with avoidance off, "avoidance": false).
-    assert "non_cooperative" not in World(sc).run(1.0).summary().sections
+    assert "non_cooperative" not in World(RunSpec(sc)).run(1.0).summary().sections
     assert "non_cooperative" not in off.run(1.0).summary().sections
 
 
 def test_a_non_cooperative_uav_flies_the_same_on_every_path(tmp_path) -> None:
     """Batched or UAV by UAV, encounters by the index or all pairs: bit for bit one flight."""
     sc = _swap(tmp_path, "avoidance = false")
-    ref = World(sc, seed=4).run(12.0).positions_m
+    ref = World(RunSpec(sc, seed=4)).run(12.0).positions_m
     for kwargs in ({"batched": False}, {"index": True}, {"index": False}):
-        np.testing.assert_array_equal(World(sc, seed=4, **kwargs).run(12.0).positions_m, ref)
+        np.testing.assert_array_equal(
+            World(RunSpec(sc, seed=4), **kwargs).run(12.0).positions_m, ref)
 
 
 def test_an_all_cooperative_world_flies_as_before(tmp_path) -> None:
     sc = _swap(tmp_path)
-    a = World(sc, seed=2).run(12.0)
-    b = World(sc, seed=2, non_cooperative=()).run(12.0)
+    a = World(RunSpec(sc, seed=2)).run(12.0)
+    b = World(RunSpec(sc, seed=2, drawn=Faults.given(non_cooperative=()))).run(12.0)
     np.testing.assert_array_equal(a.positions_m, b.positions_m)
 
 
 # ------------------------------------------------------------------ who yields to whom
 def test_a_cooperative_uav_climbs_over_a_non_cooperative_one(tmp_path) -> None:
-    result = World(_swap(tmp_path, "avoidance = false")).run()
+    result = World(RunSpec(_swap(tmp_path, "avoidance = false"))).run()
     s = result.summary()
     assert s.collisions == () and s.min_distance_m is not None and s.min_distance_m > 2.0
     a, b = s.uavs["a"], s.uavs["b"]
@@ -114,7 +119,8 @@ def test_a_cooperative_uav_climbs_over_a_non_cooperative_one(tmp_path) -> None:
 
 
 def test_two_non_cooperative_uavs_collide(tmp_path) -> None:
-    s = World(_swap(tmp_path), non_cooperative=["a", "b"]).run(15.0).summary()
+    s = World(RunSpec(_swap(tmp_path), drawn=Faults.given(non_cooperative=["a",
+                                                                           "b"]))).run(15.0).summary()
     assert s.collisions and s.collisions[0].a == "a"
     assert s.min_distance_m is not None and s.min_distance_m < 1.0
     assert s.sections["non_cooperative"] == ["a", "b"]
@@ -130,9 +136,9 @@ def test_the_flag_must_be_a_bool(tmp_path, value: str) -> None:
 def test_unknown_non_cooperative_ids_are_named(tmp_path) -> None:
     sc = _swap(tmp_path)
     with pytest.raises(ValueError, match=r"non_cooperative: 'c', 'zz' not UAVs"):
-        World(sc, non_cooperative=["a", "zz", "c"])
+        World(RunSpec(sc, drawn=Faults.given(non_cooperative=["a", "zz", "c"])))
     with pytest.raises(ValueError, match="not the string 'a'"):
-        World(sc, non_cooperative="a")
+        World(RunSpec(sc, drawn=Faults.given(non_cooperative="a")))
 
 
 def test_uav_spec_keeps_its_positional_constructor() -> None:
@@ -193,7 +199,7 @@ def test_dense_scenario_under_loss_no_collision_every_goal_in_time(name: str) ->
     assert name in scenarios.CONFLICTS + scenarios.DENSE
     assert sc.duration_s >= 2.0 * BUDGET_S[name]
     link = dataclasses.replace(sc.link, loss=0.3)
-    result = World(sc, seed=1, link=link).run()
+    result = World(RunSpec(sc, seed=1, link=link)).run()
     s = result.summary()
     assert s.collisions == (), s.collisions
     assert s.min_distance_m is not None and s.min_distance_m > 2.0
@@ -238,7 +244,7 @@ def test_antipodal_12_more_uavs_than_layers_hold_short_and_every_goal_is_reached
                     if u.stack.steering.decision is not None
                     and u.stack.steering.decision.holding)
 
-    result = World(sc).run(45.0, on_log=watch)
+    result = World(RunSpec(sc)).run(45.0, on_log=watch)
     s = result.summary()
     assert s.collisions == (), s.collisions
     assert s.min_distance_m is not None and s.min_distance_m > 2.0
@@ -253,7 +259,7 @@ def test_16_uavs_swap_under_a_30_m_ceiling_one_at_a_time_where_layers_run_out() 
     """A geofence's 30 m ceiling over a circle at 10 m leaves 7 layers (0 … 18 m of offset,
     1 m of margin) for 16 UAVs meeting above one point; every goal is reached."""
     sc = antipodal(16, duration_s=60.0, ceiling_m=30.0)
-    result = World(sc).run()
+    result = World(RunSpec(sc)).run()
     s = result.summary()
     assert s.collisions == (), s.collisions
     assert s.min_distance_m is not None and s.min_distance_m > 2.0
@@ -263,7 +269,7 @@ def test_16_uavs_swap_under_a_30_m_ceiling_one_at_a_time_where_layers_run_out() 
 
 
 def test_time_to_goals_needs_the_scenario_of_the_result(tmp_path) -> None:
-    result = World(_swap(tmp_path)).run(0.5)
+    result = World(RunSpec(_swap(tmp_path))).run(0.5)
     assert time_to_goals(result, _swap(tmp_path)) == {"a": None, "b": None}
     with pytest.raises(ValueError, match="not the scenario's"):
         time_to_goals(result, antipodal(2))

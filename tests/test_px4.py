@@ -438,7 +438,7 @@ def test_nodes_flying_stand_ins_avoid_each_other_and_without_avoidance_collide(
     # (the same scenario in the simulated world, whose tracking equals the node's plant). The
     # stand-in's estimates come at PX4's 30 Hz and wander as EKF2's do, so the bound is
     # absolute: a decimetre-scale error, not a multiple of the ideal plant's centimetres.
-    world = World(sc, seed=0).run(sc.duration_s)
+    world = World(RunSpec(sc, seed=0)).run(sc.duration_s)
     for uav, u in s.uavs.items():
         built_in = world.per_uav[uav].tracking_rmse_m
         assert u.tracking_rmse_m is not None

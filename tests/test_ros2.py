@@ -453,7 +453,7 @@ def test_the_simulated_world_in_real_time_is_on_the_graph_and_takes_goals() -> N
 
     router, endpoint = _router()
     sc = scenarios.load("swap_through_static")
-    world = World(sc)
+    world = World(RunSpec(sc))
     result: dict = {}
     try:
         with ros2.Ros2Graph(endpoint, node_name="uavmpc_world") as graph:

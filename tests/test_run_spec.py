@@ -16,7 +16,7 @@ from uavmpc.config import ConfigError
 from uavmpc.drivers.swarm import run_swarm
 from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
-from uavmpc.scenarios.faults import FaultSpec
+from uavmpc.scenarios.faults import Faults, FaultSpec
 from uavmpc.scenarios.random_walk import random_walk
 from uavmpc.scenarios.run import RunSpec
 
@@ -63,11 +63,11 @@ def test_from_spec_flies_what_the_world_flies_given_the_same_settings_by_hand() 
     sc = random_walk(3, duration_s=8.0, seed=4)
     spec = RunSpec(sc, seed=5, link=LinkSettings(loss=0.3, latency_s=0.1), wind_mps=2.0,
                    faults=FaultSpec(clock_offset_s=0.2, non_cooperative=1), duration_s=6.0)
-    by_spec = World.from_spec(spec).run()
+    by_spec = World(spec).run()
     f = spec.flown
-    by_hand = World(f.scenario, seed=5, link=f.link, wind_mps=2.0,
-                    clock_offsets_s=f.faults.clock_offsets_s,
-                    non_cooperative=f.faults.non_cooperative).run(6.0)
+    by_hand = World(RunSpec(f.scenario, seed=5, link=f.link, wind_mps=2.0,
+                            drawn=Faults.given(clock_offsets_s=f.faults.clock_offsets_s,
+                                               non_cooperative=f.faults.non_cooperative))).run(6.0)
     assert by_spec.duration_s == pytest.approx(6.0)
     np.testing.assert_array_equal(by_spec.positions_m, by_hand.positions_m)
 
@@ -121,7 +121,7 @@ def test_a_swarm_flies_the_scenario_s_geofence_and_offsets_as_the_world_does(
     assert sc.geofence is not None
     ceiling = sc.geofence.offset_ceiling_m(np.array([8.0]))
     assert ceiling == 3.0
-    world = World.from_spec(RunSpec(sc)).run()
+    world = World(RunSpec(sc)).run()
     swarm = run_swarm(RunSpec(sc), tmp_path)
     offsets = {u: s.max_z_offset_m for u, s in world.per_uav.items()}
     assert offsets == {"uav1": 0.0, "uav2": 3.0, "uav3": 3.0}  # two yield, one layer each

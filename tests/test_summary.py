@@ -17,16 +17,17 @@ from uavmpc.drivers.summary import (
     run_status,
 )
 from uavmpc.drivers.world import World
+from uavmpc.scenarios.run import RunSpec
 
 
 @pytest.fixture(scope="module")
 def landing() -> RunSummary:
-    return World(scenarios.load("moving_target_landing"), seed=1).run(12.0).summary()
+    return World(RunSpec(scenarios.load("moving_target_landing"), seed=1)).run(12.0).summary()
 
 
 @pytest.fixture(scope="module")
 def formation() -> RunSummary:
-    return World(scenarios.load("formation"), seed=0).run(12.0).summary()
+    return World(RunSpec(scenarios.load("formation"), seed=0)).run(12.0).summary()
 
 
 def test_a_summary_round_trips_through_its_file(tmp_path, landing, formation) -> None:
@@ -89,7 +90,7 @@ def test_a_world_run_gets_its_status_from_the_same_rule(landing, formation) -> N
     assert formation.status is run_status(
         collisions=len(formation.collisions),
         reached_goal=[u.reached_goal for u in formation.uavs.values()])
-    crash = World(scenarios.load("swap_through_static"), avoidance=False, seed=0).run()
+    crash = World(RunSpec(scenarios.load("swap_through_static"), avoidance=False, seed=0)).run()
     assert crash.summary().status is RunStatus.COLLISION
 
 

@@ -17,6 +17,7 @@ from uavmpc.plant import Airframe
 from uavmpc.plant.interface import heading_of
 from uavmpc.plant.multirotor import Multirotor
 from uavmpc.reference import Reference
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.supervisor import FenceGuard, Supervisor
 
 AIRFRAME = Airframe.packaged("f550")
@@ -174,7 +175,7 @@ def test_the_world_and_a_node_take_the_same_failsafe_decision() -> None:
     from uavmpc.drivers.world import World
 
     fence = {"box": [-30, -10, 30, 10], "min_altitude_m": 1.0, "max_altitude_m": 10.0}
-    world = World(scenarios.from_dict(_swap(fence, start1=(-40.0, 0.0, 5.0))), seed=1)
+    world = World(RunSpec(scenarios.from_dict(_swap(fence, start1=(-40.0, 0.0, 5.0))), seed=1))
     res = world.run(0.01)  # one tick: the failsafe looks after it
     u = world.uavs[0]
     assert res.sections["geofence"]["uav1"]["breaches"] == 1

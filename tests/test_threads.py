@@ -11,7 +11,9 @@ from uavmpc.apps.campaign_engine import CampaignError, split_cores
 from uavmpc.apps.cli import main
 from uavmpc.drivers.world import World
 from uavmpc.jit import CACHE_DIR, CompileWatch, available_threads, set_threads, thread_count
+from uavmpc.scenarios.faults import Faults, FaultSpec
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 
 needs_two = pytest.mark.skipif(available_threads() < 2, reason="one core: nothing to split")
 
@@ -22,19 +24,20 @@ def restore_threads():
     set_threads(None)
 
 
-def _fly(threads: int, **world: object) -> tuple[np.ndarray, ...]:
+def _fly(threads: int, faults: FaultSpec) -> tuple[np.ndarray, ...]:
     set_threads(threads)
     # 12 UAVs in the protocol's density: encounters, climbs and releases within 8 s.
     sc = random_walk(12, area_m=155.0, duration_s=8.0, seed=4)
-    r = World(sc, seed=4, **world).run(8.0)
+    r = World(RunSpec(sc, seed=4, faults=faults)).run(8.0)
     return r.positions_m, r.z_offset_m, r.min_distance_m
 
 
 @needs_two
-@pytest.mark.parametrize("world", [{}, {"gnss": "single"}], ids=["truth", "estimated"])
-def test_flight_is_bit_identical_for_any_thread_count(world, restore_threads) -> None:
-    one = _fly(1, **world)
-    two = _fly(2, **world)
+@pytest.mark.parametrize("faults", [FaultSpec(), FaultSpec(gnss="single")],
+                         ids=["truth", "estimated"])
+def test_flight_is_bit_identical_for_any_thread_count(faults, restore_threads) -> None:
+    one = _fly(1, faults)
+    two = _fly(2, faults)
     assert np.ptp(one[1]) > 0 or np.ptp(one[0][:, :, 2]) > 0  # something happened
     for a, b in zip(one, two, strict=True):
         assert a.shape == b.shape
@@ -53,7 +56,7 @@ def test_a_large_world_on_threads_takes_its_copies_and_broadcasts_bit_identicall
     out = []
     for threads in (1, 2):
         set_threads(threads)
-        w = World(random_walk(120, area_m=490.0, duration_s=3.0, seed=6), seed=6)
+        w = World(RunSpec(random_walk(120, area_m=490.0, duration_s=3.0, seed=6), seed=6))
         r = w.run(3.0)
         out.append((r.positions_m, r.z_offset_m, w.inboxes.rows.held_slot,
                     w.inboxes.rows.accepted, w.inboxes.store.holders,
@@ -77,11 +80,11 @@ def test_a_world_with_every_fault_flies_the_same_on_two_threads(restore_threads)
         set_threads(threads)
         sc = random_walk(30, area_m=245.0, duration_s=6.0, seed=7)
         ids = [u.uav_id for u in sc.uavs]
-        w = World(sc, seed=7, link=LinkSettings(loss=0.3, burst_len=3.0, latency_s=0.05,
-                                                jitter_s=0.02),
-                  clock_offsets_s=list(np.linspace(-0.2, 0.2, 30)), non_cooperative=ids[:2],
-                  silent_from_s={ids[3]: 2.0, ids[4]: 0.0}, gnss="single",
-                  launch_check_s=1.0)
+        link = LinkSettings(loss=0.3, burst_len=3.0, latency_s=0.05, jitter_s=0.02)
+        faults = Faults.given(clock_offsets_s=list(np.linspace(-0.2, 0.2, 30)),
+                              non_cooperative=ids[:2], silent_from_s={ids[3]: 2.0, ids[4]: 0.0},
+                              gnss="single")
+        w = World(RunSpec(sc, seed=7, link=link, launch_check_s=1.0, drawn=faults))
         r = w.run(6.0)
         out.append((r.positions_m, r.z_offset_m, r.min_distance_m, w.inboxes.rows.held_slot,
                     w.inboxes.rows.accepted, np.array(list(vars(w.link.stats).values())),
@@ -243,10 +246,11 @@ def test_one_thread_flies_the_plain_tick_and_two_the_threaded_one() -> None:
             "from uavmpc.drivers.world_tick import world_tick, world_tick_threads\n"
             "from uavmpc.jit import set_threads\n"
             "from uavmpc.scenarios.random_walk import random_walk\n"
-            "World(random_walk(3, duration_s=1.0, seed=1), seed=1).run(0.2)\n"
+            "from uavmpc.scenarios.run import RunSpec\n"
+            "World(RunSpec(random_walk(3, duration_s=1.0, seed=1), seed=1)).run(0.2)\n"
             "print(len(world_tick.overloads), len(world_tick_threads.overloads))\n"
             "set_threads(2)\n"
-            "World(random_walk(3, duration_s=1.0, seed=1), seed=1).run(0.2)\n"
+            "World(RunSpec(random_walk(3, duration_s=1.0, seed=1), seed=1)).run(0.2)\n"
             "print(len(world_tick.overloads), len(world_tick_threads.overloads))\n")
     env = {**os.environ, "UAVMPC_THREADS": "1"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -267,9 +271,11 @@ def test_more_threads_than_cores_fly_the_same_flight() -> None:
         "import uavmpc.drivers.world as wm\n"
         "from uavmpc.jit import set_threads\n"
         "from uavmpc.scenarios.random_walk import random_walk\n"
+        "from uavmpc.scenarios.run import RunSpec\n"
         "def fly(threads):\n"
         "    set_threads(threads)\n"
-        "    w = wm.World(random_walk(30, area_m=245.0, duration_s=3.0, seed=2), seed=2)\n"
+        "    sc = random_walk(30, area_m=245.0, duration_s=3.0, seed=2)\n"
+        "    w = wm.World(RunSpec(sc, seed=2))\n"
         "    r = w.run(3.0)\n"
         "    return (r.positions_m, r.z_offset_m, r.min_distance_m, w.inboxes.rows.held_slot,\n"
         "            w.inboxes.rows.accepted, np.array(list(vars(w.link.stats).values())))\n"

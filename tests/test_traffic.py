@@ -12,6 +12,7 @@ from uavmpc.apps.traffic_campaign import run_traffic_campaign
 from uavmpc.config import ConfigError
 from uavmpc.drivers.summary import RunSummary
 from uavmpc.drivers.world import World
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.scenarios.traffic import (
     ARRIVAL_TOLERANCE_M,
     DEPARTURE_START_S,
@@ -102,11 +103,11 @@ def test_two_heights_follow_the_semicircular_rule() -> None:
 
 def test_small_traffic_with_avoidance_has_no_collision_and_the_outcome_adds_up() -> None:
     sc = traffic(10, 3, **SMALL)
-    without = World(sc, avoidance=False, seed=0).run(40.0)
+    without = World(RunSpec(sc, avoidance=False, seed=0)).run(40.0)
     assert without.collisions  # the traffic is dense enough to need avoiding
     assert traffic_outcome(without, sc)["collisions"] == len(without.collisions)
 
-    result = World(sc, avoidance=True, seed=0).run()
+    result = World(RunSpec(sc, avoidance=True, seed=0)).run()
     o = traffic_outcome(result, sc)
     assert not result.collisions and o["collisions"] == 0
     assert o["closest_approach_m"] == pytest.approx(result.min_distance_m.min())

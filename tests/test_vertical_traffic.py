@@ -36,7 +36,7 @@ def test_a_held_uav_stops_its_climb_too(seed: int) -> None:
     only the horizontal motion: the mission's own climb carried a held UAV into the one it
     yielded to. A hold now keeps its height (the offset still moves it). Not every goal is
     reached yet: the layer has no sideways move (docs/safety.md)."""
-    res = World.from_spec(RunSpec(vertical_swap(3, duration_s=90.0), seed=seed)).run()
+    res = World(RunSpec(vertical_swap(3, duration_s=90.0), seed=seed)).run()
     assert not res.collisions, res.collisions
     assert float(res.min_distance_m.min()) > 1.0
     assert res.positions_m[:, :, 2].max() <= 30.0
@@ -50,7 +50,7 @@ def test_the_2x5_swap_checks_every_climb_and_holds_in_3d() -> None:
     layer its climb could not reach and the mission's climb went on between holds (0.29 m);
     a UAV held until its mission's point had reached its goal took that goal's height, 22 m
     up, as the height to hold (0.69 m). Not yet 2 m, nor every goal (docs/safety.md)."""
-    res = World.from_spec(RunSpec(vertical_swap(5, duration_s=30.0), seed=0)).run()
+    res = World(RunSpec(vertical_swap(5, duration_s=30.0), seed=0)).run()
     assert not res.collisions, res.collisions
     assert float(res.min_distance_m.min()) > 1.0
     assert res.positions_m[:, :, 2].max() <= 42.0  # the ceiling, 12 m above the top

@@ -16,13 +16,14 @@ from mcap.reader import make_reader
 from uavmpc import scenarios
 from uavmpc.drivers.world import World
 from uavmpc.log import FlightRecorder
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.view.scene import STATES, UavView, scene_update
 
 
 def _record(sc: scenarios.Scenario, path: Path, seconds: float) -> None:
     with FlightRecorder(path, [u.uav_id for u in sc.uavs], {"scenario": sc.name},
                         ("ground_vehicle",) if sc.ground_vehicle is not None else ()) as rec:
-        World(sc, seed=0, recorder=rec).run(seconds)
+        World(RunSpec(sc, seed=0), recorder=rec).run(seconds)
 
 
 def _read(path: Path) -> dict[str, list[tuple[int, dict]]]:

@@ -12,12 +12,13 @@ from uavmpc.drivers.summary import RunStatus, RunSummary
 from uavmpc.drivers.world import World
 from uavmpc.log import read_topics
 from uavmpc.scenarios import LinkSettings
+from uavmpc.scenarios.run import RunSpec
 
 DZ = 3.0
 
 
 def _run(name: str, avoidance: bool, seed: int = 0, link: LinkSettings | None = None):
-    return World(scenarios.load(name), avoidance=avoidance, seed=seed, link=link).run()
+    return World(RunSpec(scenarios.load(name), avoidance=avoidance, seed=seed, link=link)).run()
 
 
 @pytest.mark.parametrize("name", scenarios.CONFLICTS)
@@ -69,7 +70,7 @@ def test_scenario_is_collision_free_with_avoidance(name: str, link: LinkSettings
 def test_bad_messages_are_dropped_counted_and_change_nothing() -> None:
     """Garbage on the link (malformed, NaN, wrong version, future-stamped) is counted by each
     receiver and leaves every flight bit-identical to the same run without it."""
-    clean = World(scenarios.load("swap_through_static"), seed=5).run(20.0)
+    clean = World(RunSpec(scenarios.load("swap_through_static"), seed=5)).run(20.0)
     horizon = np.cumsum(np.r_[0.01, np.full(39, 0.2)])
 
     def intruder(stamp: float) -> bytes:  # a prediction right through everyone's path
@@ -81,7 +82,7 @@ def test_bad_messages_are_dropped_counted_and_change_nothing() -> None:
     wrong_version = valid[:4] + bytes([99]) + valid[5:]
     nan = valid[:-8] + np.array([np.nan]).tobytes()
     future = intruder(500.0)
-    world = World(scenarios.load("swap_through_static"), seed=5)
+    world = World(RunSpec(scenarios.load("swap_through_static"), seed=5))
     garbage = [b"", b"\x00" * 7, valid[:30], wrong_version, nan, future, valid + b"trailing"]
     # Deliver garbage straight to each receiver (not through publish: the link's random stream
     # must stay the same as in the clean run).
@@ -153,7 +154,7 @@ def test_bad_scenario_files_name_the_field(tmp_path, edit, match: str) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(edit(text))
     with pytest.raises(ConfigError, match=match):
-        World(scenarios.load(path))
+        World(RunSpec(scenarios.load(path)))
 
 
 def test_cli_reports_bad_scenarios_without_a_traceback(tmp_path, capsys) -> None:
@@ -174,7 +175,7 @@ class _NeverYield:
 
 
 def test_the_resolution_strategy_is_pluggable() -> None:
-    world = World(scenarios.load("swap_through_static"), strategy=_NeverYield)
+    world = World(RunSpec(scenarios.load("swap_through_static")), strategy=_NeverYield)
     assert all(isinstance(u.stack.avoidance, _NeverYield) for u in world.uavs)
     assert world.run(15.0).collisions  # the strategy, not the plumbing, avoids collisions
 
@@ -183,7 +184,7 @@ def test_a_conflict_at_close_range_costs_one_dz_not_a_runaway_climb(hover_pair) 
     """Two UAVs hover 2 m apart: the lower priority climbs exactly Δz and stays there. (Checking
     candidate offsets against a plan still climbing towards the current offset would find the
     same conflict every update and climb to the ceiling.)"""
-    result = World(scenarios.load(hover_pair)).run(12.0)
+    result = World(RunSpec(scenarios.load(hover_pair))).run(12.0)
     offsets = result.z_offset_m[:, result.uav_ids.index("uav2")]
     assert offsets.max() == DZ and offsets[-1] == DZ
     assert np.all(result.z_offset_m[:, result.uav_ids.index("uav1")] == 0.0)

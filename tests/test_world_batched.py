@@ -15,13 +15,15 @@ from uavmpc.drivers.world import World
 from uavmpc.log import FlightRecorder
 from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.random_walk import random_walk
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.tracker import TrackerConfig
 
 
-def _both(make_scenario, duration_s: float, **kwargs):
+def _both(make_scenario, duration_s: float, tracker_config=None, **spec):
     out = {}
     for batched in (True, False):
-        out[batched] = World(make_scenario(), batched=batched, **kwargs).run(duration_s)
+        out[batched] = World(RunSpec(make_scenario(), **spec), batched=batched,
+                             tracker_config=tracker_config).run(duration_s)
     return out[True], out[False]
 
 
@@ -73,8 +75,8 @@ def test_a_resting_uav_is_not_asked_again_and_flies_the_same(monkeypatch) -> Non
             m.setattr(round_module, "decide_rows", counted_decide_rows)
             m.setattr(world_module, "avoidance_round", every_round)
             m.setattr(round_module.Steering, "apply", recorded_apply)
-            r = World(random_walk(12, area_m=160.0, duration_s=20.0, seed=2), avoidance=True,
-                      seed=2).run(20.0)
+            r = World(RunSpec(random_walk(12, area_m=160.0, duration_s=20.0, seed=2),
+                              avoidance=True, seed=2)).run(20.0)
         return r, asked[0], decisions
 
     skipping, asked_less, decided = fly(True)
@@ -118,7 +120,7 @@ def test_every_broadcast_decodes_to_the_message_its_receivers_take() -> None:
     with the broadcasts)."""
     from uavmpc.comms.message import decode
 
-    world = World(random_walk(6, duration_s=40.0, seed=2), avoidance=True, seed=2)
+    world = World(RunSpec(random_walk(6, duration_s=40.0, seed=2), avoidance=True, seed=2))
     table = world.inboxes
     sent = []
 
@@ -148,7 +150,7 @@ def test_every_broadcast_decodes_to_the_message_its_receivers_take() -> None:
     holders = table.store.holders  # (the store as it is now: grown, if it grew)
     assert int(holders.sum()) <= n * (n - 1) + 2 * n  # the receivers' and those in flight
     # UAV by UAV, each takes its copies from the link itself: its slots are let go too.
-    one_by_one = World(random_walk(6, duration_s=30.0, seed=2), avoidance=True, seed=2,
+    one_by_one = World(RunSpec(random_walk(6, duration_s=30.0, seed=2), avoidance=True, seed=2),
                        batched=False)
     one_by_one.run(30.0)
     assert int(one_by_one.inboxes.store.holders.sum()) <= n * (n - 1) + 2 * n
@@ -159,7 +161,7 @@ def test_a_broadcast_the_message_laws_refuse_is_named_not_sent() -> None:
     broadcast; the checked path then names the field, and nothing is published."""
     from uavmpc.comms.message import InvalidMessageError
 
-    world = World(random_walk(3, duration_s=5.0, seed=1), avoidance=True, seed=1)
+    world = World(RunSpec(random_walk(3, duration_s=5.0, seed=1), avoidance=True, seed=1))
     world.run(1.0)
     world.onboard.position_sigma_m[1] = (150.0, 0.0)
     sent = world.uavs[1].stack.predictions_sent
@@ -170,8 +172,8 @@ def test_a_broadcast_the_message_laws_refuse_is_named_not_sent() -> None:
 
 def test_runs_in_chunks_continue_the_same_flight() -> None:
     """State lives in the world's records: three runs equal one, whichever way they tick."""
-    whole = World(random_walk(3, duration_s=20.0, seed=4), seed=4).run(9.0)
-    world = World(random_walk(3, duration_s=20.0, seed=4), seed=4)
+    whole = World(RunSpec(random_walk(3, duration_s=20.0, seed=4), seed=4)).run(9.0)
+    world = World(RunSpec(random_walk(3, duration_s=20.0, seed=4), seed=4))
     parts = [world.run(3.0), world.run(3.0)]
     world.batched = False
     parts.append(world.run(3.0))
@@ -181,9 +183,9 @@ def test_runs_in_chunks_continue_the_same_flight() -> None:
 
 def test_a_recorder_does_not_change_the_flight(tmp_path) -> None:
     sc = random_walk(2, duration_s=5.0, seed=0)
-    plain = World(sc).run(2.0)
+    plain = World(RunSpec(sc)).run(2.0)
     with FlightRecorder(tmp_path / "run.mcap", [u.uav_id for u in sc.uavs], {}) as rec:
-        logged = World(sc, recorder=rec).run(2.0)
+        logged = World(RunSpec(sc), recorder=rec).run(2.0)
     assert np.array_equal(plain.positions_m, logged.positions_m)
     assert (tmp_path / "run.mcap").stat().st_size > 1000
 
@@ -231,7 +233,7 @@ def test_every_ticks_closest_distance_and_contacts_are_the_pairs_own(threads: in
     if threads > available_threads():
         pytest.skip("one core")
     with using_threads(threads):
-        r = World(scenarios.load("antipodal_8"), avoidance=False).run()
+        r = World(RunSpec(scenarios.load("antipodal_8"), avoidance=False)).run()
     n = len(r.uav_ids)
     a, b = np.triu_indices(n, 1)
     d = np.empty((r.t_s.shape[0], a.shape[0]))
@@ -297,7 +299,8 @@ def test_a_kernel_compiled_mid_flight_is_left_out_of_the_phases_as_of_the_wall_t
             compiled.append(first_call(1.0))  # inside the delivery: the first phase
         return accept(*args)
 
-    world = World(random_walk(3, area_m=30.0, duration_s=2.0, seed=1), avoidance=True, seed=1)
+    world = World(RunSpec(random_walk(3, area_m=30.0, duration_s=2.0, seed=1), avoidance=True,
+                          seed=1))
     world.run(0.3)  # the world's own kernels compiled or loaded
     monkeypatch.setattr(delivery, "accept_copies", accept_compiling_once)
     result = world.run(1.0)
@@ -351,8 +354,8 @@ def test_another_encounter_strategy_decides_by_itself_and_flies_the_same() -> No
         return made[-1]
 
     scenario = lambda: random_walk(8, area_m=110.0, duration_s=20.0, seed=3)  # noqa: E731
-    built_in = World(scenario(), avoidance=True, seed=3).run(20.0)
-    own = World(scenario(), avoidance=True, seed=3, strategy=delegating).run(20.0)
+    built_in = World(RunSpec(scenario(), avoidance=True, seed=3)).run(20.0)
+    own = World(RunSpec(scenario(), avoidance=True, seed=3), strategy=delegating).run(20.0)
     _assert_same_flight(built_in, own)
     assert len(made) == 8 and sum(s.decided for s in made) > 0
     assert np.max(own.z_offset_m) > 0.0  # someone climbed: the decisions mattered
@@ -386,9 +389,9 @@ def test_a_height_offset_strategy_that_overrides_decide_is_decided_by_its_overri
             return AvoidanceDecision()
 
     scenario = lambda: random_walk(8, area_m=110.0, duration_s=20.0, seed=3)  # noqa: E731
-    built_in = World(scenario(), avoidance=True, seed=3).run(20.0)
+    built_in = World(RunSpec(scenario(), avoidance=True, seed=3)).run(20.0)
     assert np.max(built_in.z_offset_m) > 0.0
-    own = World(scenario(), avoidance=True, seed=3, strategy=NeverClimbs).run(20.0)
+    own = World(RunSpec(scenario(), avoidance=True, seed=3), strategy=NeverClimbs).run(20.0)
     assert calls and np.max(own.z_offset_m) == 0.0
 
 

@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from uavmpc.comms.message import MAX_SIGMA_M, SCHEMA_VERSION, PredictionMessage
 
@@ -130,7 +132,8 @@ class AssumptionWatch:
         self.worst["sigma_h_m"] = max(self.worst["sigma_h_m"], self.sigma_m[0])
         self.worst["sigma_v_m"] = max(self.worst["sigma_v_m"], self.sigma_m[1])
 
-    def tracking(self, now_s: float, vehicle_m: Any, virtual_m: Any,
+    def tracking(self, now_s: float, vehicle_m: npt.NDArray[np.float64] | Sequence[float],
+                 virtual_m: npt.NDArray[np.float64] | Sequence[float],
                  airborne: bool = True) -> None:
         """The vehicle's estimate ``vehicle_m`` (3,) against its virtual UAV ``virtual_m``
         (3,) at ``now_s`` [s]; ``airborne``: clear of the ground (a vehicle still on it has

@@ -28,7 +28,7 @@ class ConfigError(ValueError):
     """A parameter file or value that cannot be used (the message names the field)."""
 
 
-def describe(value: Any, limit: int = 40) -> str:
+def describe(value: object, limit: int = 40) -> str:
     """A short description of ``value`` for an error message: never the repr of a container
     (a deeply nested one would recurse, a large one flood the log) nor of a huge number."""
     if isinstance(value, list | tuple):
@@ -77,7 +77,8 @@ def read_packaged_toml(name: str) -> dict[str, Any]:
         return tomllib.load(fh)
 
 
-def positive(value: Any, field: str, *, upper: float = math.inf, allow_zero: bool = False) -> float:
+def positive(value: object, field: str, *, upper: float = math.inf,
+             allow_zero: bool = False) -> float:
     """``value`` as a finite float in (0, upper] (or [0, upper] with ``allow_zero``)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigError(f"{field}: must be a number, got {describe(value)}")
@@ -95,7 +96,7 @@ def positive(value: Any, field: str, *, upper: float = math.inf, allow_zero: boo
     return out
 
 
-def finite(value: Any, field: str, bound: float = math.inf) -> float:
+def finite(value: object, field: str, bound: float = math.inf) -> float:
     """``value`` as a float, a number with |value| ≤ ``bound`` (finite in any case)."""
     limit = "" if bound >= _FLOAT_MAX else f" within ±{bound:g}"
     # Compared before float(): an integer beyond the float range compares exactly (float()
@@ -129,7 +130,7 @@ def reject_unknown(table: dict[str, Any], known: set[str], prefix: str) -> None:
         raise ConfigError(f"{prefix}.{unknown[0]}: unknown field ({hint}known: {names})")
 
 
-def from_table(cls: type[T], table: Any, prefix: str) -> T:
+def from_table(cls: type[T], table: object, prefix: str) -> T:
     """The dataclass ``cls`` from a TOML table: missing fields take their defaults, unknown
     ones are errors naming ``prefix.field``; the dataclass validates the values."""
     if not isinstance(table, dict):

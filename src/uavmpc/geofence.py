@@ -213,7 +213,7 @@ class Geofence:
 
     @classmethod
     def box(cls, x_m: tuple[float, float], y_m: tuple[float, float],
-            altitude_m: tuple[float, float], **kw: Any) -> Geofence:
+            altitude_m: tuple[float, float], **kw: float) -> Geofence:
         """The box [x0, x1] × [y0, y1] × [z0, z1]."""
         (x0, x1), (y0, y1) = x_m, y_m
         if not (x1 > x0 and y1 > y0):
@@ -230,7 +230,7 @@ class Geofence:
                 "margin_m": float(self.margin_m), "inset_m": float(self.inset_m)}
 
     @classmethod
-    def from_dict(cls, t: Any, prefix: str = "geofence") -> Geofence:
+    def from_dict(cls, t: object, prefix: str = "geofence") -> Geofence:
         """From a TOML table: ``polygon = [[x, y], ...]`` or ``box = [x0, y0, x1, y1]``, and
         ``min_altitude_m``, ``max_altitude_m``, optional ``margin_m``, ``inset_m``.
 

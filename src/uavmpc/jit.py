@@ -27,7 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import Any, TypeVar, cast, overload
 
 import numba
 import numpy as np
@@ -98,7 +98,17 @@ def _cache_dir() -> str:
 CACHE_DIR = _cache_dir()
 
 
-def kernel(fn: F | None = None, /, *, allocates: bool = False, **options: Any) -> Any:
+@overload
+def kernel(fn: F, /) -> F: ...
+
+
+@overload
+def kernel(fn: None = None, /, *, allocates: bool = False,
+           **options: object) -> Callable[[F], F]: ...
+
+
+def kernel(fn: F | None = None, /, *, allocates: bool = False,
+           **options: Any) -> F | Callable[[F], F]:
     """``numba.njit(cache=True, **options)`` with the cache in :data:`CACHE_DIR`, compiled
     without numba's reference counting unless ``allocates``.
 

@@ -136,7 +136,7 @@ class FlightRecorder:
         """The plot-ready numbers of now (``uavmpc.Metrics``)."""
         self._add("/metrics", t_s, numbers)
 
-    def status(self, uav: str, t_s: float, **fields: Any) -> None:
+    def status(self, uav: str, t_s: float, **fields: object) -> None:
         self._add(f"/{uav}/status", t_s, {"t_s": t_s, **fields})
 
     def link(self, t_s: float, event: str, sender: str, receiver: str = "", stamp_s: float = 0.0,

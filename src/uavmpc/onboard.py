@@ -71,6 +71,7 @@ from uavmpc.tracker import (
 )
 from uavmpc.tracker.kernels import (
     ReferenceTable,
+    Scratch,
     TrackerConsts,
     TrackerRows,
     limit_excess,
@@ -156,7 +157,7 @@ def onboard_post(i: int, trk: TrackerRows, consts: TrackerConsts, ctl: ControlRo
 @kernel
 def onboard_row(i: int, trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
                 ctl: ControlRows, stats: StackStats, p: np.ndarray, v: np.ndarray,
-                q: np.ndarray, dt: float, sc: object, q_out: np.ndarray,
+                q: np.ndarray, dt: float, sc: Scratch, q_out: np.ndarray,
                 ff_out: np.ndarray, cmd: np.ndarray, cycles: np.ndarray) -> float:
     """The numerical part of row i's tick: bookkeeping, tracker (with the compiled solver),
     SE(3) controller. ``sc``: :func:`~uavmpc.tracker.kernels.make_scratch`'s work arrays;
@@ -451,9 +452,9 @@ class OnboardBatch:
         #: :meth:`~uavmpc.avoidance.EncounterStrategy.hold_probes` to find.
         self.holding: set[int] = set()
         #: (N,) bool the row's strategy came to rest at a round with nobody near or silent
-        #: (:meth:`~uavmpc.avoidance.round.Steering.rest`) and has not decided since. Rest is idempotent
-        #: (:meth:`~uavmpc.avoidance.EncounterStrategy.rest`): a round that finds nobody near
-        #: or silent again changes nothing for it, and is not asked of it.
+        #: (:meth:`~uavmpc.avoidance.round.Steering.rest`) and has not decided since. Rest
+        #: is idempotent (:meth:`~uavmpc.avoidance.EncounterStrategy.rest`): a round that
+        #: finds nobody near or silent again changes nothing for it, and is not asked of it.
         self.resting = np.zeros(n, dtype=np.bool_)
         #: (N,) each row's conflict cylinder radius (its stack's ``params.radius_m``) [m].
         self.radius_m = np.zeros(n)

@@ -15,15 +15,30 @@ import json
 import types
 import typing
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar, overload
 
 from uavmpc.config import describe
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T")
+D = TypeVar("D", bound="DataclassInstance")
 
 #: The words of an error for each scalar type.
 _SCALAR_WORDS = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
 
 
-def decode(tp: Any, value: Any, where: str, error: type[Exception]) -> Any:
+@overload
+def decode(tp: type[T], value: object, where: str, error: type[Exception]) -> T: ...
+
+
+# Any other annotation (``X | None``, ``Any``, ...): what it decodes to is known only at run time.
+@overload
+def decode(tp: object, value: object, where: str, error: type[Exception]) -> Any: ...
+
+
+def decode(tp: object, value: object, where: str, error: type[Exception]) -> Any:
     """``value`` (as JSON gives it) as the type ``tp``, or ``error`` naming ``where``.
 
     ``tp`` is an annotation of: ``Any``, ``bool``, ``int``, ``float`` (an integer is a
@@ -69,18 +84,18 @@ def decode(tp: Any, value: Any, where: str, error: type[Exception]) -> Any:
         else:
             items = [decode(args[0], v, f"{where}[{i}]", error) for i, v in enumerate(value)]
         return tuple(items) if origin is tuple else items
-    if tp in _SCALAR_WORDS:
-        ok = (isinstance(value, bool) if tp is bool
-              else isinstance(value, str) if tp is str
-              else not isinstance(value, bool) and isinstance(value, int | float if tp is float
-                                                                  else int))
-        if not ok:
-            raise error(f"{where}: must be {_SCALAR_WORDS[tp]}, not {describe(value)}")
-        return float(value) if tp is float else value
+    if isinstance(tp, type) and tp in _SCALAR_WORDS:
+        if tp is float:
+            if not isinstance(value, bool) and isinstance(value, int | float):
+                return float(value)
+        elif (isinstance(value, bool) if tp is bool else isinstance(value, str) if tp is str
+              else not isinstance(value, bool) and isinstance(value, int)):
+            return value
+        raise error(f"{where}: must be {_SCALAR_WORDS[tp]}, not {describe(value)}")
     raise TypeError(f"{where}: unsupported annotation {tp!r}")
 
 
-def decode_dataclass(cls: type, value: Any, where: str, error: type[Exception]) -> Any:
+def decode_dataclass(cls: type[D], value: object, where: str, error: type[Exception]) -> D:
     """An instance of the dataclass ``cls`` from the JSON object ``value`` (:func:`decode`)."""
     if not isinstance(value, dict):
         raise error(f"{where}: must be an object, not {describe(value)}")
@@ -96,7 +111,7 @@ def decode_dataclass(cls: type, value: Any, where: str, error: type[Exception]) 
     return cls(**{k: decode(hints[k], v, f"{where}.{k}", error) for k, v in value.items()})
 
 
-def check_fields(obj: Any, where: str, error: type[Exception]) -> None:
+def check_fields(obj: DataclassInstance, where: str, error: type[Exception]) -> None:
     """Check every field of the frozen dataclass ``obj`` against its annotation, normalised as
     :func:`decode` gives it (lists to tuples where tuples are due); for a ``__post_init__``."""
     hints = typing.get_type_hints(type(obj))
@@ -105,13 +120,13 @@ def check_fields(obj: Any, where: str, error: type[Exception]) -> None:
         object.__setattr__(obj, f.name, value)
 
 
-def plain(value: Any) -> Any:
+def plain(value: object) -> Any:
     """``value`` as JSON gives it back (lists for tuples, floats for numpy numbers, an enum's
     value)."""
     return json.loads(json.dumps(value, default=_json_default))
 
 
-def _json_default(value: Any) -> Any:
+def _json_default(value: object) -> object:
     if isinstance(value, enum.Enum):
         return value.value
     tolist = getattr(value, "tolist", None)  # numpy arrays and scalars

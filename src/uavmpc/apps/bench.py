@@ -36,8 +36,9 @@ from typing import Any
 import numpy as np
 
 from uavmpc.reference import Reference
+from uavmpc.scenarios.run import RunSpec
 from uavmpc.solvers import AxisQpSolver, BatchAxisSolver
-from uavmpc.tracker import ClarabelSolver, MpcTracker, QpResult, TrackerConfig
+from uavmpc.tracker import ClarabelSolver, MpcTracker, QpResult, TrackerConfig, TrackerOutput
 
 #: A tick whose state lies outside the limits in force by more than this is a violation.
 VIOLATION_TOL = 1e-6
@@ -117,7 +118,7 @@ class _Recording:
 
 def _fly(
     tracker: MpcTracker, events: list[Event], ticks: int, timed: bool = True
-) -> Iterator[tuple[float, Any, np.ndarray]]:
+) -> Iterator[tuple[float, TrackerOutput, np.ndarray]]:
     nominal = tracker.config.limits
     pending = iter(events)
     nxt = next(pending, None)
@@ -298,7 +299,7 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool,
     """Fly one random_walk world of ``n`` UAVs in this (fresh) process on ``threads`` threads;
     see :func:`bench_world`.
 
-    Only the public ``World(scenario, ...)`` and ``run()`` are used, so the numbers stay
+    Only the public ``World(RunSpec(...))`` and ``run()`` are used, so the numbers stay
     comparable while the world's internals change."""
     import hashlib
     import resource
@@ -309,11 +310,11 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool,
 
     set_threads(threads)
     # Load the on-disk kernels (seconds) on a throw-away flight, so the baseline holds them.
-    World(random_walk(2, duration_s=1.0), avoidance=avoidance, batched=batched).run(0.5)
+    World(RunSpec(random_walk(2, duration_s=1.0), avoidance=avoidance), batched=batched).run(0.5)
     baseline = _maxrss_mib()
     area = 100.0 * math.sqrt(n / 5.0)  # the protocol's density: 5 UAVs per 100 m × 100 m
-    world = World(random_walk(n, area_m=area, duration_s=duration_s, seed=1),
-                  avoidance=avoidance, seed=1, batched=batched)
+    world = World(RunSpec(random_walk(n, area_m=area, duration_s=duration_s, seed=1),
+                          avoidance=avoidance, seed=1), batched=batched)
     # run() also loads its tick before its own clock starts: CPU is set against this clock.
     cpu0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
     result = world.run(duration_s)
@@ -359,7 +360,8 @@ def _spawn_world(n: int, duration_s: float, avoidance: bool, batched: bool,
     if proc.returncode != 0:
         raise RuntimeError(f"bench world: the {n}-UAV child failed ({proc.returncode}):\n"
                            f"{proc.stderr[-2000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    row: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return row
 
 
 def _sig(x: float, digits: int = 4) -> float:
@@ -690,16 +692,16 @@ def main_world(duration_s: float, sizes: str | None = None,
                profile: bool = False, repeats: int = 1) -> int:
     from uavmpc.config import ConfigError
 
-    def ints(text: str | None, name: str, default: Any) -> Any:
+    def ints(text: str | None, name: str) -> tuple[int, ...] | None:
         try:
-            return default if text is None else tuple(int(v) for v in text.split(","))
+            return None if text is None else tuple(int(v) for v in text.split(","))
         except ValueError:
             raise ConfigError(f"bench world: --{name} must be integers like 1,2, got "
                               f"{text!r}") from None
 
-    print(json.dumps(bench_world(ints(sizes, "sizes", WORLD_SIZES), duration_s,
+    print(json.dumps(bench_world(ints(sizes, "sizes") or WORLD_SIZES, duration_s,
                                  10.0 if duration_large_s is None else duration_large_s,
-                                 threads=ints(threads, "threads", None), profile=profile,
+                                 threads=ints(threads, "threads"), profile=profile,
                                  repeats=repeats)))
     return 0
 

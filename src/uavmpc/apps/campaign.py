@@ -48,7 +48,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -64,7 +64,7 @@ from uavmpc.apps.campaign_engine import (
 from uavmpc.apps.published import PublishedResult
 from uavmpc.avoidance import AvoidanceParams
 from uavmpc.config import ConfigError
-from uavmpc.scenarios import LinkSettings, avoidance_params, changed_fields
+from uavmpc.scenarios import LinkSettings, Scenario, avoidance_params, changed_fields
 from uavmpc.scenarios.faults import FaultSpec
 from uavmpc.scenarios.random_walk import (
     ACCEL_MPS2,
@@ -74,6 +74,9 @@ from uavmpc.scenarios.random_walk import (
 )
 from uavmpc.scenarios.run import RunSpec
 from uavmpc.scenarios.stats import bootstrap_interval, percentile
+
+if TYPE_CHECKING:
+    from uavmpc.drivers.world import World
 
 PERCENTILES = (50, 75, 95, 99)
 #: Without avoidance, the world is run this many simulated seconds at a time between checks
@@ -240,7 +243,7 @@ def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) ->
         recorder = FlightRecorder(log_path, [u.uav_id for u in run.scenario.uavs],
                                   {"campaign_trial": index, "scenario_seed": scenario_seed,
                                    "world_seed": world_seed})
-    world = World.from_spec(run, recorder=recorder)
+    world = World(run, recorder=recorder)
     try:
         flown, extra = _fly_trial(spec, run.scenario, world)
         record = {"index": index, "scenario_seed": scenario_seed, "world_seed": world_seed,
@@ -253,7 +256,7 @@ def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) ->
             recorder.close()
 
 
-def _fly_trial(spec: RandomWalkSpec, sc: Any, world: Any
+def _fly_trial(spec: RandomWalkSpec, sc: Scenario, world: World
                ) -> tuple[dict[str, Any], dict[str, Any]]:
     """(what the trial's flight gave, the goals it reached when they count)."""
     from uavmpc.scenarios.random_walk import waypoints_reached
@@ -476,7 +479,9 @@ def merge_reports(*paths: str | Path, out: str | Path | None = None) -> str:
 
 
 def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) -> None:
-    from uavmpc.apps.plots import plt
+    import matplotlib.pyplot as plt
+
+    import uavmpc.apps.plots  # noqa: F401  (selects the headless backend before any figure)
 
     title = f"random_walk, {'with' if report['avoidance'] else 'without'} avoidance"
     n = len(selected)
@@ -665,7 +670,9 @@ def _write_html(out: Path, report: dict[str, Any], selected: list[dict[str, Any]
 
 
 # ------------------------------------------------------------------------------ CLI glue
-def build_parser_campaign(subparsers: Any) -> argparse.ArgumentParser:
+def build_parser_campaign(
+        subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
+) -> argparse.ArgumentParser:
     """Adds ``campaign random-walk ...`` to the CLI's subparsers; sets ``func``."""
     p = subparsers.add_parser(
         "campaign", help="statistical campaign (resumable): many seeded random_walk trials, "
@@ -850,7 +857,10 @@ def _landing_command(args: argparse.Namespace) -> int:
     if r is None:
         return 130
     t = r["time_to_land_s"]
-    fmt = (lambda v: "–" if v is None else f"{v:.1f} s")  # noqa: E731
+
+    def fmt(v: float | None) -> str:
+        return "–" if v is None else f"{v:.1f} s"
+
     print(f"landing at {r['speed_kmh']:g} km/h: {r['landed']} of {r['trials']} landed "
           f"({100 * r['success_rate']:.0f} %); time to land p5 {fmt(t['p5'])}, "
           f"p50 {fmt(t['p50'])}, p95 {fmt(t['p95'])}, max {fmt(t['p100'])}; "

@@ -30,9 +30,12 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
+from typing import IO, TYPE_CHECKING, Any, ClassVar, Protocol, TextIO
 
 from uavmpc.config import ConfigError
+
+if TYPE_CHECKING:
+    import ray
 
 #: The format of ``campaign.json`` this engine writes. Format 1 (uavmpc before the one engine)
 #: held a random walk's ``parameters`` only; it is read as such, every other format refused.
@@ -56,12 +59,18 @@ class Task:
     index: int
     part: int
     function: Callable[..., dict[str, Any]]
-    args: tuple[Any, ...]
+    args: tuple[object, ...]
 
 
-def run_task(task: Task, threads: int = 1) -> tuple[int, int, dict[str, Any]]:
+#: What a task gives back: (trial index, part, the part's JSON-ready result).
+TaskResult = tuple[int, int, dict[str, Any]]
+
+
+def run_task(task: Task, threads: int) -> TaskResult:
     """(trial index, part, result) of a task (what a worker runs), its world's tick on
     ``threads`` threads (the result does not depend on them)."""
+    # ``threads`` has no default: ray.remote types a function by its parameters, and with a
+    # default it would take this one for a function of the task alone.
     from uavmpc.jit import available_threads, using_threads
 
     with using_threads(min(threads, available_threads())):
@@ -92,6 +101,23 @@ class CampaignSpec(Protocol):
 
 
 # ---------------------------------------------------------------------------- executors
+class Executor(Protocol):
+    """Where a campaign's tasks run (:func:`executor`)."""
+
+    #: How many tasks it takes in at once (submitted, not yet waited for).
+    capacity: int
+
+    def submit(self, task: Task) -> None: ...
+
+    def pending(self) -> int: ...
+
+    def wait(self) -> list[TaskResult]:
+        """The results of one or more tasks, once at least one has ended."""
+        ...
+
+    def close(self, cancel: bool = False) -> None: ...
+
+
 class _Serial:
     """Runs tasks in this process, one at a time (workers = 1)."""
 
@@ -107,7 +133,7 @@ class _Serial:
     def pending(self) -> int:
         return len(self._queue)
 
-    def wait(self) -> list[tuple[int, int, dict[str, Any]]]:
+    def wait(self) -> list[TaskResult]:
         return [run_task(self._queue.pop(0), self._threads)]
 
     def close(self, cancel: bool = False) -> None:
@@ -126,7 +152,7 @@ class _Pool:
         ctx = mp.get_context("forkserver" if "forkserver" in methods else "spawn")
         self._ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
         self._threads = threads
-        self._futures: set[cf.Future] = set()
+        self._futures: set[cf.Future[TaskResult]] = set()
 
     def submit(self, task: Task) -> None:
         self._futures.add(self._ex.submit(run_task, task, self._threads))
@@ -134,7 +160,7 @@ class _Pool:
     def pending(self) -> int:
         return len(self._futures)
 
-    def wait(self) -> list[tuple[int, int, dict[str, Any]]]:
+    def wait(self) -> list[TaskResult]:
         done, self._futures = cf.wait(self._futures, return_when=cf.FIRST_COMPLETED)
         return [f.result() for f in done]
 
@@ -160,11 +186,12 @@ class _Ray:
                 ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
             except (ConnectionError, ValueError) as exc:
                 raise CampaignError(f"--ray {address}: cannot connect to Ray ({exc})") from None
-        cpus = int(ray.cluster_resources().get("CPU", 1))
+        # ray leaves cluster_resources unannotated (a dict of resource name to amount)
+        cpus = int(ray.cluster_resources().get("CPU", 1))  # type: ignore[no-untyped-call]
         self.capacity = 2 * max(cpus, 1)
         self._remote = ray.remote(num_cpus=threads)(run_task)
         self._threads = threads
-        self._refs: list[Any] = []
+        self._refs: list[ray.ObjectRef[TaskResult]] = []
 
     def submit(self, task: Task) -> None:
         self._refs.append(self._remote.remote(task, self._threads))
@@ -172,7 +199,7 @@ class _Ray:
     def pending(self) -> int:
         return len(self._refs)
 
-    def wait(self) -> list[tuple[int, int, dict[str, Any]]]:
+    def wait(self) -> list[TaskResult]:
         done, self._refs = self._ray.wait(self._refs, num_returns=1)
         return list(self._ray.get(done))
 
@@ -222,7 +249,7 @@ def split_cores(workers: int | None, threads: int | None, *,
     return workers, threads
 
 
-def executor(*, ray_address: str | None, workers: int, threads: int = 1) -> Any:
+def executor(*, ray_address: str | None, workers: int, threads: int = 1) -> Executor:
     """Where tasks run: Ray, this process (one worker) or a local pool; each task's world
     ticks on ``threads`` threads."""
     if ray_address is not None:
@@ -264,7 +291,8 @@ def stored_spec(out: str | Path, kind: str) -> dict[str, Any] | None:
     return dict(data["spec"])
 
 
-def open_campaign(out: Path, spec: Any, load: Callable[[dict[str, Any]], Any]) -> None:
+def open_campaign(out: Path, spec: CampaignSpec,
+                  load: Callable[[dict[str, Any]], CampaignSpec]) -> None:
     """Create ``out`` with ``spec``'s campaign.json, or check that the campaign stored there is
     ``spec`` (``load``: the spec type's ``from_json``)."""
     out.mkdir(parents=True, exist_ok=True)
@@ -328,7 +356,7 @@ def iter_trials(out_dir: str | Path) -> Iterator[dict[str, Any]]:
                 yield json.loads(line)
 
 
-def append(f: Any, rec: dict[str, Any]) -> None:
+def append(f: IO[str], rec: dict[str, Any]) -> None:
     f.write(json.dumps(rec) + "\n")
     f.flush()
     os.fsync(f.fileno())
@@ -343,7 +371,7 @@ def campaign_wall_s(out: Path, wall0: float) -> float:
 
 # ------------------------------------------------------------------------------ progress
 class Progress:
-    def __init__(self, enabled: bool, stream: Any = None) -> None:
+    def __init__(self, enabled: bool, stream: TextIO | None = None) -> None:
         self.enabled = enabled
         self.stream = stream if stream is not None else sys.stderr
         self.t0 = time.perf_counter()
@@ -403,7 +431,7 @@ def selected(trials: dict[int, dict[str, Any]], n_trials: int | None,
 class _Run:
     """The state of one invocation's loop over the missing trials."""
 
-    spec: Any
+    spec: CampaignSpec
     trials: dict[int, dict[str, Any]]
     n_trials: int | None
     target_s: float | None
@@ -434,7 +462,7 @@ class _Run:
         return bound < self.target_s - 1e-9
 
 
-def _execute(out: Path, run: _Run, ex: Any) -> None:
+def _execute(out: Path, run: _Run, ex: Executor) -> None:
     """Runs the missing trials until the selection is complete."""
     parts: dict[int, dict[int, dict[str, Any]]] = {}  # trial → its parts done so far
     counts: dict[int, int] = {}
@@ -471,7 +499,7 @@ def _execute(out: Path, run: _Run, ex: Any) -> None:
     run.progress.end()
 
 
-def run_trials(out: Path, spec: Any, load: Callable[[dict[str, Any]], Any], *,
+def run_trials(out: Path, spec: CampaignSpec, load: Callable[[dict[str, Any]], CampaignSpec], *,
                trials: int | None, target_s: float | None = None,
                max_trial_s: float = math.inf, workers: int, threads: int = 1,
                ray_address: str | None = None, progress: bool = False

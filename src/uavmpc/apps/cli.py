@@ -16,9 +16,23 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from matplotlib.figure import Figure
 
+    from uavmpc.apps.falsify import Outcome
+    from uavmpc.comms.auth import Identity, Roster
+    from uavmpc.drivers.px4.firmware import Px4SitlBuild
     from uavmpc.drivers.summary import Formation, Landing, RunSummary
+    from uavmpc.drivers.world import World
+    from uavmpc.drivers.world_report import WorldResult
+    from uavmpc.jit import CompileWatch
+    from uavmpc.scenarios import Scenario
+    from uavmpc.scenarios.faults import FaultSpec
+    from uavmpc.scenarios.run import RunSpec
+
+    #: What the sub-commands' parsers are added to.
+    Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
 
 #: ``uavmpc run`` writes a flight log for worlds of at most this many UAVs.
 MAX_LOGGED_UAVS = 50
@@ -26,24 +40,24 @@ MAX_LOGGED_UAVS = 50
 
 def _load_run_scenario(scenario: str, *, seed: int, duration: float | None,
                        uavs: int | None,
-                       cruise_heights: tuple[float, ...] | None) -> tuple[Any, Any]:
-    """The scenario to fly, and the traffic module when it is the generated traffic."""
+                       cruise_heights: tuple[float, ...] | None) -> Scenario:
+    """The scenario to fly: a :class:`~uavmpc.scenarios.traffic.TrafficScenario` for the
+    generated traffic."""
     from uavmpc import scenarios
 
     if scenario == "traffic":  # generated, not a file: built from --uavs and --seed
         from uavmpc.scenarios import traffic as traffic_mod
 
-        sc = traffic_mod.traffic(traffic_mod.DEFAULT_UAVS if uavs is None else uavs, seed,
-                                 duration_s=duration,
-                                 cruise_heights_m=cruise_heights or
-                                 traffic_mod.DEFAULT_CRUISE_HEIGHTS_M)
-        return sc, traffic_mod
-    return scenarios.load(scenario), None
+        return traffic_mod.traffic(traffic_mod.DEFAULT_UAVS if uavs is None else uavs, seed,
+                                   duration_s=duration,
+                                   cruise_heights_m=cruise_heights or
+                                   traffic_mod.DEFAULT_CRUISE_HEIGHTS_M)
+    return scenarios.load(scenario)
 
 
-def _run_spec(sc: Any, *, avoidance: bool, seed: int, duration: float | None,
-              loss: float | None, latency: float | None, wind: float, faults: Any,
-              launch_check: float | None) -> Any:
+def _run_spec(sc: Scenario, *, avoidance: bool, seed: int, duration: float | None,
+              loss: float | None, latency: float | None, wind: float,
+              faults: FaultSpec | None, launch_check: float | None) -> RunSpec:
     """The flight ``uavmpc run`` asks for: ``sc`` with the flags' link, faults and the rest."""
     import dataclasses
 
@@ -60,8 +74,8 @@ def _run_spec(sc: Any, *, avoidance: bool, seed: int, duration: float | None,
                    launch_check_s=launch_check, duration_s=duration)
 
 
-def _fly_world(world: Any, sc: Any, *, duration: float | None, ros2: str | None,
-               realtime: float | None, live_port: int | None) -> Any:
+def _fly_world(world: World, sc: Scenario, *, duration: float | None, ros2: str | None,
+               realtime: float | None, live_port: int | None) -> WorldResult:
     """Fly ``world``, mirrored on ROS 2 and served to a live view if asked; its result."""
     import contextlib
 
@@ -89,15 +103,16 @@ RUN_OUTPUTS = ("summary.json", "flight.mcap", "top_view.png", "altitude.png", "t
                "formation.png")
 
 
-def _save_run_figures(result: Any, sc: Any, summary: RunSummary, out: Path, *, avoidance: bool,
-                      traffic: bool) -> list[str]:
+def _save_run_figures(result: WorldResult, sc: Scenario, summary: RunSummary, out: Path, *,
+                      avoidance: bool) -> list[str]:
     """Draw a run's figures into ``out``; their file names."""
     from uavmpc.apps.plots import close_figure, plot_side_and_3d, plot_world
     from uavmpc.drivers.world import COLLISION_DISTANCE_M
+    from uavmpc.scenarios.traffic import TrafficScenario
 
     title = f"{sc.name} ({'with' if avoidance else 'without'} avoidance)"
     figs: tuple[Figure, ...]
-    if traffic:  # hundreds of paths: no per-UAV legend, decimated traces
+    if isinstance(sc, TrafficScenario):  # hundreds of paths: no per-UAV legend, decimated
         from uavmpc.apps.plots import plot_min_distance_trace, plot_traffic
 
         figs = (*plot_traffic(result, sc, title),
@@ -132,7 +147,7 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
                   wind: float = 0.0, ros2: str | None = None,
                   realtime: float | None = None, uavs: int | None = None,
                   cruise_heights: tuple[float, ...] | None = None,
-                  faults: Any = None, launch_check: float | None = None,
+                  faults: FaultSpec | None = None, launch_check: float | None = None,
                   live_port: int | None = None, liveness: bool = True) -> RunSummary:
     """Fly a scenario; write its summary, flight log and figures to ``out``; the summary."""
     import contextlib
@@ -142,9 +157,10 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
     import uavmpc.apps.plots  # noqa: F401
     from uavmpc.drivers.world import GROUND_VEHICLE_ID, World
     from uavmpc.log import FlightRecorder
+    from uavmpc.scenarios.traffic import TrafficScenario, traffic_outcome
 
-    sc, traffic_mod = _load_run_scenario(scenario, seed=seed, duration=duration, uavs=uavs,
-                                         cruise_heights=cruise_heights)
+    sc = _load_run_scenario(scenario, seed=seed, duration=duration, uavs=uavs,
+                            cruise_heights=cruise_heights)
     spec = _run_spec(sc, avoidance=avoidance, seed=seed, duration=duration, loss=loss,
                      latency=latency, wind=wind, faults=faults, launch_check=launch_check)
     sc, link = spec.flown.scenario, spec.flown.link
@@ -162,22 +178,22 @@ def _run_scenario(scenario: str, out: Path, *, avoidance: bool, seed: int,
               "UAVs)")
     with (FlightRecorder(out / "flight.mcap", [u.uav_id for u in sc.uavs], meta, objects)
           if logged else contextlib.nullcontext()) as rec:
-        world = World.from_spec(spec, recorder=rec)
+        world = World(spec, recorder=rec)
         result = _fly_world(world, sc, duration=duration, ros2=ros2, realtime=realtime,
                             live_port=live_port)
     summary = result.summary().with_sections(
         link=dataclasses.asdict(link), flight_log="flight.mcap" if logged else None)
     if spec.faults.active():
         summary = summary.with_sections(faults=spec.flown.faults.summary())
-    if traffic_mod is not None:
-        summary = summary.with_sections(traffic=traffic_mod.traffic_outcome(result, sc))
+    if isinstance(sc, TrafficScenario):
+        summary = summary.with_sections(traffic=traffic_outcome(result, sc))
     elif liveness and avoidance:
         from uavmpc.apps.liveness import liveness as liveness_of
 
         summary = summary.with_sections(liveness=liveness_of(spec, result))
     summary.write(out / "summary.json")
-    return summary.with_sections(figures=_save_run_figures(
-        result, sc, summary, out, avoidance=avoidance, traffic=traffic_mod is not None))
+    return summary.with_sections(figures=_save_run_figures(result, sc, summary, out,
+                                                           avoidance=avoidance))
 
 
 def _goal_words(reached: bool | None) -> str:
@@ -272,7 +288,7 @@ def _print_formation(f: Formation) -> None:
 
 
 @contextlib.contextmanager
-def _compiling() -> Iterator[Any]:
+def _compiling() -> Iterator[CompileWatch]:
     """A watch that tells the user, on stderr, what a cold cache compiles (a first run), and
     the kernels around the tick compiled beside it on a second core
     (:func:`uavmpc.apps.prewarm.beside`)."""
@@ -293,7 +309,7 @@ def _compiling() -> Iterator[Any]:
             yield watch
 
 
-def _print_compiled(watch: Any) -> None:
+def _print_compiled(watch: CompileWatch) -> None:
     if watch.kernels:
         print(f"compiled {watch.kernels} kernels in {watch.seconds:.0f} s (once: the next run "
               "loads them; the real-time factor above leaves it out)", file=sys.stderr)
@@ -436,7 +452,8 @@ def _sitl(args: argparse.Namespace) -> int:
         geo_origin=None if args.no_geo else tuple(args.geo_origin), duration_s=args.duration))
 
 
-def _swarm_preflight(args: argparse.Namespace) -> tuple[Any, Any] | None:
+def _swarm_preflight(args: argparse.Namespace
+                     ) -> tuple[Px4SitlBuild | None, tuple[float, float, float] | None] | None:
     """The PX4 SITL build and its geo origin (or None, None); None after printing an error."""
     if args.px4_sitl is not None and args.mavlink:
         print("uavmpc swarm: --px4-sitl and --mavlink are exclusive: --px4-sitl flies real PX4 "
@@ -467,7 +484,8 @@ def _swarm_preflight(args: argparse.Namespace) -> tuple[Any, Any] | None:
     return build, geo_origin
 
 
-def _print_swarm_summary(s: RunSummary, out: Path, *, build: Any, mavlink: bool) -> None:
+def _print_swarm_summary(s: RunSummary, out: Path, *, build: Px4SitlBuild | None,
+                         mavlink: bool) -> None:
     """Print a swarm run's verdict, a line per node and the formation error."""
     closest = s.min_distance_m
     via = (" each flying a real PX4 SITL (SIH) over MAVLink" if build is not None
@@ -504,7 +522,7 @@ def _print_swarm_summary(s: RunSummary, out: Path, *, build: Any, mavlink: bool)
     print(f"wrote {out}/summary.json, flight.mcap, min_distance.png, <id>.node.log")
 
 
-def _kills(given: list[list[str]] | None, spec: Any) -> dict[str, float] | None:
+def _kills(given: list[list[str]] | None, spec: RunSpec) -> dict[str, float] | None:
     """``--kill-node ID S`` pairs as {id: seconds}, checked; None after saying what is
     wrong."""
     kills: dict[str, float] = {}
@@ -562,7 +580,7 @@ def _swarm(args: argparse.Namespace) -> int:
         s = run_swarm(spec, out, key_file=args.key_file, on_trace=draw, kill_at_s=kills,
                       mavlink=args.mavlink, setpoints=args.setpoints, ros2=args.ros2,
                       live=live, px4_sitl=build, px4_first_instance=args.px4_first_instance,
-                      **({"geo_origin": geo_origin} if build is not None else {}))
+                      **({"geo_origin": geo_origin} if geo_origin is not None else {}))
     _print_swarm_summary(s, out, build=build, mavlink=args.mavlink)
     return 0
 
@@ -604,18 +622,22 @@ def _formation_shape(args: argparse.Namespace) -> int:
     return 0
 
 
-def _credentials(args: argparse.Namespace, prog: str, *, need_roster: bool) -> Any:
+def _credentials(args: argparse.Namespace, prog: str, *, need_roster: bool
+                 ) -> tuple[bytes | None, Identity | None, Roster | None] | None:
     """(key, identity, roster) from ``--key-file``, ``--identity-file``, ``--roster``, or
     None after printing what is wrong."""
     from uavmpc.drivers.launch import load_credentials
 
-    return load_credentials(prog, key_file=args.key_file,
-                            identity_file=getattr(args, "identity_file", None),
-                            roster_file=getattr(args, "roster", None) if need_roster else None,
-                            need_roster=need_roster)
+    # (load_credentials is not annotated yet: this is what it returns)
+    creds: tuple[bytes | None, Identity | None, Roster | None] | None = load_credentials(
+        prog, key_file=args.key_file, identity_file=getattr(args, "identity_file", None),
+        roster_file=getattr(args, "roster", None) if need_roster else None,
+        need_roster=need_roster)
+    return creds
 
 
-def _command_sealer(args: argparse.Namespace, prog: str) -> Any:
+def _command_sealer(args: argparse.Namespace, prog: str
+                    ) -> Callable[[bytes, str], bytes] | None:
     """``seal(payload, channel)`` for a command sender: sealed with its key or identity (a
     node with keys refuses anything else), or the payload as it is."""
     creds = _credentials(args, prog, need_roster=False)
@@ -626,8 +648,10 @@ def _command_sealer(args: argparse.Namespace, prog: str) -> Any:
         return lambda payload, channel: payload
     from uavmpc.comms.auth import CommandSigner, SharedKey
 
-    signer = CommandSigner(identity if identity is not None else SharedKey(key, args.id))
-    return signer.seal
+    if identity is not None:
+        return CommandSigner(identity).seal
+    assert key is not None  # (not both None: returned above)
+    return CommandSigner(SharedKey(key, args.id)).seal
 
 
 def _mission(args: argparse.Namespace) -> int:
@@ -795,7 +819,7 @@ def _bench(args: argparse.Namespace) -> int:
     raise AssertionError(args.what)
 
 
-def _add_demo_parser(sub: Any) -> None:
+def _add_demo_parser(sub: Subparsers) -> None:
     """Add ``uavmpc demo``: the swap-through scenario with its defaults."""
     demo = sub.add_parser(
         "demo", help="three UAVs swap through a hovering one, with collision avoidance")
@@ -807,13 +831,14 @@ def _add_demo_parser(sub: Any) -> None:
     demo.set_defaults(func=_demo)
 
 
-def _add_threads_argument(parser: Any, default: str = "every core, or $UAVMPC_THREADS") -> None:
+def _add_threads_argument(parser: argparse.ArgumentParser,
+                          default: str = "every core, or $UAVMPC_THREADS") -> None:
     parser.add_argument("--threads", type=int, default=None, metavar="N",
                         help=f"threads the world's tick runs its UAVs on (default: {default}; "
                              "the flight is the same for any N)")
 
 
-def _add_run_parser(sub: Any) -> None:
+def _add_run_parser(sub: Subparsers) -> None:
     """Add ``uavmpc run``: a scenario's overrides, ROS 2 and live view, and the faults."""
     run = sub.add_parser("run", help="fly a scenario (built-in name or TOML file)")
     run.add_argument("scenario", help="swap_through_static, converge_center, traffic (generated: "
@@ -855,7 +880,7 @@ def _add_run_parser(sub: Any) -> None:
     run.set_defaults(func=_run)
 
 
-def _add_falsify_parser(sub: Any) -> None:
+def _add_falsify_parser(sub: Subparsers) -> None:
     """Add ``uavmpc falsify``: the search for the smallest separation (its space, budget,
     link and faults)."""
     from uavmpc.apps.campaign import add_fault_arguments
@@ -889,9 +914,9 @@ def _falsify(args: argparse.Namespace) -> int:
 
     space = space_from_args(args)
     closest = [math.inf]
-    so_far: list[Any] = []
+    so_far: list[Outcome] = []
 
-    def said(o: Any) -> None:
+    def said(o: Outcome) -> None:
         new = o.min_distance_m < closest[0]
         closest[0] = min(closest[0], o.min_distance_m)
         so_far.append(o)
@@ -910,7 +935,7 @@ def _falsify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_node_parser(sub: Any) -> None:
+def _add_node_parser(sub: Subparsers) -> None:
     """Add ``uavmpc node``: one UAV's identity, peers, mission, keys and autopilot link."""
     node = sub.add_parser("node", help="one UAV's onboard stack in real time over Zenoh")
     node.add_argument("--id", required=True, help="UAV id ([A-Za-z0-9_-], ≤ 32)")
@@ -981,7 +1006,7 @@ def _add_node_parser(sub: Any) -> None:
     node.set_defaults(func=_node)
 
 
-def _add_sitl_parser(sub: Any) -> None:
+def _add_sitl_parser(sub: Subparsers) -> None:
     """Add ``uavmpc sitl``: the stand-in PX4's link, boot state, rates and estimator."""
     sitl = sub.add_parser("sitl", help="a stand-in PX4 autopilot (our plant) on MAVLink/UDP")
     sitl.add_argument("--connect", default="udpout://127.0.0.1:14540",
@@ -1009,7 +1034,7 @@ def _add_sitl_parser(sub: Any) -> None:
     sitl.set_defaults(func=_sitl)
 
 
-def _add_swarm_parser(sub: Any) -> None:
+def _add_swarm_parser(sub: Subparsers) -> None:
     """Add ``uavmpc swarm``: one node process per UAV, simulated or on (stand-in) PX4s."""
     swarm = sub.add_parser("swarm", help="a scenario as one node process per UAV on loopback")
     swarm.add_argument("scenario", help="swap_through_static, converge_center or a TOML file")
@@ -1050,7 +1075,7 @@ def _add_swarm_parser(sub: Any) -> None:
     swarm.set_defaults(func=_swarm)
 
 
-def _add_file_reference_parser(sub: Any) -> None:
+def _add_file_reference_parser(sub: Subparsers) -> None:
     """Add ``uavmpc file-reference``: where the Markdown reference goes."""
     ref = sub.add_parser("file-reference",
                          help="the reference of the scenario and airframe files, from their "
@@ -1059,7 +1084,7 @@ def _add_file_reference_parser(sub: Any) -> None:
     ref.set_defaults(func=_file_reference)
 
 
-def _add_formation_shape_parser(sub: Any) -> None:
+def _add_formation_shape_parser(sub: Subparsers) -> None:
     """Add ``uavmpc formation-shape``: the shape, when, and how it is sealed."""
     shape = sub.add_parser("formation-shape",
                            help="tell a formation's followers (node processes) to change shape")
@@ -1075,7 +1100,7 @@ def _add_formation_shape_parser(sub: Any) -> None:
     shape.set_defaults(func=_formation_shape)
 
 
-def _add_mission_parser(sub: Any) -> None:
+def _add_mission_parser(sub: Subparsers) -> None:
     """Add ``uavmpc mission``: the goal, its recipient, and how it is sealed."""
     mission = sub.add_parser("mission", help="send one UAV node a mission over Zenoh (sealed "
                                              "with a key or an operator's identity)")
@@ -1094,7 +1119,7 @@ def _add_mission_parser(sub: Any) -> None:
     mission.set_defaults(func=_mission)
 
 
-def _add_keygen_parser(sub: Any) -> None:
+def _add_keygen_parser(sub: Subparsers) -> None:
     """Add ``uavmpc keygen``: the member's id, role and where its files go."""
     keygen = sub.add_parser("keygen", help="a new Ed25519 identity and its roster entry "
                                            "(pip install 'uavmpc[auth]')")
@@ -1106,7 +1131,7 @@ def _add_keygen_parser(sub: Any) -> None:
     keygen.set_defaults(func=_keygen)
 
 
-def _add_export_bag_parser(sub: Any) -> None:
+def _add_export_bag_parser(sub: Subparsers) -> None:
     """Add ``uavmpc export-bag``: the run folder and the bag folder."""
     bag = sub.add_parser("export-bag", help="a run's flight.mcap as a rosbag2 (ROS 2 types, "
                                             "CDR, MCAP storage)")
@@ -1116,7 +1141,7 @@ def _add_export_bag_parser(sub: Any) -> None:
     bag.set_defaults(func=_export_bag)
 
 
-def _add_tracker_demo_parser(sub: Any) -> None:
+def _add_tracker_demo_parser(sub: Subparsers) -> None:
     """Add ``uavmpc tracker-demo``: output folder and simulated time."""
     tdemo = sub.add_parser("tracker-demo", help="the virtual UAV flies a 50 m step; plot it")
     tdemo.add_argument("--out", default="out/tracker-demo", help="output folder")
@@ -1124,7 +1149,7 @@ def _add_tracker_demo_parser(sub: Any) -> None:
     tdemo.set_defaults(func=_tracker_demo)
 
 
-def _add_track_parser(sub: Any) -> None:
+def _add_track_parser(sub: Subparsers) -> None:
     """Add ``uavmpc track``: airframe, wind and output folder."""
     track = sub.add_parser(
         "track", help="one UAV flies a demanding reference in closed loop; figure + summary")
@@ -1137,7 +1162,7 @@ def _add_track_parser(sub: Any) -> None:
     track.set_defaults(func=_track)
 
 
-def _add_bench_parser(sub: Any) -> None:
+def _add_bench_parser(sub: Subparsers) -> None:
     """Add ``uavmpc bench``: which benchmark and its sizes."""
     bench = sub.add_parser("bench", help="benchmarks; the last line printed is JSON")
     bench.add_argument("what", choices=["tracker", "loop", "world", "px4", "ros2"],

@@ -24,13 +24,13 @@ and fault flags). Judged, as every run is, by the simulated plants' truth.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -167,7 +167,7 @@ def fly_case(space: Space, theta: np.ndarray, seed: int, index: int = 0,
 
     sc = scenarios.from_dict(tomllib.loads(space.toml(theta, f"falsify_{index}")),
                              f"case {index}")
-    res = World.from_spec(RunSpec(sc, seed=seed, avoidance=avoidance,
+    res = World(RunSpec(sc, seed=seed, avoidance=avoidance,
                                   faults=space.faults)).run()
     d = res.min_distance_m
     k = int(np.argmin(d))
@@ -292,7 +292,7 @@ def summary_lines(space: Space, outcomes: list[Outcome], paths: list[Path]) -> l
     return lines
 
 
-def space_from_args(args: Any) -> Space:
+def space_from_args(args: argparse.Namespace) -> Space:
     """The :class:`Space` of ``uavmpc falsify``'s flags."""
     from uavmpc.apps.campaign import fault_spec
 

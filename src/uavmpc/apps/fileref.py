@@ -189,7 +189,7 @@ def attribute_docs(cls: type) -> dict[str, str]:
     return out
 
 
-def known_fields(load: Callable[[dict[str, Any]], Any], doc: dict[str, Any],
+def known_fields(load: Callable[[dict[str, Any]], object], doc: dict[str, Any],
                  path: tuple[str | int, ...]) -> list[str]:
     """The fields the loader ``load`` accepts in the table at ``path`` of the valid ``doc``."""
     probe = copy.deepcopy(doc)
@@ -273,7 +273,7 @@ def reference_tables() -> dict[str, list[tuple[str, str, str]]]:
     from uavmpc.plant import Airframe
 
     tables: dict[str, list[tuple[str, str, str]]] = {}
-    loaders: list[tuple[Callable[[dict[str, Any]], Any], list[_Probe]]] = [
+    loaders: list[tuple[Callable[[dict[str, Any]], object], list[_Probe]]] = [
         (lambda d: scenarios.from_dict(d, "probe"), _scenario_probes()),
         (lambda d: Airframe.from_dict(d), _airframe_probes()),
     ]

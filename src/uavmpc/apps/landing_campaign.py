@@ -96,7 +96,7 @@ def landing_trial(scenario: str, index: int, seed: int, speed_kmh: float | None,
                           deck_size_m=car.deck_size_m, deck_height_m=car.deck_height_m)
     sc = dataclasses.replace(sc, ground_vehicle=moved)
     trial_seed = int(rng.integers(0, 2**31))
-    s = World.from_spec(RunSpec(sc, seed=trial_seed, duration_s=duration_s)).run().summary()
+    s = World(RunSpec(sc, seed=trial_seed, duration_s=duration_s)).run().summary()
     assert s.landing is not None  # the scenario was checked for a lander above
     landing = dataclasses.asdict(s.landing)
     keep = ("landed", "time_to_land_s", "touchdown", "landed_elsewhere", "edge_strikes",

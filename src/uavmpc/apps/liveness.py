@@ -79,7 +79,7 @@ def _why(yielded_to: dict[str, list[float]], final_offset_m: float, max_offset_m
 def liveness(spec: RunSpec, flown: WorldResult) -> dict[str, Any]:
     """:func:`liveness_section` of ``flown`` (``spec`` flown) against ``spec`` flown again
     without avoidance (no log)."""
-    free = World.from_spec(dataclasses.replace(spec, avoidance=False)).run(
+    free = World(dataclasses.replace(spec, avoidance=False)).run(
         flown.duration_s)
     section = liveness_section(flown, free)
     delays = [e["delay_s"] for e in section["per_uav"].values() if e["delay_s"] is not None]

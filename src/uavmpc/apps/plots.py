@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -12,8 +12,14 @@ import itertools
 
 import matplotlib.pyplot as plt
 import numpy as np
+import numpy.typing as npt
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from uavmpc.drivers.world_report import WorldResult
+    from uavmpc.scenarios.traffic import TrafficScenario
 
 
 def plot_axis_response(
@@ -110,7 +116,7 @@ def main_axis(xy_m: np.ndarray) -> np.ndarray:
     centred = pts - pts.mean(axis=0)
     if not np.any(centred):
         return np.array([1.0, 0.0])
-    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    axis: npt.NDArray[np.float64] = np.linalg.svd(centred, full_matrices=False)[2][0]
     return -axis if axis[0] < 0 or (axis[0] == 0 and axis[1] < 0) else axis
 
 
@@ -202,7 +208,7 @@ def plot_min_distance_trace(t_s: ArrayLike, d_m: ArrayLike, collision_m: float,
     return fig
 
 
-def plot_landing(result: Any) -> Figure:
+def plot_landing(result: WorldResult) -> Figure:
     """The landing on the moving deck: top view of the car and the UAV, the UAV's height above
     the deck and its horizontal speed relative to the car over time, the phases shaded."""
     la = result.landing
@@ -257,7 +263,7 @@ def plot_landing(result: Any) -> Figure:
     return fig
 
 
-def plot_formation(result: Any) -> Figure:
+def plot_formation(result: WorldResult) -> Figure:
     """The formation: every UAV's path (top view), and each follower's distance from its slot
     over time, with the times a member was avoiding shaded."""
     f = result.formation
@@ -300,7 +306,8 @@ def plot_formation(result: Any) -> Figure:
     return fig
 
 
-def plot_traffic(result: Any, scenario: Any, title: str) -> tuple[Any, Any, Any]:
+def plot_traffic(result: WorldResult, scenario: TrafficScenario,
+                 title: str) -> tuple[Figure, Figure, Figure]:
     """A traffic run (:mod:`uavmpc.scenarios.traffic`): top view (paths by cruise layer, pads),
     altitudes, and the numbers airborne and arrived
     over time: figures that stay readable, and quick, with hundreds of UAVs (no per-UAV
@@ -354,7 +361,7 @@ def plot_traffic(result: Any, scenario: Any, title: str) -> tuple[Any, Any, Any]
     return top, alt, air
 
 
-def _label(fig: Figure, ax: Any, xlabel: str, ylabel: str, title: str) -> None:
+def _label(fig: Figure, ax: Axes, xlabel: str, ylabel: str, title: str) -> None:
     """Axis labels, title, grid, legend and layout of one traffic figure."""
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)

@@ -19,6 +19,8 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+from uavmpc.scenarios.run import RunSpec
+
 
 def main() -> None:
     """Compile (into the cache) the kernels around the tick of a batched world with
@@ -26,7 +28,7 @@ def main() -> None:
     from uavmpc.drivers.world import World
     from uavmpc.scenarios.random_walk import random_walk
 
-    World(random_walk(3, area_m=30.0, duration_s=10.0, seed=0), seed=0).rehearse(1.0)
+    World(RunSpec(random_walk(3, area_m=30.0, duration_s=10.0, seed=0), seed=0)).rehearse(1.0)
 
 
 def cache_is_cold() -> bool:

@@ -94,7 +94,7 @@ class PublishedResult:
                       tuple(d["time_to_first_collision_s"].items())})
 
 
-def _number(v: Any, field: str) -> float | None:
+def _number(v: object, field: str) -> float | None:
     if v is None:
         return None
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
@@ -102,7 +102,7 @@ def _number(v: Any, field: str) -> float | None:
     return float(v)
 
 
-def _count(v: Any, field: str) -> int | None:
+def _count(v: object, field: str) -> int | None:
     if v is None:
         return None
     if isinstance(v, bool) or not isinstance(v, int) or v < 0:

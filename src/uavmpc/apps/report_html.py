@@ -58,7 +58,7 @@ def _img(path: Path) -> str:
     return f'<img alt="{html.escape(path.stem)}" src="data:image/png;base64,{data}">'
 
 
-def _cell(text: Any, sort: Any = None, numeric: bool = False) -> str:
+def _cell(text: object, sort: object = None, numeric: bool = False) -> str:
     attr = "" if sort is None else f' data-v="{html.escape(str(sort))}"'
     cls = ' class="n"' if numeric else ""
     return f"<td{cls}{attr}>{html.escape(str(text))}</td>"

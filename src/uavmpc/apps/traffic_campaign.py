@@ -35,7 +35,7 @@ from uavmpc.scenarios.traffic import MAX_UAVS, traffic, traffic_outcome
 SIDES = ("with_avoidance", "without_avoidance")
 
 
-def _frozen(value: Any) -> Any:
+def _frozen(value: object) -> object:
     """A JSON value with its lists as tuples (an option read back from JSON equals the one
     given)."""
     if isinstance(value, list | tuple):
@@ -54,7 +54,7 @@ class TrafficSpec:
     uavs: int = 300
     seed: int = 0
     duration_s: float | None = None
-    options: tuple[tuple[str, Any], ...] = ()
+    options: tuple[tuple[str, object], ...] = ()
 
     def __post_init__(self) -> None:
         u = self.uavs
@@ -114,7 +114,7 @@ def traffic_flight(index: int, seed: int, uavs: int, duration_s: float | None,
 
     scenario_seed, world_seed = trial_seeds(seed, index)
     sc = traffic(uavs, scenario_seed, duration_s=duration_s, **(options or {}))
-    result = World.from_spec(RunSpec(sc, avoidance=avoidance, seed=world_seed,
+    result = World(RunSpec(sc, avoidance=avoidance, seed=world_seed,
                                      duration_s=duration_s)).run()
     return {"index": index, "avoidance": avoidance, "scenario_seed": scenario_seed,
             "world_seed": world_seed, "duration_s": result.duration_s,

@@ -385,13 +385,13 @@ def pair_widening_m(own_sigma_m: float, other_sigma_m: float, sigma_k: float) ->
 
 
 @kernel
-def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: bool, ref: float,
+def _encounter(rows: InboxRows, store: Store, r: int, col: int, silent: np.bool_, ref: float,
                radius: float, announced_radius: float, extrapolate_s: float,
                own_times: np.ndarray, own_pos: np.ndarray, sc: SearchScratch,
-               own_sigma_v_m: float, sigma_k: float, ne: int,
+               own_sigma_v_m: float, sigma_k: float, ne: np.int64,
                e_col: np.ndarray, e_silent: np.ndarray, e_near: np.ndarray,
                e_announced: np.ndarray, e_dz: np.ndarray, e_dxy: np.ndarray,
-               e_hears: np.ndarray, e_widen_v: np.ndarray) -> int:
+               e_hears: np.ndarray, e_widen_v: np.ndarray) -> np.int64:
     """Row ``r``'s message from ``col`` against our plan (box test, then the cylinder's
     horizontal test at ``radius``); written as encounter row ``ne`` when it comes near (and
     fits the outputs), with the points near at ``announced_radius`` ≤ ``radius`` (the plan as

@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -74,7 +74,6 @@ from uavmpc.plant.multirotor import Multirotor
 from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
-from uavmpc.scenarios.faults import Faults
 from uavmpc.scenarios.run import RunSpec
 from uavmpc.supervisor import FENCE_CHECK_TICKS, FenceGuard, Supervisor
 from uavmpc.tracker import TrackerConfig
@@ -82,7 +81,7 @@ from uavmpc.view.scene import UavView
 
 __all__ = ["COLLISION_DISTANCE_M", "FORMATION_SETTLE_S", "GOAL_TOLERANCE_M",
            "GROUND_VEHICLE_ID", "SCENE_PERIOD_S", "Collision", "UavOutcome", "World",
-           "WorldResult", "WorldUav", "world_faults", "world_post", "world_pre", "world_tick"]
+           "WorldResult", "WorldUav", "world_post", "world_pre", "world_tick"]
 
 #: Log rate of poses and status (predictions are logged at each broadcast).
 POSE_LOG_PERIOD_S = 0.05
@@ -108,40 +107,6 @@ def broadcast_phase(i: int, n: int) -> float:
     return BROADCAST_PERIOD_S * (i + 0.5) / n
 
 
-def world_faults(faults: Faults) -> dict[str, Any]:
-    """The :class:`World` arguments of a drawn set of faults (:mod:`uavmpc.scenarios.faults`;
-    the link's burst length and the time reference go into the link and the scenario)."""
-    return {"clock_offsets_s": faults.clock_offsets_s,
-            "non_cooperative": faults.non_cooperative,
-            "silent_from_s": faults.silent_from_s,
-            "gnss": None if faults.spec.gnss == "none" else faults.spec.gnss}
-
-
-def _spec_arguments(spec: RunSpec) -> dict[str, Any]:
-    """The :class:`World` arguments of a run spec besides its scenario: its link and faults as
-    :attr:`RunSpec.flown` gives them, its seed, wind and launch check."""
-    flown = spec.flown
-    return {"avoidance": spec.avoidance, "seed": spec.seed, "link": flown.link,
-            "wind_mps": spec.wind_mps, "launch_check_s": spec.launch_check_s,
-            **world_faults(flown.faults)}
-
-
-def _flying_alone(scenario: Scenario, avoidance: bool,
-                  non_cooperative: Iterable[str]) -> tuple[str, ...]:
-    """The ids of the UAVs that fly without avoidance, in the scenario's order: every one
-    when ``avoidance`` is off, else those the scenario or ``non_cooperative`` names."""
-    if isinstance(non_cooperative, str):  # its characters would be taken for ids
-        raise ValueError(f"non_cooperative: an iterable of UAV ids, not the string "
-                         f"{non_cooperative!r}")
-    listed = set(non_cooperative)
-    unknown = sorted(str(x) for x in listed - {u.uav_id for u in scenario.uavs})
-    if unknown:
-        raise ValueError(f"non_cooperative: {', '.join(map(repr, unknown))} not UAVs of "
-                         f"the scenario {scenario.name!r}")
-    return tuple(u.uav_id for u in scenario.uavs
-                 if not (avoidance and u.avoidance and u.uav_id not in listed))
-
-
 def _strategy_of(uav_id: str, strategy: Callable[[AvoidanceParams], ResolutionStrategy],
                  params: AvoidanceParams, formation: Any) -> ResolutionStrategy:
     """A new strategy for ``uav_id``; a formation member's flies the members' pair radii."""
@@ -152,19 +117,6 @@ def _strategy_of(uav_id: str, strategy: Callable[[AvoidanceParams], ResolutionSt
                               "has no per-pair radii for the members")
         resolver.pair_radius_m.update(formation.pair_radii(uav_id))
     return resolver
-
-
-def _silent_times(scenario: Scenario, silent_from_s: Mapping[str, float] | None
-                  ) -> dict[str, float]:
-    """UAV id → when its radio goes silent [s], checked against the scenario."""
-    silent = dict(silent_from_s or {})
-    unknown = sorted(set(silent) - {u.uav_id for u in scenario.uavs})
-    if unknown:
-        raise ValueError(f"silent_from_s: {', '.join(map(repr, unknown))} not UAVs of "
-                         f"the scenario {scenario.name!r}")
-    if not all(math.isfinite(float(t)) for t in silent.values()):
-        raise ValueError(f"silent_from_s: times must be finite, got {silent!r}")
-    return {k: float(v) for k, v in silent.items()}
 
 
 def _link_of(scenario: Scenario, link: LinkSettings | None, positions: dict[str, np.ndarray],
@@ -178,22 +130,6 @@ def _link_of(scenario: Scenario, link: LinkSettings | None, positions: dict[str,
         range_m=settings.range_m or None, position_of=positions.__getitem__,
         seed=seed, burst_len=settings.burst_len,
     )
-
-
-def _clock_offsets(clock_offsets_s: Sequence[float] | None, n: int) -> np.ndarray:
-    """(n,) the UAVs' clock offsets [s], checked."""
-    offsets = np.zeros(n) if clock_offsets_s is None else np.asarray(clock_offsets_s, float)
-    if offsets.shape != (n,) or not np.all(np.isfinite(offsets)):
-        raise ValueError(f"clock_offsets_s: need {n} finite offsets [s], got "
-                         f"{clock_offsets_s!r}")
-    return offsets
-
-
-def _launch_check(launch_check_s: float | None) -> float | None:
-    if launch_check_s is not None and not (math.isfinite(launch_check_s)
-                                           and launch_check_s >= 0.0):
-        raise ValueError(f"launch_check_s: must be a time ≥ 0 [s], got {launch_check_s!r}")
-    return launch_check_s
 
 
 def _common_substeps(uavs: Sequence[WorldUav], period_s: float) -> int:
@@ -298,79 +234,68 @@ def _estimator_of(gnss: str | ObserverParams | None, onboard: OnboardBatch, n: i
 
 
 class World:
-    """A scenario flown by its UAVs.
+    """A flight (:class:`~uavmpc.scenarios.run.RunSpec`) flown by its UAVs in simulation.
 
     Args:
-        scenario: who flies where (see :mod:`uavmpc.scenarios`).
-        avoidance: run collision avoidance on every UAV (else: none, flags down).
-        non_cooperative: ids of UAVs that fly without avoidance, their flags down (the
-            others yield to them), besides those the scenario says so of
-            (``avoidance = false``). A UAV is cooperative iff ``avoidance`` is on, its spec
-            says so and it is not listed here.
-        seed: fixes the link's randomness and the wind.
-        link: overrides the scenario's link settings.
-        wind_mps: mean wind along x (each UAV its own seeded gusts, σ = 0.3 × mean).
+        spec: what flies and how: the scenario, avoidance on or off, the seed (the link's
+            randomness, the wind's gusts, the fault draws), the link, the wind, the faults
+            (clock offsets, GNSS, non-cooperative and silent UAVs), the launch check and
+            the length of :meth:`run` by default. A UAV is cooperative iff the spec's
+            avoidance is on, the scenario's spec of it says so and the faults do not make
+            it non-cooperative. With a launch check, each UAV is held at its start until its
+            inbox holds a prediction from every other UAV its avoidance counts, at most that
+            long (``extra["launch"]`` says when, and who was not heard); a UAV flying
+            without avoidance and a mission stepped beside the stack (a lander, a follower)
+            set off at once.
+
+    The keywords are the world's own wiring, not the flight's:
+
+    Args:
         recorder: optional MCAP recorder.
         strategy: makes each UAV's conflict-resolution strategy from the scenario's avoidance
             parameters (any :class:`~uavmpc.avoidance.ResolutionStrategy`).
         tracker_config: the tracker set-up of every UAV (default: packaged data/tracker.toml).
-        clock_offsets_s: per UAV, how far its clock is ahead of the world's [s] (default: all
-            synchronised). A UAV stamps its messages, judges their age and schedules itself
-            on its own clock; its mission's times are read on it too.
         batched: tick every UAV in one compiled call (default); False ticks each stack and
             plant on its own (:meth:`OnboardStack.tick`, :meth:`Multirotor.step`): the same
             kernels, bit for bit the same flight, slower.
         index: find each UAV's encounters through the spatial index (True) or compare it
             with every other UAV (False; :mod:`uavmpc.avoidance.encounters`): the same
             flight. Default: the index from 32 UAVs on.
-        gnss: fly every controller on a state observer fed with GNSS-like fixes (a preset,
-            ``"single"`` or ``"rtk"``, or :class:`~uavmpc.estimation.ObserverParams`) instead
-            of the true position and velocity (:class:`~uavmpc.estimation.fleet.
-            FleetEstimator`, seeded from ``seed``).
-        silent_from_s: UAV id → world time [s] from which its radio sends nothing; the UAV
-            flies on (its stack still plans and thinks it broadcasts).
-        launch_check_s: hold each UAV at its start until its inbox holds a prediction from
-            every other UAV of the scenario that its avoidance counts (fresh, or silent at
-            most ``silent_hold_s`` old), at most this long [s]; then it flies its mission
-            (``extra["launch"]`` says when, and who was not heard). A UAV flying without
-            avoidance ignores the others, and a mission stepped beside the stack (a lander, a
-            follower) starts its own way: both set off at once. Default None: every UAV sets
-            off at once.
     """
 
     def __init__(
         self,
-        scenario: Scenario,
+        spec: RunSpec,
         *,
-        avoidance: bool = True,
-        seed: int = 0,
-        link: LinkSettings | None = None,
-        wind_mps: float = 0.0,
         recorder: FlightRecorder | None = None,
         strategy: Callable[[AvoidanceParams], ResolutionStrategy] = HeightOffsetStrategy,
         tracker_config: TrackerConfig | None = None,
-        clock_offsets_s: Sequence[float] | None = None,
         batched: bool = True,
         index: bool | None = None,
-        non_cooperative: Iterable[str] = (),
-        gnss: str | ObserverParams | None = None,
-        silent_from_s: Mapping[str, float] | None = None,
-        launch_check_s: float | None = None,
     ) -> None:
-        self.scenario = scenario
-        self.flight_s = scenario.duration_s  #: :meth:`run`'s default length [s] (a spec's)
-        self.avoidance = avoidance
+        if not isinstance(spec, RunSpec):
+            raise TypeError(f"World(spec): a RunSpec, got {type(spec).__name__} (a scenario "
+                            "flies as World(RunSpec(scenario, ...)))")
+        self.spec = spec
+        flown = spec.flown
+        scenario = self.scenario = flown.scenario
+        faults = flown.faults
+        self.flight_s = spec.flight_s  #: :meth:`run`'s default length [s]
+        self.avoidance = spec.avoidance
         #: The ids of the UAVs flying without avoidance (all of them when ``avoidance`` is
         #: off), in the scenario's order.
-        self.non_cooperative = _flying_alone(scenario, avoidance, non_cooperative)
-        self.seed = seed
+        self.non_cooperative = tuple(
+            u.uav_id for u in scenario.uavs
+            if not (spec.avoidance and u.avoidance and u.uav_id not in faults.non_cooperative))
+        self.seed = seed = spec.seed
         self.recorder = recorder
         self.batched = bool(batched)
         self.params = scenario.avoidance  # validated when the scenario was
         self._positions: dict[str, np.ndarray] = {}
-        self.link = _link_of(scenario, link, self._positions, seed)
+        self.link = _link_of(scenario, flown.link, self._positions, seed)
         n = len(scenario.uavs)
-        offsets = _clock_offsets(clock_offsets_s, n)
+        offsets = (np.zeros(n) if faults.clock_offsets_s is None
+                   else np.array(faults.clock_offsets_s, dtype=float))
         #: The records of every UAV's numbers, one row each: their stacks' and their plants'.
         self.onboard = OnboardBatch(scenario.limits.over(tracker_config), n)
         #: The ground vehicle carrying the landing deck, when the scenario has one.
@@ -387,13 +312,15 @@ class World:
                                   time_reference=self.params.time_reference,
                                   max_age_s=self.params.timeout_s,
                                   points=self.onboard.tracker.config.steps)
-        self.launch_check_s = _launch_check(launch_check_s)
+        self.launch_check_s = spec.launch_check_s
         #: Per id: when it set off [s, world time] and whom it had not heard then.
         self.launches: dict[str, dict[str, Any]] = {}
         self.period_s = self.onboard.tracker.config.first_step_s
         # Before the UAVs: the σ each states bounds its room under a geofence's ceiling.
-        self.estimator = _estimator_of(gnss, self.onboard, n, self.period_s, seed)
-        self.uavs = self._add_uavs(airframes, strategy, wind_mps, offsets)
+        gnss = faults.spec.gnss
+        self.estimator = _estimator_of(None if gnss == "none" else gnss, self.onboard, n,
+                                       self.period_s, seed)
+        self.uavs = self._add_uavs(airframes, strategy, spec.wind_mps, offsets)
         #: The rows still held at their starts by the launch check.
         self._held = [i for i, u in enumerate(self.uavs) if not u.supervisor.launched]
         self.t_s = 0.0
@@ -407,7 +334,7 @@ class World:
                                    self.estimator,
                                    [u.plant for u in self.uavs if u.plant.wind is not None])
         #: UAV id → when its radio goes silent [s].
-        self.silent_from_s = _silent_times(scenario, silent_from_s)
+        self.silent_from_s = dict(faults.silent_from_s)
         self._stacks = [u.stack for u in self.uavs]
         self.wire = WorldLink(self.link, self.inboxes, self._stacks, self._offsets,
                               self.silent_from_s, recorder)
@@ -426,19 +353,6 @@ class World:
         self.phase_wall_s = [0.0, 0.0, 0.0]
         #: The current run's compilations (:class:`~uavmpc.jit.CompileWatch`).
         self._compiling = CompileWatch()
-
-    @classmethod
-    def from_spec(cls, spec: RunSpec, *, recorder: FlightRecorder | None = None,
-                  strategy: Callable[[AvoidanceParams], ResolutionStrategy] = HeightOffsetStrategy,
-                  tracker_config: TrackerConfig | None = None, batched: bool = True,
-                  index: bool | None = None) -> World:
-        """The world flying ``spec`` (:func:`_spec_arguments`); :meth:`run` flies
-        ``spec.flight_s`` by default. The keywords are the world's own wiring."""
-        world = cls(spec.flown.scenario, recorder=recorder, strategy=strategy,
-                    tracker_config=tracker_config, batched=batched, index=index,
-                    **_spec_arguments(spec))
-        world.flight_s = spec.flight_s
-        return world
 
     def _add_uavs(self, airframes: dict[str, Airframe],
                   strategy: Callable[[AvoidanceParams], ResolutionStrategy], wind_mps: float,

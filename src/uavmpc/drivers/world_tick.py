@@ -11,6 +11,7 @@ from typing import Any
 import numba
 import numpy as np
 
+from uavmpc.control.se3 import ControlRows
 from uavmpc.estimation.fleet import FleetEstimator
 from uavmpc.jit import (
     HAS_CYCLE_COUNTER,
@@ -19,11 +20,11 @@ from uavmpc.jit import (
     kernel,
     thread_count,
 )
-from uavmpc.onboard import OnboardBatch, onboard_post, onboard_pre, onboard_row
+from uavmpc.onboard import OnboardBatch, StackStats, onboard_post, onboard_pre, onboard_row
 from uavmpc.plant import PlantRows
 from uavmpc.plant.kernels import fly_target
 from uavmpc.plant.multirotor import Multirotor
-from uavmpc.tracker.kernels import make_scratch
+from uavmpc.tracker.kernels import ReferenceTable, TrackerConsts, TrackerRows, make_scratch
 
 #: The stages of a UAV's tick that :func:`world_tick` times: the tracker's three
 #: (:func:`~uavmpc.tracker.kernels.tick_row`), the SE(3) control with the stack's bookkeeping,
@@ -42,8 +43,10 @@ _PAD = 8
 
 
 @kernel(allocates=True)
-def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out,
-               cycles, est):
+def world_tick(trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts, ctl: ControlRows,
+               stats: StackStats, plant: PlantRows, n_sub: int, dt: float, k: int,
+               pos_out: np.ndarray, zoff_out: np.ndarray, dmin_out: np.ndarray,
+               cycles: np.ndarray, est: np.ndarray) -> int:
     """One 10 ms tick of every UAV on the calling thread, the compiled solver inline: each
     UAV's stack (:func:`~uavmpc.onboard.onboard_row`) controls its plant row from its true
     state, then the plant flies the target (:func:`~uavmpc.plant.kernels.fly_target`); row
@@ -80,8 +83,11 @@ def world_tick(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff
 
 
 @kernel(parallel=True, nogil=True)
-def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out,
-                       dmin_out, cycles, est, blocks):
+def world_tick_threads(trk: TrackerRows, refs: ReferenceTable, consts: TrackerConsts,
+                       ctl: ControlRows, stats: StackStats, plant: PlantRows, n_sub: int,
+                       dt: float, k: int, pos_out: np.ndarray, zoff_out: np.ndarray,
+                       dmin_out: np.ndarray, cycles: np.ndarray, est: np.ndarray,
+                       blocks: int) -> int:
     """:func:`world_tick` with its rows in ``blocks`` ≥ 1 contiguous blocks, one per thread
     (the caller passes :func:`uavmpc.jit.thread_count`, see :func:`uavmpc.jit.set_threads`: a
     compiled function that asks numba itself cannot be cached), the traces after them on
@@ -130,14 +136,16 @@ def world_tick_threads(trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_o
 
 
 @kernel
-def world_pre(trk, stats, plant):
+def world_pre(trk: TrackerRows, stats: StackStats, plant: PlantRows) -> None:
     """:func:`world_tick`'s bookkeeping before the trackers tick (Python solvers)."""
     for i in range(plant.x.shape[0]):
         onboard_pre(i, trk, stats, plant.x[i, 0:3])
 
 
 @kernel(allocates=True)
-def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, dmin_out):
+def world_post(trk: TrackerRows, consts: TrackerConsts, ctl: ControlRows, stats: StackStats,
+               plant: PlantRows, n_sub: int, dt: float, k: int, pos_out: np.ndarray,
+               zoff_out: np.ndarray, dmin_out: np.ndarray) -> int:
     """:func:`world_tick` after the trackers ticked (Python solvers): control and plants."""
     qd = np.empty(4)
     ff = np.empty(3)
@@ -153,8 +161,10 @@ def world_post(trk, consts, ctl, stats, plant, n_sub, dt, k, pos_out, zoff_out, 
 
 
 @kernel(allocates=True)
-def _tick_rows(first, end, trk, refs, consts, ctl, stats, plant, n_sub, dt, k, pos_out,
-               zoff_out, est, spent):
+def _tick_rows(first: int, end: int, trk: TrackerRows, refs: ReferenceTable,
+               consts: TrackerConsts, ctl: ControlRows, stats: StackStats, plant: PlantRows,
+               n_sub: int, dt: float, k: int, pos_out: np.ndarray, zoff_out: np.ndarray,
+               est: np.ndarray, spent: np.ndarray) -> int:
     """Rows ``first`` … ``end`` − 1 of :func:`world_tick`, with work arrays of their own
     (one thread's block), each row's position and z offset written into row ``k`` of the
     traces as soon as it is flown (its state still in this core's cache; gathered from every
@@ -241,7 +251,8 @@ def pair_distances(pos: np.ndarray, out: np.ndarray) -> None:
 
 
 @kernel
-def _positions(trk, plant, k, pos_out, zoff_out):
+def _positions(trk: TrackerRows, plant: PlantRows, k: int, pos_out: np.ndarray,
+               zoff_out: np.ndarray) -> None:
     """Row ``k`` of the position and z-offset traces."""
     for i in range(plant.x.shape[0]):
         for j in range(3):
@@ -250,7 +261,8 @@ def _positions(trk, plant, k, pos_out, zoff_out):
 
 
 @kernel(allocates=True)
-def _trace(trk, plant, k, pos_out, zoff_out, dmin_out):
+def _trace(trk: TrackerRows, plant: PlantRows, k: int, pos_out: np.ndarray,
+           zoff_out: np.ndarray, dmin_out: np.ndarray) -> None:
     """Row ``k`` of the traces (see :func:`world_tick`)."""
     _positions(trk, plant, k, pos_out, zoff_out)
     dmin_out[k] = closest_distance(pos_out[k])

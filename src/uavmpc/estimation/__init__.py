@@ -13,7 +13,7 @@ versions (``*_row``) for a caller's own compiled loop. Random numbers are drawn 
 from its seeded generator and passed in, so the kernels are pure functions of their arguments.
 
 - :mod:`~uavmpc.estimation.fleet`: :class:`FleetEstimator`, the sensors and observers of a
-  world's UAVs, one call per tick (``World(gnss=...)``);
+  world's UAVs, one call per tick (a run spec's ``FaultSpec(gnss=...)``);
 - :mod:`~uavmpc.estimation.receiver`: :class:`GnssNoise`, one receiver on one vehicle (a
   one-row view of the GNSS law, for single-UAV flights).
 

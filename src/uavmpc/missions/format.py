@@ -53,7 +53,7 @@ _FIELDS = {
 _FLOAT_MAX = float(np.finfo(float).max)
 
 
-def _describe(value: Any) -> str:
+def _describe(value: object) -> str:
     # Never repr() a container: a deeply nested one would recurse, a large one flood logs.
     if isinstance(value, list | tuple | dict):
         return f"{'an object' if isinstance(value, dict) else 'a list'} of {len(value)}"
@@ -61,7 +61,7 @@ def _describe(value: Any) -> str:
     return text if len(text) <= 40 else f"{text[:37]}..."
 
 
-def _number(value: Any, name: str, bound: float = _FLOAT_MAX) -> float:
+def _number(value: object, name: str, bound: float = _FLOAT_MAX) -> float:
     # bool is an int to Python; NaN fails every comparison; a huge integer is compared exactly
     # here (float() of it would raise OverflowError).
     if isinstance(value, np.floating | np.integer):
@@ -75,7 +75,7 @@ def _number(value: Any, name: str, bound: float = _FLOAT_MAX) -> float:
     return float(value)
 
 
-def _list(value: Any, name: str, what: str, least: int = 1) -> list[Any]:
+def _list(value: object, name: str, what: str, least: int = 1) -> list[object]:
     if isinstance(value, np.ndarray):
         value = value.tolist()
     if not isinstance(value, list | tuple) or len(value) < least:
@@ -88,7 +88,7 @@ def _list(value: Any, name: str, what: str, least: int = 1) -> list[Any]:
     return list(value)
 
 
-def _row(value: Any, name: str, heading: bool = True) -> list[float]:
+def _row(value: object, name: str, heading: bool = True) -> list[float]:
     size = 4 if heading else 3
     if isinstance(value, np.ndarray):
         value = value.tolist()
@@ -101,7 +101,7 @@ def _row(value: Any, name: str, heading: bool = True) -> list[float]:
     return row
 
 
-def _table(value: Any, name: str, form: str) -> Mapping[str, Any]:
+def _table(value: object, name: str, form: str) -> Mapping[str, Any]:
     if not isinstance(value, Mapping):
         raise InvalidReferenceError(f"{name}: must be a table, got {_describe(value)}")
     _reject_unknown(value, _FIELDS[form], name)

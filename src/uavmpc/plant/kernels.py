@@ -15,13 +15,16 @@ record of its own width.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import types
 
 from uavmpc.jit import intrinsic_returning, kernel
 from uavmpc.plant.attitude import attitude_kernel
+
+if TYPE_CHECKING:  # rows.py sizes its records with this module's constants
+    from uavmpc.plant.rows import PlantRows
 
 N_RIGID = 13
 """Rigid-body part of the state vector: p (3), v (3), q (4), Ω (3)."""
@@ -296,7 +299,7 @@ def deck_contact(x: np.ndarray, n: int, alloc: np.ndarray, phys: np.ndarray, dec
 
 
 @kernel
-def contact(i: int, rows: Any, elapsed_s: float) -> None:
+def contact(i: int, rows: PlantRows, elapsed_s: float) -> None:
     """Row ``i``'s contacts after a substep ending ``elapsed_s`` after the row's time: the deck
     (when there is one), then the flat ground; sets the row's ``landed`` flag."""
     x = rows.x[i]
@@ -308,7 +311,7 @@ def contact(i: int, rows: Any, elapsed_s: float) -> None:
 
 
 @kernel
-def settle(i: int, rows: Any) -> None:
+def settle(i: int, rows: PlantRows) -> None:
     """Apply the contacts to row ``i`` as it stands (after its state was written, e.g. at
     start-up on the ground or on the deck); sets its ``landed`` flag when it rests."""
     contact(i, rows, 0.0)
@@ -316,7 +319,7 @@ def settle(i: int, rows: Any) -> None:
 
 @kernel
 def _integrate(
-    i: int, rows: Any, n_sub: int, direct: bool, qd: np.ndarray, thrust_n: float,
+    i: int, rows: PlantRows, n_sub: int, direct: bool, qd: np.ndarray, thrust_n: float,
     ff: np.ndarray,
 ) -> None:
     """``n_sub`` substeps of row ``i``: (attitude loop unless ``direct``) → RK4 → ground. The
@@ -376,7 +379,7 @@ def _integrate(
 
 @kernel
 def plant_step(
-    i: int, rows: Any, n_sub: int, qd: np.ndarray, thrust_n: float, ff: np.ndarray
+    i: int, rows: PlantRows, n_sub: int, qd: np.ndarray, thrust_n: float, ff: np.ndarray
 ) -> None:
     """Fly row ``i`` of ``rows`` (a :class:`~uavmpc.plant.rows.PlantRows`) for ``n_sub``
     substeps towards the attitude target: unit quaternion ``qd`` (4,) (check it with
@@ -387,7 +390,7 @@ def plant_step(
 
 
 @kernel(allocates=True)
-def plant_step_motors(i: int, rows: Any, n_sub: int, omega_cmd: np.ndarray) -> None:
+def plant_step_motors(i: int, rows: PlantRows, n_sub: int, omega_cmd: np.ndarray) -> None:
     """:func:`plant_step` with the rotor-speed commands ``omega_cmd`` (≥ n,) [rad/s] held
     instead of the attitude loop's (the loop and its state are left alone)."""
     nr = rows.n_rotors[i]
@@ -398,7 +401,7 @@ def plant_step_motors(i: int, rows: Any, n_sub: int, omega_cmd: np.ndarray) -> N
 
 
 @kernel
-def fly_target(i: int, rows: Any, n_sub: int, qd: np.ndarray, thrust_n: float,
+def fly_target(i: int, rows: PlantRows, n_sub: int, qd: np.ndarray, thrust_n: float,
                ff: np.ndarray) -> bool:
     """What a plant does with an attitude target: refuse it (False) unless
     :func:`attitude_target_ok`, else normalise ``qd`` in place and :func:`plant_step`."""

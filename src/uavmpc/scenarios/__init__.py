@@ -36,7 +36,7 @@ import re
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -49,6 +49,9 @@ from uavmpc.missions.landing import LandingParams
 from uavmpc.plant.ground_vehicle import KMH, FigureEightTrack, GroundVehicle
 from uavmpc.reference import InvalidReferenceError, Reference
 from uavmpc.tracker.params import DynamicLimits, TrackerConfig
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 #: The built-in conflicts: UAVs whose paths collide without avoidance, which the avoidance
 #: resolves, every UAV but the highest priority climbing over another (SPEC §6). The last is
@@ -124,7 +127,7 @@ class LimitOverrides:
                            tuple(sorted((k, getattr(full, k)) for k in table)))
 
     @classmethod
-    def from_dict(cls, t: Any, prefix: str = "limits") -> LimitOverrides:
+    def from_dict(cls, t: object, prefix: str = "limits") -> LimitOverrides:
         if not isinstance(t, dict):
             raise ConfigError(f"{prefix}: must be a table")
         return cls(tuple(t.items()))  # DynamicLimits names a bad field as limits.<field>
@@ -237,7 +240,7 @@ class Scenario:
                          for p in (u.start_m, *u.mission.points[:, :3])], dtype=float)
 
 
-def _vec(value: Any, n: int, name: str) -> tuple[float, ...]:
+def _vec(value: object, n: int, name: str) -> tuple[float, ...]:
     if not isinstance(value, list) or len(value) != n:
         raise ConfigError(f"{name}: must be a list of {n} numbers, got {value!r}")
     out = []
@@ -344,7 +347,7 @@ def from_dict(data: dict[str, Any], source: str = "scenario") -> Scenario:
                     landing, formation, fence)
 
 
-def avoidance_params(table: Any, prefix: str = "avoidance") -> AvoidanceParams:
+def avoidance_params(table: object, prefix: str = "avoidance") -> AvoidanceParams:
     """An ``[avoidance]`` table (any :class:`~uavmpc.avoidance.AvoidanceParams` field) as the
     parameters, validated: a bad field fails on load, not in flight."""
     if not isinstance(table, dict):
@@ -355,7 +358,7 @@ def avoidance_params(table: Any, prefix: str = "avoidance") -> AvoidanceParams:
         raise ConfigError(f"{prefix}: {exc}") from None
 
 
-def changed_fields(params: Any) -> dict[str, Any]:
+def changed_fields(params: DataclassInstance) -> dict[str, Any]:
     """The fields of a dataclass ``params`` that differ from its defaults (what a file needs to
     give to build it again)."""
     default = type(params)()

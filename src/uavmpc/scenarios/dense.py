@@ -6,7 +6,7 @@ the point diametrically opposite its start, all at the same speed from the same 
 every path crosses every other above the centre at once: the densest meeting N UAVs can be
 asked for. The built-ins ``antipodal_8`` and ``antipodal_12`` (``scenarios.load``) are
 ``antipodal(8)`` and ``antipodal(12, duration_s=150)`` written out by :func:`antipodal_toml`;
-any other N: ``antipodal(n)``, e.g. ``World(antipodal(10)).run()``.
+any other N: ``antipodal(n)``, e.g. ``World(RunSpec(antipodal(10))).run()``.
 
 Above one point, N UAVs need N layers: the reference parameters (``dz_m`` = 3 m under the
 ceiling ``max_offset_m`` = 30 m) give 11, a geofence's ceiling (``ceiling_m``) fewer. Beyond
@@ -23,7 +23,7 @@ it before being pushed off, has not reached it yet), else the first time it came
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from uavmpc.config import ConfigError, positive
 from uavmpc.geofence import Geofence
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
+
+if TYPE_CHECKING:
+    from uavmpc.drivers.world_report import WorldResult
 
 #: Same tolerance as the world's ``reached_goal`` (uavmpc.drivers.world.GOAL_TOLERANCE_M; not
 #: imported from there: the drivers import the scenarios; a test checks they agree).
@@ -217,7 +220,7 @@ def antipodal_toml(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
     return "\n".join(lines) + "\n"
 
 
-def time_to_goals(result: Any, scenario: Scenario, *, settled: bool = True,
+def time_to_goals(result: WorldResult, scenario: Scenario, *, settled: bool = True,
                   tolerance_m: float = GOAL_TOLERANCE_M) -> dict[str, float | None]:
     """Per UAV id, when it reached its goal [s, the world's clock], from
     ``result.positions_m`` (K, N, 3) and ``result.t_s`` (K,) of a

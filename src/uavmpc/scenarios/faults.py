@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Literal, cast
 
@@ -86,6 +87,10 @@ class FaultSpec:
         """Raise :class:`ConfigError` unless it can act on ``n_uavs`` UAVs over a link losing
         ``link_loss`` of its messages."""
         self.check_uavs(n_uavs)
+        self.check_link(link_loss)
+
+    def check_link(self, link_loss: float) -> None:
+        """Raise :class:`ConfigError` unless it can act on a link losing ``link_loss``."""
         if self.burst_len and not link_loss:
             raise ConfigError("--burst-loss needs a loss rate: give --loss P with it")
 
@@ -109,6 +114,46 @@ class Faults:
     non_cooperative: tuple[str, ...] = ()
     #: UAV id → when its radio goes silent [s, world time].
     silent_from_s: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def given(cls, *, clock_offsets_s: Sequence[float] | None = None,
+              non_cooperative: Sequence[str] = (),
+              silent_from_s: Mapping[str, float] | None = None, gnss: str = "none",
+              time_reference: str | None = None, burst_len: float = 0.0) -> Faults:
+        """Faults as given, not drawn (a test's, a replay's): per-UAV clock offsets [s] in
+        the scenario's order, the ids of the non-cooperative UAVs, UAV id → when its radio
+        goes silent [s, world time]; the rest as in :class:`FaultSpec`. Checked against a
+        scenario by :meth:`check_against` (the run spec does)."""
+        if isinstance(non_cooperative, str):  # its characters would be taken for ids
+            raise ConfigError(f"non_cooperative: a list of UAV ids, not the string "
+                              f"{non_cooperative!r}")
+        offsets = None
+        if clock_offsets_s is not None:
+            offsets = tuple(float(v) for v in clock_offsets_s)
+            if not all(math.isfinite(v) for v in offsets):
+                raise ConfigError(f"clock_offsets_s: must be finite [s], got {offsets!r}")
+        silent = {str(k): float(v) for k, v in (silent_from_s or {}).items()}
+        if not all(math.isfinite(t) for t in silent.values()):
+            raise ConfigError(f"silent_from_s: times must be finite, got {silent!r}")
+        spec = FaultSpec(clock_offset_s=max(map(abs, offsets or (0.0,))),
+                         time_reference=time_reference, gnss=gnss, burst_len=burst_len,
+                         non_cooperative=len(set(non_cooperative)), silent=len(silent))
+        return cls(spec, offsets, tuple(dict.fromkeys(non_cooperative)), silent)
+
+    def check_against(self, uav_ids: Sequence[str], scenario_name: str) -> None:
+        """Raise :class:`ConfigError` unless every UAV it names is one of ``uav_ids`` and
+        its clock offsets are one per UAV."""
+        known = set(uav_ids)
+        for name, ids in (("non_cooperative", self.non_cooperative),
+                          ("silent_from_s", tuple(self.silent_from_s))):
+            unknown = sorted(set(ids) - known)
+            if unknown:
+                raise ConfigError(f"{name}: {', '.join(map(repr, unknown))} not UAVs of the "
+                                  f"scenario {scenario_name!r}")
+        offsets = self.clock_offsets_s
+        if offsets is not None and len(offsets) != len(uav_ids):
+            raise ConfigError(f"clock_offsets_s: need {len(uav_ids)} offsets [s], one per "
+                              f"UAV, got {len(offsets)}")
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: what was drawn."""
@@ -140,11 +185,16 @@ def draw_faults(spec: FaultSpec, uav_ids: list[str], duration_s: float, start_s:
 
 
 def apply_faults(spec: FaultSpec, scenario: Scenario, link: LinkSettings, *, duration_s: float,
-                 seed: int) -> tuple[Scenario, LinkSettings, Faults]:
+                 seed: int, given: Faults | None = None
+                 ) -> tuple[Scenario, LinkSettings, Faults]:
     """The one place a :class:`FaultSpec` acts: ``scenario`` with its avoidance's time
     reference, ``link`` with its burst length, and the faults drawn for a flight of
-    ``duration_s`` from 0 with ``seed`` (for the world: ``world_faults`` of them)."""
-    spec.check(len(scenario.uavs), link.loss)
+    ``duration_s`` from 0 with ``seed`` (or ``given``, :meth:`Faults.given`, whose spec
+    ``spec`` is)."""
+    if given is None:
+        spec.check(len(scenario.uavs), link.loss)
+    else:  # given, not drawn: any UAVs may be named (Faults.check_against)
+        spec.check_link(link.loss)
     if spec.burst_len:
         link = dataclasses.replace(link, burst_len=spec.burst_len)
     if spec.time_reference is not None:
@@ -152,5 +202,8 @@ def apply_faults(spec: FaultSpec, scenario: Scenario, link: LinkSettings, *, dur
         time_reference = cast(Literal["stamp", "receive"], spec.time_reference)
         scenario = dataclasses.replace(scenario, avoidance=dataclasses.replace(
             scenario.avoidance, time_reference=time_reference))
-    drawn = draw_faults(spec, [u.uav_id for u in scenario.uavs], duration_s, 0.0, seed)
-    return scenario, link, drawn
+    ids = [u.uav_id for u in scenario.uavs]
+    if given is not None:
+        given.check_against(ids, scenario.name)
+        return scenario, link, given
+    return scenario, link, draw_faults(spec, ids, duration_s, 0.0, seed)

@@ -1,7 +1,7 @@
 """One flight, specified: a scenario and how it is flown (:class:`RunSpec`).
 
 Every driver takes a flight as one :class:`RunSpec`: the world
-(:meth:`uavmpc.drivers.world.World.from_spec`), the swarm of node processes
+(:class:`uavmpc.drivers.world.World`), the swarm of node processes
 (:func:`uavmpc.drivers.swarm.run_swarm`, which hands each node its part as a
 :class:`~uavmpc.drivers.launch.NodeLaunch`) and every campaign (one spec per trial, from the
 campaign's own spec in ``campaign.json``). It is frozen and validated when made: a bad value is a
@@ -18,7 +18,7 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 from uavmpc.config import ConfigError
 from uavmpc.scenarios import LinkSettings, Scenario
@@ -35,19 +35,37 @@ class FlownRun:
     faults: Faults
 
 
+class RunChanges(TypedDict, total=False):
+    """The fields :meth:`RunSpec.replace` may change (a :class:`RunSpec` field each)."""
+
+    scenario: Scenario
+    avoidance: bool
+    seed: int
+    link: LinkSettings | None
+    faults: FaultSpec
+    drawn: Faults | None
+    wind_mps: float
+    launch_check_s: float | None
+    duration_s: float | None
+
+
 @dataclass(frozen=True, eq=False)
 class RunSpec:
     """One flight: ``scenario`` flown with or without ``avoidance``, over ``link`` (None: the
     scenario's), with ``faults``, seeded by ``seed`` (the link's losses, the wind's gusts and the
     fault draws), in a mean wind of ``wind_mps`` along x [m/s], held at the start by a launch
     check of at most ``launch_check_s`` [s] (None: every UAV sets off at once), for
-    ``duration_s`` [s] (None: the scenario's)."""
+    ``duration_s`` [s] (None: the scenario's). ``drawn``: the faults as given instead of
+    drawn from ``faults`` and the seed (:meth:`~uavmpc.scenarios.faults.Faults.given`: a
+    test's or a replay's clock offsets, non-cooperative and silent UAVs); ``faults`` is then
+    its spec."""
 
     scenario: Scenario
     avoidance: bool = True
     seed: int = 0
     link: LinkSettings | None = None
     faults: FaultSpec = field(default_factory=FaultSpec)
+    drawn: Faults | None = None
     wind_mps: float = 0.0
     launch_check_s: float | None = None
     duration_s: float | None = None
@@ -61,6 +79,16 @@ class RunSpec:
             raise ConfigError(f"seed: must be an integer ≥ 0, got {self.seed!r}")
         if not isinstance(self.faults, FaultSpec):
             raise ConfigError(f"faults: must be a FaultSpec, got {type(self.faults).__name__}")
+        if self.drawn is not None:
+            if not isinstance(self.drawn, Faults):
+                raise ConfigError(f"drawn: must be Faults, got {type(self.drawn).__name__}")
+            if self.faults == FaultSpec():
+                object.__setattr__(self, "faults", self.drawn.spec)
+            elif self.faults != self.drawn.spec:
+                raise ConfigError("faults: given with drawn faults, must be their spec "
+                                  f"({self.drawn.spec}), got {self.faults}")
+            self.drawn.check_against([u.uav_id for u in self.scenario.uavs],
+                                     self.scenario.name)
         if self.link is not None:  # a replaced field is not checked by LinkSettings itself
             object.__setattr__(self, "link",
                                LinkSettings.from_dict(dataclasses.asdict(self.link)))
@@ -77,7 +105,10 @@ class RunSpec:
                                or not (math.isfinite(lc) and 0.0 <= lc <= self.flight_s)):
             raise ConfigError(f"launch_check_s: must be a time in [0, the flight's "
                               f"{self.flight_s:g} s], got {lc!r}")
-        self.faults.check(len(self.scenario.uavs), self.run_link.loss)
+        if self.drawn is None:
+            self.faults.check(len(self.scenario.uavs), self.run_link.loss)
+        else:  # given, not drawn: any UAVs may be named (Faults.check_against, above)
+            self.faults.check_link(self.run_link.loss)
 
     @property
     def flight_s(self) -> float:
@@ -93,10 +124,11 @@ class RunSpec:
     def flown(self) -> FlownRun:
         """The scenario, link and fault draw it flies (the faults applied, once)."""
         scenario, link, drawn = apply_faults(self.faults, self.scenario, self.run_link,
-                                             duration_s=self.flight_s, seed=self.seed)
+                                             duration_s=self.flight_s, seed=self.seed,
+                                             given=self.drawn)
         return FlownRun(scenario, link, drawn)
 
-    def replace(self, **changes: Any) -> RunSpec:
+    def replace(self, **changes: Unpack[RunChanges]) -> RunSpec:
         """A copy with ``changes`` (validated again)."""
         return dataclasses.replace(self, **changes)
 
