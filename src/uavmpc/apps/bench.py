@@ -482,6 +482,38 @@ def _print_world_row(row: dict[str, Any], progress: Callable[[str], None],
             f"{k} {v:.0f}" for k, v in ph.items()))
 
 
+def _fastest(n: int, threads: int, flights: list[dict[str, Any]]
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The row of the fastest of the repeated ``flights`` of ``n`` UAVs on ``threads``
+    thread(s) (each must have flown the same flight), and its child's report."""
+    child = min(flights, key=lambda c: c["wall_s"])
+    row = _world_row(child)
+    walls = [c["wall_s"] for c in flights]
+    row["repeats"] = len(flights)
+    row["slowest_over_fastest"] = _sig(max(walls) / min(walls))
+    if len({c["flight_digest"] for c in flights}) != 1:
+        raise RuntimeError(f"bench world: {n} UAVs on {threads} thread(s) flew different "
+                           "flights in its repeats")
+    return row, child
+
+
+def _per_object_reference(fast: dict[str, Any], duration_s: float, avoidance: bool,
+                          digest: str, progress: Callable[[str], None]
+                          ) -> tuple[dict[str, Any], float, bool]:
+    """The in-run reference: the world of ``fast``'s size flown UAV by UAV on one thread;
+    its row, how many times faster ``fast`` (batched) flew, and whether its flight is bit for
+    bit ``digest``."""
+    n = fast["uavs"]
+    child = _spawn_world(n, duration_s, avoidance, False, 1)
+    ref = _world_row(child)
+    identical = child["flight_digest"] == digest
+    speedup = fast["realtime_factor"] / ref["realtime_factor"]
+    progress(f"{n:5d} UAVs, per object (reference): {ref['realtime_factor']:.2f}× real "
+             f"time; batched on {fast['threads']} thread(s) is {speedup:.1f}× faster, flights "
+             f"bit-identical: {identical}")
+    return ref, speedup, identical
+
+
 def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
                 duration_large_s: float = 10.0, avoidance: bool = True,
                 threads: tuple[int, ...] | None = None, profile: bool = False,
@@ -530,14 +562,7 @@ def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
                 flights[t].append(_spawn_world(n, duration(n), avoidance, True, t))
         first: dict[str, Any] | None = None
         for t in threads:
-            child = min(flights[t], key=lambda c: c["wall_s"])
-            row = _world_row(child)
-            walls = [c["wall_s"] for c in flights[t]]
-            row["repeats"] = repeats
-            row["slowest_over_fastest"] = _sig(max(walls) / min(walls))
-            if len({c["flight_digest"] for c in flights[t]}) != 1:
-                raise RuntimeError(f"bench world: {n} UAVs on {t} thread(s) flew different "
-                                   "flights in its repeats")
+            row, child = _fastest(n, t, flights[t])
             rows.append(row)
             _print_world_row(row, progress, profile)
             if first is None:
@@ -551,14 +576,9 @@ def bench_world(sizes: tuple[int, ...] = WORLD_SIZES, duration_s: float = 20.0,
                      f"faster, flights bit-identical: {same}")
     growth = _growth([r for r in rows if r["threads"] == threads[0]])
     smallest = min(sizes)
-    ref_child = _spawn_world(smallest, duration(smallest), avoidance, False, 1)
-    ref = _world_row(ref_child)
-    identical = ref_child["flight_digest"] == digests[smallest]
     fast = next(r for r in rows if r["uavs"] == smallest and r["threads"] == threads[0])
-    speedup = fast["realtime_factor"] / ref["realtime_factor"]
-    progress(f"{smallest:5d} UAVs, per object (reference): {ref['realtime_factor']:.2f}× real "
-             f"time; batched on {threads[0]} thread(s) is {speedup:.1f}× faster, flights "
-             f"bit-identical: {identical}")
+    ref, speedup, identical = _per_object_reference(fast, duration(smallest), avoidance,
+                                                    digests[smallest], progress)
     if growth["growth_exponent"] is not None:
         progress(f"cost per simulated second ∝ N^{growth['growth_exponent']:.2f} over "
                  f"{growth['fit_uavs']} UAVs; per UAV-second, {growth['ratio_largest_uavs']} "

@@ -228,6 +228,18 @@ def warm_up(airframe: Airframe) -> None:
             pl.step(o.target, s.period_s)
 
 
+def _command_gate(key: bytes | None, roster: Roster | None) -> CommandGate | None:
+    """Who may command a node: a holder of the shared ``key``, an operator of the
+    ``roster``, or anyone (neither)."""
+    if key is not None and roster is not None:
+        raise ValueError("a node takes a shared key or identities, not both")
+    if key is not None:
+        return CommandGate(SharedKey(key), max_skew_s=COMMAND_MAX_SKEW_S)
+    if roster is not None:
+        return CommandGate(roster, max_skew_s=COMMAND_MAX_SKEW_S)
+    return None
+
+
 class Node:
     """One UAV in real time: a driver (the wall clock, a transport, a vehicle) around one
     :class:`~uavmpc.onboard.OnboardStack`. ``transport`` is a
@@ -268,13 +280,7 @@ class Node:
         #: With a key or a roster, commands (missions, formation changes) must be sealed by
         #: a holder of the key or by an operator of the roster, and newer than the last one
         #: of their signer (:class:`~uavmpc.comms.auth.CommandGate`); else anyone may command.
-        self.commands: CommandGate | None = None
-        if key is not None and roster is not None:
-            raise ValueError("a node takes a shared key or identities, not both")
-        if key is not None:
-            self.commands = CommandGate(SharedKey(key), max_skew_s=COMMAND_MAX_SKEW_S)
-        elif roster is not None:
-            self.commands = CommandGate(roster, max_skew_s=COMMAND_MAX_SKEW_S)
+        self.commands = _command_gate(key, roster)
         #: The operational volume: missions outside it are refused, and a vehicle found
         #: outside flies back in and holds (:class:`~uavmpc.geofence.FenceWatch`).
         self.geofence = geofence

@@ -847,6 +847,13 @@ def _summary(scenario: Scenario, opts: _Options, monitor: _Monitor, ended: _Ende
         sections=sections)
 
 
+def _vehicle_kind(real_px4: bool, mavlink: bool) -> str:
+    """What the nodes fly, as the flight log's metadata says it."""
+    if real_px4:
+        return "PX4 SITL (SIH) over MAVLink"
+    return "PX4 stand-in over MAVLink" if mavlink else "simulated plant"
+
+
 def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
               kill_at_s: dict[str, float] | None = None,
               on_trace: Callable[[list[float], list[float]], None] | None = None,
@@ -867,11 +874,10 @@ def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
     sends); goals are judged where the UAVs are when the mission ends, before they land.
     ``ros2``: a Zenoh router; every node also appears on the ROS 2 graph through it. Each
     node's error output goes to ``out/<id>.node.log``. ``live``: gets the 3-D scene and the
-    metrics every :data:`~uavmpc.drivers.world.SCENE_PERIOD_S` of the wall clock, as the
-    monitor hears the nodes (e.g. :class:`uavmpc.view.live.LiveView`). ``px4_sitl``: every
-    node flies a real PX4 SITL instance of that build instead of a stand-in (see the module's
-    docstring; ``geo_origin`` is the world's ENU origin on the globe, ``px4_first_instance``
-    the first instance number); excludes ``mavlink``."""
+    metrics every :data:`~uavmpc.drivers.world.SCENE_PERIOD_S` of the wall clock (e.g.
+    :class:`uavmpc.view.live.LiveView`). ``px4_sitl``: every node flies a real PX4 SITL
+    instance of that build instead of a stand-in (the module's docstring; ``geo_origin``: the
+    ENU origin on the globe, ``px4_first_instance``: the first instance number)."""
     from uavmpc.comms.zenoh_link import ZenohTransport
 
     swarm_flyable(spec, mavlink, px4_sitl)
@@ -911,9 +917,7 @@ def run_swarm(spec: RunSpec, out: Path, *, key_file: str | None = None,
             _start_fleet(fleet, scenario, opts, swarm=swarm, endpoints=endpoints,
                          mav_ports=mav_ports, truth_ports=truth_ports)
             meta = {"scenario": scenario.name, "avoidance": avoidance, "transport": "zenoh",
-                    "vehicle": ("PX4 SITL (SIH) over MAVLink" if real_px4
-                                else "PX4 stand-in over MAVLink" if mavlink
-                                else "simulated plant")}
+                    "vehicle": _vehicle_kind(real_px4, mavlink)}
             with FlightRecorder(out / "flight.mcap", ids, meta) as rec:
                 end = opts.epoch + opts.duration
                 monitor.watch(rec, fleet.nodes, end,

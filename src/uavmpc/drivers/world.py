@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -236,31 +236,22 @@ def _estimator_of(gnss: str | ObserverParams | None, onboard: OnboardBatch, n: i
 class World:
     """A flight (:class:`~uavmpc.scenarios.run.RunSpec`) flown by its UAVs in simulation.
 
-    Args:
-        spec: what flies and how: the scenario, avoidance on or off, the seed (the link's
-            randomness, the wind's gusts, the fault draws), the link, the wind, the faults
-            (clock offsets, GNSS, non-cooperative and silent UAVs), the launch check and
-            the length of :meth:`run` by default. A UAV is cooperative iff the spec's
-            avoidance is on, the scenario's spec of it says so and the faults do not make
-            it non-cooperative. With a launch check, each UAV is held at its start until its
-            inbox holds a prediction from every other UAV its avoidance counts, at most that
-            long (``extra["launch"]`` says when, and who was not heard); a UAV flying
-            without avoidance and a mission stepped beside the stack (a lander, a follower)
-            set off at once.
+    ``spec`` says what flies and how (scenario, avoidance, seed, link, wind, faults, launch
+    check, the length of :meth:`run`). A UAV is cooperative iff the spec's avoidance is on,
+    the scenario's spec of it says so and the faults do not make it non-cooperative. With a
+    launch check, each UAV holds at its start until its inbox holds a prediction from every
+    other UAV its avoidance counts, at most that long (``extra["launch"]`` says when, and
+    who was not heard); a UAV flying without avoidance and a mission stepped beside the
+    stack (a lander, a follower) set off at once.
 
-    The keywords are the world's own wiring, not the flight's:
-
-    Args:
-        recorder: optional MCAP recorder.
-        strategy: makes each UAV's conflict-resolution strategy from the scenario's avoidance
-            parameters (any :class:`~uavmpc.avoidance.ResolutionStrategy`).
-        tracker_config: the tracker set-up of every UAV (default: packaged data/tracker.toml).
-        batched: tick every UAV in one compiled call (default); False ticks each stack and
-            plant on its own (:meth:`OnboardStack.tick`, :meth:`Multirotor.step`): the same
-            kernels, bit for bit the same flight, slower.
-        index: find each UAV's encounters through the spatial index (True) or compare it
-            with every other UAV (False; :mod:`uavmpc.avoidance.encounters`): the same
-            flight. Default: the index from 32 UAVs on.
+    The keywords are the world's own wiring, not the flight's: ``recorder`` an optional MCAP
+    recorder; ``strategy`` makes each UAV's strategy from the avoidance parameters (any
+    :class:`~uavmpc.avoidance.ResolutionStrategy`); ``tracker_config`` every UAV's tracker
+    set-up (default: packaged data/tracker.toml); ``batched`` False ticks each stack and
+    plant on its own (:meth:`OnboardStack.tick`, :meth:`Multirotor.step`: the same kernels,
+    bit for bit the same flight, slower); ``index`` finds encounters through the spatial
+    index (True) or by every pair (False; :mod:`uavmpc.avoidance.encounters`), the same
+    flight (default: the index from 32 UAVs on).
     """
 
     def __init__(
@@ -321,20 +312,26 @@ class World:
         self.estimator = _estimator_of(None if gnss == "none" else gnss, self.onboard, n,
                                        self.period_s, seed)
         self.uavs = self._add_uavs(airframes, strategy, spec.wind_mps, offsets)
+        self._wire(offsets, index, recorder, faults.silent_from_s)
+
+    def _wire(self, offsets: np.ndarray, index: bool | None, recorder: FlightRecorder | None,
+              silent_from_s: Mapping[str, float]) -> None:
+        """What connects the UAVs once they are made: the compiled tick, the link's delivery,
+        the avoidance rounds' finder, the scene, the launch check's waiting rows."""
         #: The rows still held at their starts by the launch check.
         self._held = [i for i, u in enumerate(self.uavs) if not u.supervisor.launched]
         self.t_s = 0.0
         self.n_sub = _common_substeps(self.uavs, self.period_s)
         self._offsets = offsets.copy()
         #: The rows due to broadcast at a tick and their clocks (work arrays of _emit).
-        self._due_rows = np.empty(n, dtype=np.int64)
-        self._due_stamps = np.empty(n)
+        self._due_rows = np.empty(len(self.uavs), dtype=np.int64)
+        self._due_stamps = np.empty(len(self.uavs))
         #: The numerical tick of every UAV (one compiled call).
         self.ticker = CompiledTick(self.onboard, self.plants, self.n_sub, self.period_s,
                                    self.estimator,
                                    [u.plant for u in self.uavs if u.plant.wind is not None])
         #: UAV id → when its radio goes silent [s].
-        self.silent_from_s = dict(faults.silent_from_s)
+        self.silent_from_s = dict(silent_from_s)
         self._stacks = [u.stack for u in self.uavs]
         self.wire = WorldLink(self.link, self.inboxes, self._stacks, self._offsets,
                               self.silent_from_s, recorder)
