@@ -1,5 +1,5 @@
-"""Non-cooperative UAVs (``avoidance = false``, ``Faults.given(non_cooperative=...)``) and the dense,
-adversarial built-in scenarios (antipodal circles, a non-cooperative crossing)."""
+"""Non-cooperative UAVs (``avoidance = false``, ``Faults.given(non_cooperative=...)``) and
+the dense, adversarial built-in scenarios (antipodal circles, a non-cooperative crossing)."""
 
 import dataclasses
 import json

@@ -153,8 +153,10 @@ class Supervisor:
 
     # ------------------------------------------------------------------ mission
     def mission_due(self, now_s: float) -> bool:
-        """A mission steps beside the stack and its period has passed (driver's clock)."""
-        return self.mission is not None and now_s >= self.next_mission_s - _SCHEDULE_TOL_S
+        """A mission steps beside the stack, its period has passed (driver's clock) and no
+        pause holds it (:meth:`pause`)."""
+        return (self.mission is not None and self.paused is None
+                and now_s >= self.next_mission_s - _SCHEDULE_TOL_S)
 
     def step_mission(self, now_s: float, own_s: float, estimate: VehicleState,
                      touching: bool = False, fixes: Sequence[Any] = ()) -> bool:

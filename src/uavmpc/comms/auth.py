@@ -52,11 +52,18 @@ import stat
 import string
 import time
 import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from types import ModuleType
+from typing import TYPE_CHECKING, Literal
 
 from uavmpc.comms.message import InvalidMessageError
+
+if TYPE_CHECKING:
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import (
+        Ed25519PrivateKey,
+        Ed25519PublicKey,
+    )
 
 __all__ = ["MIN_KEY_BYTES", "SIGNATURE_BYTES", "CommandGate", "CommandSigner", "Identity",
            "Roster", "RosterEntry", "SharedKey", "Unsealed", "check_key", "load_identity",
@@ -136,13 +143,13 @@ def _tag(data: bytes, key: bytes) -> bytes:
     return hmac.new(key, _CONTEXT + data + AUTH_MAGIC, hashlib.sha256).digest()
 
 
-def _as_bytes(value: Any, name: str) -> bytes:
+def _as_bytes(value: object, name: str) -> bytes:
     if not isinstance(value, bytes | bytearray | memoryview):
         raise TypeError(f"{name}: expected bytes, got {type(value).__name__}")
     return bytes(value)
 
 
-def check_key(key: Any) -> None:
+def check_key(key: object) -> None:
     """Raise ``TypeError``/``ValueError`` unless ``key`` is bytes of a usable length."""
     if not isinstance(key, bytes | bytearray):
         raise TypeError(f"key: expected bytes, got {type(key).__name__}")
@@ -184,7 +191,7 @@ ROLES: tuple[str, ...] = ("uav", "operator")
 ED25519_KEY_BYTES = 32
 
 
-def _ed25519() -> Any:
+def _ed25519() -> ModuleType:
     try:
         from cryptography.hazmat.primitives.asymmetric import ed25519
     except ImportError:
@@ -193,7 +200,7 @@ def _ed25519() -> Any:
     return ed25519
 
 
-def check_member_id(member_id: Any, what: str = "member id") -> str:
+def check_member_id(member_id: object, what: str = "member id") -> str:
     """``member_id`` if it is 1–32 characters of ``[A-Za-z0-9_-]`` (a UAV or operator id)."""
     # fullmatch: with match and "^...$", "$" also matches before a trailing newline.
     if not isinstance(member_id, str) or not _MEMBER_ID.fullmatch(member_id):
@@ -250,7 +257,7 @@ class Identity:
         return key.public_key().public_bytes(serialization.Encoding.Raw,
                                              serialization.PublicFormat.Raw)
 
-    def _key(self) -> Any:
+    def _key(self) -> Ed25519PrivateKey:
         cached = self.__dict__.get("_cached")
         if cached is None:
             cached = _ed25519().Ed25519PrivateKey.from_private_bytes(self.private_key)
@@ -276,7 +283,7 @@ class Roster(Mapping[str, RosterEntry]):
     def __init__(self, members: Mapping[str, RosterEntry]) -> None:
         ed = _ed25519()
         self._members = dict(members)
-        self._keys: dict[str, Any] = {}
+        self._keys: dict[str, Ed25519PublicKey] = {}
         for mid, entry in self._members.items():
             check_member_id(mid, "roster member id")
             if entry.role not in ROLES:
@@ -296,7 +303,7 @@ class Roster(Mapping[str, RosterEntry]):
     def __getitem__(self, member_id: str) -> RosterEntry:
         return self._members[member_id]
 
-    def __iter__(self) -> Any:
+    def __iter__(self) -> Iterator[str]:
         return iter(self._members)
 
     def __len__(self) -> int:
@@ -471,7 +478,7 @@ class CommandSigner:
     """Seals commands with strictly increasing sequence numbers: the signer's clock in µs, or
     one more than the last if the clock stood still or went back."""
 
-    def __init__(self, signer: Signer, clock: Any = time.time) -> None:
+    def __init__(self, signer: Signer, clock: Callable[[], float] = time.time) -> None:
         self.signer = signer
         self._clock = clock
         self._last = 0

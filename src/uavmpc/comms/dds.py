@@ -26,7 +26,10 @@ encoded, what a reader hands on is what arrived, decoded (and refused if bad) by
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any, Self
+
+import numpy as np
+import numpy.typing as npt
 
 from uavmpc.comms.ros2 import (
     QOS_KEEP_LAST_10,
@@ -36,6 +39,21 @@ from uavmpc.comms.ros2 import (
     dds_type_name,
     graph_identity,
 )
+
+if TYPE_CHECKING:
+    from cyclonedds.core import Qos
+    from cyclonedds.domain import Domain
+    from cyclonedds.idl import IdlStruct
+    from cyclonedds.topic import Topic
+
+    class _RawStruct(IdlStruct):
+        """The shape of what :meth:`_DdsTypes.raw` makes at run time (make_idl_struct
+        cannot say it): its samples hold their CDR, as written or as arrived."""
+
+        cdr: bytes
+
+        @classmethod
+        def of(cls, cdr: bytes) -> Self: ...
 
 __all__ = ["DdsGraph", "DdsPublisher", "DdsSubscriber", "dds_topic_name", "require", "user_data"]
 
@@ -64,7 +82,7 @@ def user_data(type_hash: str) -> bytes:
 #: cannot use it for ROS's types and would match none of them. eProsima's vendor id: 1.15.
 COMPATIBILITY = ("<CycloneDDS><Domain><Compatibility><IgnoreTypeInformation>1.15"
                  "</IgnoreTypeInformation></Compatibility></Domain></CycloneDDS>")
-_domains: dict[int, Any] = {}
+_domains: dict[int, Domain] = {}
 
 
 def _configure(domain_id: int) -> None:
@@ -89,8 +107,8 @@ class _DdsTypes:
         self.idl = _need("cyclonedds.idl")
         self.t = _need("cyclonedds.idl.types")
         self.fielddefs = codec.store.fielddefs
-        self._made: dict[str, Any] = {}
-        self._raw: dict[str, Any] = {}
+        self._made: dict[str, type[IdlStruct]] = {}
+        self._raw: dict[str, type[_RawStruct]] = {}
         self._base = {"bool": bool, "float32": self.t.float32, "float64": self.t.float64,
                 "int8": self.t.int8, "int16": self.t.int16, "int32": self.t.int32,
                 "int64": self.t.int64, "uint8": self.t.uint8, "uint16": self.t.uint16,
@@ -98,7 +116,9 @@ class _DdsTypes:
                 # rosidl: a message's byte is an IDL octet, its char an IDL uint8
                 "byte": self.t.byte, "char": self.t.uint8, "octet": self.t.byte}
 
-    def _field(self, node: tuple[Any, Any]) -> Any:
+    def _field(self, node: tuple[object, Any]) -> object:
+        """The IDL type of a rosbags field description ``(kind, arg)``."""
+        # Any: the shape of ``arg`` depends on ``kind`` (rosbags' FieldDesc).
         kind, arg = node
         name = getattr(kind, "name", str(kind))
         if name == "BASE":
@@ -114,7 +134,7 @@ class _DdsTypes:
         return self.t.sequence[self._field(inner), size] if size else \
             self.t.sequence[self._field(inner)]
 
-    def struct(self, ros_type: str) -> Any:
+    def struct(self, ros_type: str) -> type[IdlStruct]:
         """The IDL struct of ``ros_type`` (for nested fields)."""
         if ros_type not in self._made:
             _, fields = self.fielddefs[ros_type]
@@ -123,7 +143,7 @@ class _DdsTypes:
                 {name: self._field(node) for name, node in fields})
         return self._made[ros_type]
 
-    def raw(self, ros_type: str) -> Any:
+    def raw(self, ros_type: str) -> type[_RawStruct]:
         """The type a topic of ``ros_type`` is made with: ``raw(t).of(cdr)`` is a sample that
         writes ``cdr``; a reader's samples hold the CDR that arrived in ``.cdr``."""
         if ros_type not in self._raw:
@@ -138,21 +158,22 @@ class _DdsTypes:
         return self._raw[ros_type]
 
 
-def _of(cls: Any, cdr: bytes) -> Any:
+def _of(cls: type[_RawStruct], cdr: bytes) -> _RawStruct:
     sample = object.__new__(cls)
     sample.cdr = cdr
     return sample
 
 
-def _serialize(self: Any, *args: Any, **kwargs: Any) -> bytes:
+def _serialize(self: _RawStruct, *args: object, **kwargs: object) -> bytes:
     return bytes(self.cdr)
 
 
-def _deserialize(cls: Any, data: bytes, *args: Any, **kwargs: Any) -> Any:
+def _deserialize(cls: type[_RawStruct], data: bytes, *args: object,
+                 **kwargs: object) -> _RawStruct:
     return _of(cls, bytes(data))
 
 
-def _qos_of(qos: str, type_hash: str) -> Any:
+def _qos_of(qos: str, type_hash: str) -> Qos:
     """Cyclone QoS of an rmw_zenoh-style QoS field (we use reliable/volatile/keep-last-N)."""
     core = _need("cyclonedds.core")
     # rmw_zenoh's field: "<reliability>:<durability>:<history>,<depth>:…", empty = default
@@ -243,7 +264,7 @@ class DdsGraph:
         except Exception as exc:  # cyclonedds raises DDSException on a bad configuration
             raise OSError(f"cannot join DDS domain {self.domain_id}: {exc}") from None
         self.gid = self.participant.guid.bytes
-        self._topics: dict[str, Any] = {}
+        self._topics: dict[str, Topic[_RawStruct]] = {}
         self._entities: list[DdsPublisher | DdsSubscriber] = []
         pub = _need("cyclonedds.pub")
         core = _need("cyclonedds.core")
@@ -256,7 +277,8 @@ class DdsGraph:
                      policy.Userdata(user_data(info_hash))))
         self._announce()
 
-    def dds_topic(self, topic: str, ros_type: str, *, ros: bool = True) -> Any:
+    def dds_topic(self, topic: str, ros_type: str, *,
+                  ros: bool = True) -> Topic[_RawStruct]:
         name = dds_topic_name(topic) if ros else topic
         if name not in self._topics:
             self._topics[name] = _need("cyclonedds.topic").Topic(
@@ -304,8 +326,6 @@ class DdsGraph:
         self.close()
 
 
-def _u8(data: bytes) -> Any:
-    import numpy as np
-
+def _u8(data: bytes) -> npt.NDArray[np.uint8]:
     return np.frombuffer(data, dtype=np.uint8).copy()
 

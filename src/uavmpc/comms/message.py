@@ -45,7 +45,7 @@ import math
 import re
 import struct
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -158,7 +158,17 @@ class PredictionMessage:
         return int(self.times_s.shape[0])
 
 
-def from_prediction(prediction: Any, *, uav_id: str, priority: int, stamp_s: float,
+class Planned(Protocol):
+    """What a message takes of a tracker's plan: where, not how."""
+
+    @property
+    def times_s(self) -> np.ndarray: ...
+
+    @property
+    def position_m(self) -> np.ndarray: ...
+
+
+def from_prediction(prediction: Planned, *, uav_id: str, priority: int, stamp_s: float,
                     avoiding: bool = True, heard: tuple[str, ...] = (),
                     position_sigma_m: tuple[float, float] = (0.0, 0.0)) -> PredictionMessage:
     """A message from a tracker :class:`~uavmpc.tracker.Prediction` (uses ``times_s`` and
@@ -338,13 +348,14 @@ def validate_on_receipt(msg: PredictionMessage, now_s: float, max_future_s: floa
     return msg
 
 
-def _check_id(uav_id: Any) -> None:
+def _check_id(uav_id: object) -> None:
     if not valid_id(uav_id):
         raise InvalidMessageError(
             f"uav_id: must be 1–{MAX_ID_LEN} characters of [A-Za-z0-9_-], got {uav_id!r}")
 
 
 def _check_sigma(sigma: Any) -> tuple[float, float]:
+    # Any: whatever the caller gave, unpacked here and refused if it is not two numbers.
     try:
         h, v = sigma
     except (TypeError, ValueError):
@@ -357,7 +368,7 @@ def _check_sigma(sigma: Any) -> tuple[float, float]:
     return out
 
 
-def _check_heard(heard: Any, sender: str) -> tuple[str, ...]:
+def _check_heard(heard: object, sender: str) -> tuple[str, ...]:
     if isinstance(heard, str) or not isinstance(heard, tuple | list):
         raise InvalidMessageError(f"heard: must be a tuple of UAV ids, got {heard!r}")
     if len(heard) > MAX_HEARD:
@@ -378,7 +389,7 @@ def _check_heard(heard: Any, sender: str) -> tuple[str, ...]:
     return tuple(heard)
 
 
-def _finite(value: Any, field: str) -> float:
+def _finite(value: object, field: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
         raise InvalidMessageError(f"{field}: must be a number, got {value!r}")
     out = float(value)
@@ -387,7 +398,7 @@ def _finite(value: Any, field: str) -> float:
     return out
 
 
-def _float_array(value: Any, field: str) -> np.ndarray:
+def _float_array(value: object, field: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=np.float64)  # a copy: the caller may reuse its buffer
     except (TypeError, ValueError):

@@ -34,13 +34,19 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import resources
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, Protocol, Self, TypeVar
 
 import numpy as np
 
+if TYPE_CHECKING:
+    import zenoh
+    from rosbags.typesys.store import Msg, MsgType, Typestore
+
 __all__ = ["AVOIDANCE_STATUS", "InvalidRosMessageError", "Ros2Codec", "Ros2Graph",
-           "Ros2Publisher", "Ros2Subscriber", "UavTopics", "dds_type_name", "gid_of",
-           "liveliness_token", "mangle", "our_quat", "ros_quat", "topic_key"]
+           "Ros2Publisher", "Ros2Subscriber", "RosGraph", "TopicReader", "TopicWriter",
+           "UavTopics", "dds_type_name", "gid_of", "liveliness_token", "mangle", "our_quat",
+           "ros_quat", "topic_key"]
 
 POSE = "geometry_msgs/msg/PoseStamped"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -58,8 +64,11 @@ WORLD_FRAME = "world"
 
 _EXTRA = "pip install 'uavmpc[ros2]'"
 
+#: What a mission built from a ROS 2 goal or trajectory is (the caller's ``build`` says).
+M = TypeVar("M")
 
-def _need(module: str) -> Any:
+
+def _need(module: str) -> ModuleType:
     import importlib
 
     try:
@@ -98,7 +107,7 @@ class Ros2Codec:
 
     def __init__(self) -> None:
         typesys = _need("rosbags.typesys")
-        self.store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
+        self.store: Typestore = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
         text = resources.files("uavmpc.data").joinpath("msg/AvoidanceStatus.msg").read_text()
         self.store.register(typesys.get_types_from_msg(text, AVOIDANCE_STATUS))
         self.types = self.store.types
@@ -114,24 +123,25 @@ class Ros2Codec:
         """The ``ros2msg`` definition text (with its dependencies), as MCAP schemas hold it."""
         return self.store.generate_msgdef(ros_type, ros_version=2)[0]
 
-    def encode(self, message: Any, ros_type: str) -> bytes:
+    def encode(self, message: object, ros_type: str) -> bytes:
         return bytes(self.store.serialize_cdr(message, ros_type))
 
     def decode(self, data: bytes, ros_type: str) -> Any:
+        # Any: the message's fields are those of ``ros_type``, known only at run time.
         try:
             return self.store.deserialize_cdr(bytes(data), ros_type)
         except Exception as exc:  # rosbags raises assorted errors on truncated/garbled CDR
             raise InvalidRosMessageError(f"not a {ros_type} in CDR: {exc}") from None
 
     # ------------------------------------------------------------------ our messages
-    def header(self, t_s: float, frame_id: str = WORLD_FRAME) -> Any:
+    def header(self, t_s: float, frame_id: str = WORLD_FRAME) -> MsgType:
         ns = max(0, round(float(t_s) * 1e9))
         t = self.types
         return t["std_msgs/msg/Header"](
             stamp=t["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9),
             frame_id=frame_id)
 
-    def _pose(self, p: np.ndarray, q_wxyz: np.ndarray) -> Any:
+    def _pose(self, p: np.ndarray, q_wxyz: np.ndarray) -> MsgType:
         t = self.types
         x, y, z, w = ros_quat(q_wxyz)
         return t["geometry_msgs/msg/Pose"](
@@ -166,7 +176,7 @@ class Ros2Codec:
              headings_rad: np.ndarray) -> bytes:
         """nav_msgs/Path of a plan: one stamped pose per point, heading as a yaw quaternion."""
         ps = self.types[POSE]
-        poses = []
+        poses: list[Msg] = []
         for t_k, p, h in zip(times_s.tolist(), positions_m, headings_rad.tolist(), strict=True):
             q = np.array([math.cos(0.5 * h), 0.0, 0.0, math.sin(0.5 * h)])
             poses.append(ps(header=self.header(t_k), pose=self._pose(p, q)))
@@ -254,6 +264,41 @@ class Ros2Stats:
     bytes_published: int = 0
 
 
+class TopicWriter(Protocol):
+    """A ROS 2 publisher, over Zenoh or DDS."""
+
+    def put(self, cdr: bytes, t_ns: int | None = None) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class TopicReader(Protocol):
+    """A ROS 2 subscription, over Zenoh or DDS."""
+
+    def drain(self, most: int = 8) -> list[bytes]: ...
+
+    def close(self) -> None: ...
+
+
+class RosGraph(Protocol):
+    """One ROS 2 node on a graph: over rmw_zenoh (:class:`Ros2Graph`) or over DDS
+    (:class:`uavmpc.comms.dds.DdsGraph`)."""
+
+    codec: Ros2Codec
+
+    def publisher(self, topic: str, ros_type: str,
+                  qos: str = QOS_KEEP_LAST_10) -> TopicWriter: ...
+
+    def subscriber(self, topic: str, ros_type: str, qos: str = QOS_KEEP_LAST_10,
+                   maxlen: int = 16) -> TopicReader: ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Self: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
 class Ros2Publisher:
     """One ROS 2 publisher: its liveliness token (MP), its key, sequence numbers and GID."""
 
@@ -284,7 +329,7 @@ class Ros2Publisher:
         self.graph.stats.bytes_published += len(cdr)
 
     @property
-    def reliability(self) -> Any:
+    def reliability(self) -> zenoh.Reliability:
         """The Zenoh reliability this publisher was declared with."""
         return self._pub.reliability
 
@@ -307,7 +352,7 @@ class Ros2Subscriber:
         self._sub = graph.session.declare_subscriber(self.key, self._on_sample)
         self._token = graph.session.liveliness().declare_token(self.token_key)
 
-    def _on_sample(self, sample: Any) -> None:
+    def _on_sample(self, sample: zenoh.Sample) -> None:
         with self._lock:
             self._queue.append(bytes(sample.payload.to_bytes()))
         self.graph.stats.received += 1
@@ -376,6 +421,8 @@ class Ros2Graph:
         listen: endpoints on which the session accepts peers' connections (default: loopback
             only, a free port); ``()`` for none. Zenoh's own default would be every interface.
     """
+
+    session: zenoh.Session
 
     def __init__(self, router: str = DEFAULT_ROUTER, *, node_name: str = "uavmpc",
                  domain_id: int | None = None, namespace: str = "/",
@@ -449,7 +496,7 @@ class UavTopics:
     ``/<id>/avoidance`` out; ``/<id>/goal`` (PoseStamped) and ``/<id>/trajectory`` (Path) in,
     unless ``commands`` is False."""
 
-    def __init__(self, graph: Ros2Graph, uav_id: str, *, commands: bool = True) -> None:
+    def __init__(self, graph: RosGraph, uav_id: str, *, commands: bool = True) -> None:
         self.graph = graph
         self.codec = graph.codec
         self.uav_id = uav_id
@@ -485,12 +532,12 @@ class UavTopics:
             position_sigma_vertical_m=position_sigma_vertical_m, holding=holding, deaf=deaf,
             broken=broken), round(t_s * 1e9))
 
-    def missions(self, now_s: float, build: Callable[[np.ndarray | None, np.ndarray], Any],
-                 most: int = 4) -> tuple[list[Any], list[str]]:
+    def missions(self, now_s: float, build: Callable[[np.ndarray | None, np.ndarray], M],
+                 most: int = 4) -> tuple[list[M], list[str]]:
         """The missions that arrived, each made by ``build(times or None, points (n, 4))``
         (the caller's validation: it raises ValueError on a bad one); returns (missions,
         the reasons of those rejected)."""
-        out: list[Any] = []
+        out: list[M] = []
         rejected: list[str] = []
         for sub, kind in ((self.goal, "goal"), (self.trajectory, "trajectory")):
             if sub is None:

@@ -12,7 +12,6 @@ import json
 import math
 import re
 from dataclasses import asdict, dataclass
-from typing import Any
 
 __all__ = ["InvalidStateError", "NodeState"]
 
@@ -96,34 +95,34 @@ class NodeState:
         )
 
 
-def _number(value: Any, name: str, bound: float) -> float:
+def _number(value: object, name: str, bound: float) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not (
             math.isfinite(value) and abs(value) <= bound):
         raise InvalidStateError(f"state.{name}: must be a finite number within ±{bound:g}")
     return float(value)
 
 
-def _vec3(value: Any, name: str) -> tuple[float, float, float]:
+def _vec3(value: object, name: str) -> tuple[float, float, float]:
     if not isinstance(value, list) or len(value) != 3:
         raise InvalidStateError(f"state.{name}: must be [x, y, z]")
     x, y, z = (_number(v, f"{name}[{k}]", _MAX_ABS_M) for k, v in enumerate(value))
     return x, y, z
 
 
-def _flag(value: Any, name: str) -> bool:
+def _flag(value: object, name: str) -> bool:
     if not isinstance(value, bool):
         raise InvalidStateError(f"state.{name}: must be true or false")
     return value
 
 
-def _ids(value: Any, name: str) -> tuple[str, ...]:
+def _ids(value: object, name: str) -> tuple[str, ...]:
     if not isinstance(value, list) or len(value) > _MAX_IDS or not all(
             isinstance(v, str) and _ID.fullmatch(v) for v in value):
         raise InvalidStateError(f"state.{name}: must be a list of UAV ids")
     return tuple(value)
 
 
-def _texts(value: Any, name: str) -> tuple[str, ...]:
+def _texts(value: object, name: str) -> tuple[str, ...]:
     if not isinstance(value, list) or len(value) > _MAX_IDS or not all(
             isinstance(v, str) and len(v) <= 200 for v in value):
         raise InvalidStateError(f"state.{name}: must be a list of short texts")

@@ -64,7 +64,7 @@ from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
+from typing import Generic, Protocol, TypeVar
 
 from uavmpc.comms.message import MAX_MESSAGE_BYTES
 
@@ -88,6 +88,8 @@ _ENDPOINT_RE = re.compile(
     r"(?P<proto>tcp|udp|tls)/(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(?P<port>\d{1,5})"
     r"(?P<rest>[?#]\S*)?")
 _RESERVED_KEYS = ("listen/endpoints", "connect/endpoints", "listen", "connect")
+
+_Item = TypeVar("_Item")
 
 
 @dataclass
@@ -114,23 +116,23 @@ class ZenohStats:
         return self.received - self.delivered - self.dropped_overflow
 
 
-class _BoundedQueue:
+class _BoundedQueue(Generic[_Item]):
     """A thread-safe FIFO of bounded length; when full, the oldest entry is dropped."""
 
     def __init__(self, maxlen: int) -> None:
-        self._items: deque[Any] = deque()
+        self._items: deque[_Item] = deque()
         self._maxlen = maxlen
         self._lock = threading.Lock()
         self.dropped = 0
 
-    def push(self, item: Any) -> None:
+    def push(self, item: _Item) -> None:
         with self._lock:
             if len(self._items) >= self._maxlen:
                 self._items.popleft()
                 self.dropped += 1
             self._items.append(item)
 
-    def pop(self, limit: int | None) -> list[Any]:
+    def pop(self, limit: int | None) -> list[_Item]:
         with self._lock:
             n = len(self._items) if limit is None else min(limit, len(self._items))
             return [self._items.popleft() for _ in range(n)]
@@ -153,8 +155,8 @@ class Subscription:
         self.keyexpr = keyexpr
         self.max_payload = max_payload
         self.dropped_oversize = 0
-        self._queue = _BoundedQueue(maxlen)
-        self._subscriber: Any = None
+        self._queue: _BoundedQueue[tuple[str, bytes]] = _BoundedQueue(maxlen)
+        self._subscriber: zenoh.Subscriber[None] | None = None
 
     @property
     def dropped(self) -> int:
@@ -179,7 +181,7 @@ class Subscription:
             except Exception:  # the session may already be closed
                 pass
 
-    def _on_sample(self, sample: Any) -> None:  # zenoh thread: O(1), never raises
+    def _on_sample(self, sample: zenoh.Sample) -> None:  # zenoh thread: O(1), never raises
         try:
             if sample.kind != zenoh.SampleKind.PUT:
                 return
@@ -236,9 +238,9 @@ class ZenohTransport:
         self.max_pending = int(max_pending)
         self.max_per_receive = int(max_per_receive)
         self.stats = ZenohStats()
-        self._predictions = _BoundedQueue(self.max_pending)
+        self._predictions: _BoundedQueue[bytes] = _BoundedQueue(self.max_pending)
         self._subscriptions: list[Subscription] = []
-        self._publishers: dict[str, Any] = {}
+        self._publishers: dict[str, zenoh.Publisher] = {}
         self._lock = threading.Lock()
         self._closed = False
 
@@ -373,7 +375,7 @@ class ZenohTransport:
             raise ValueError(
                 f"{name}: this transport belongs to {self.own_id!r}, got {uav_id!r}")
 
-    def _on_prediction(self, sample: Any) -> None:  # zenoh thread: O(1), never raises
+    def _on_prediction(self, sample: zenoh.Sample) -> None:  # zenoh thread: O(1), never raises
         try:
             if sample.kind != zenoh.SampleKind.PUT:
                 return
@@ -393,12 +395,12 @@ class ZenohTransport:
 
 
 # ---------------------------------------------------------------------------- validation
-def _check_name(value: Any, name: str) -> None:
+def _check_name(value: object, name: str) -> None:
     if not isinstance(value, str) or _NAME_RE.fullmatch(value) is None:
         raise ValueError(f"{name}: must be 1–32 characters of [A-Za-z0-9_-], got {value!r}")
 
 
-def _check_bound(value: Any, name: str) -> None:
+def _check_bound(value: object, name: str) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f"{name}: must be an integer ≥ 1, got {value!r}")
 
@@ -423,7 +425,7 @@ def check_endpoints(endpoints: Sequence[str], name: str) -> list[str]:
     return out
 
 
-def _check_topic(topic: Any) -> None:
+def _check_topic(topic: object) -> None:
     if not isinstance(topic, str) or not topic or not all(
             _NAME_RE.fullmatch(chunk) for chunk in topic.split("/")):
         raise ValueError(
@@ -431,7 +433,7 @@ def _check_topic(topic: Any) -> None:
             f"got {topic!r}")
 
 
-def _check_suffix(suffix: Any) -> None:
+def _check_suffix(suffix: object) -> None:
     if not isinstance(suffix, str) or not suffix or not all(
             chunk in ("*", "**") or _NAME_RE.fullmatch(chunk) for chunk in suffix.split("/")):
         raise ValueError(
@@ -439,7 +441,13 @@ def _check_suffix(suffix: Any) -> None:
             f"got {suffix!r}")
 
 
-def loopback_router(port: int) -> Any:
+class Router(Protocol):
+    """A Zenoh router's session, as its owner uses it (zenoh's own ``close`` is untyped)."""
+
+    def close(self) -> None: ...
+
+
+def loopback_router(port: int) -> Router:
     """A Zenoh router listening on ``tcp/127.0.0.1:<port>`` only, without multicast scouting
     (a stand-in for ROS 2's ``rmw_zenohd`` in benchmarks and tests); close it when done."""
     config = _config([f"tcp/127.0.0.1:{int(port)}"], [], {})
@@ -447,7 +455,8 @@ def loopback_router(port: int) -> Any:
     return zenoh.open(config)
 
 
-def _config(listen: list[str], connect: list[str], overrides: Mapping[str, str]) -> Any:
+def _config(listen: list[str], connect: list[str],
+            overrides: Mapping[str, str]) -> zenoh.Config:
     config = zenoh.Config()
     base = {
         "mode": '"peer"',

@@ -28,7 +28,7 @@ import time
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar, cast
+from typing import TYPE_CHECKING, Any, TypeAlias, TypeVar, cast
 
 from uavmpc.avoidance import AvoidanceParams
 from uavmpc.config import ConfigError, describe
@@ -45,6 +45,16 @@ from uavmpc.typed_json import check_fields, decode_dataclass
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
+
+    from uavmpc.comms.auth import Identity, Roster
+    from uavmpc.comms.ros2 import RosGraph, UavTopics
+    from uavmpc.drivers.px4.vehicle import Px4Vehicle
+    from uavmpc.missions.formation import FormationFollower
+    from uavmpc.plant import Airframe
+    from uavmpc.reference import Reference
+
+    #: What a node's credential files give: (shared key, identity, roster), None if not given.
+    Credentials: TypeAlias = tuple[bytes | None, Identity | None, Roster | None]
 
 __all__ = ["LaunchError", "NodeLaunch", "SitlLaunch", "SitlReport", "launch_command",
            "load_credentials", "load_launch", "node_settings", "read_report", "run_node",
@@ -207,26 +217,27 @@ class SitlReport:
 
 
 #: The launch specifications and the reports, by the ``kind`` their JSON carries.
-_KINDS: dict[str, type[Any]] = {"node": NodeLaunch, "sitl": SitlLaunch}
-_REPORT_KINDS: dict[type[Any], str] = {NodeStats: "node", SitlReport: "sitl"}
+_KINDS: dict[str, type[NodeLaunch] | type[SitlLaunch]] = {"node": NodeLaunch,
+                                                          "sitl": SitlLaunch}
+_REPORT_KINDS: dict[type[DataclassInstance], str] = {NodeStats: "node", SitlReport: "sitl"}
 
 T = TypeVar("T", bound="DataclassInstance")  # a dataclass type
 
 
 # --- checking a dataclass field by field against its annotations -------------------------
 
-def _validate(obj: Any, what: str) -> None:
+def _validate(obj: DataclassInstance, what: str) -> None:
     check_fields(obj, what, LaunchError)
 
 
-def _from_fields(cls: type[T], data: Any, what: str) -> T:
+def _from_fields(cls: type[T], data: object, what: str) -> T:
     """An instance of the dataclass ``cls`` from a JSON object, every field checked."""
     if not isinstance(data, dict):
         raise LaunchError(f"{what}: must be a JSON object, not {describe(data)}")
     return cast(T, decode_dataclass(cls, data, what, LaunchError))
 
 
-def _to_json(obj: Any) -> str:
+def _to_json(obj: NodeLaunch | SitlLaunch) -> str:
     return json.dumps({"kind": obj.KIND, **dataclasses.asdict(obj)}, allow_nan=False)
 
 
@@ -251,7 +262,7 @@ def load_launch(source: str | Path) -> NodeLaunch | SitlLaunch:
     return _from_fields(_KINDS[kind], data, f"{kind} launch")
 
 
-def write_report(path: str | Path, report: Any) -> None:
+def write_report(path: str | Path, report: NodeStats | SitlReport) -> None:
     """``report`` (:class:`NodeStats` or :class:`SitlReport`) to ``path`` as one typed JSON
     object, whole or not at all (written aside, then renamed)."""
     path = Path(path)
@@ -287,7 +298,7 @@ def launch_command(spec_file: str | Path) -> list[str]:
 # --- the construction, written once -------------------------------------------------------
 
 def load_credentials(prog: str, *, key_file: str | None, identity_file: str | None,
-                     roster_file: str | None, need_roster: bool) -> Any:
+                     roster_file: str | None, need_roster: bool) -> Credentials | None:
     """(key, identity, roster) from a shared key file, an identity file, a roster file, or
     None after printing what is wrong (as ``prog``)."""
     key = identity = roster = None
@@ -316,7 +327,7 @@ def load_credentials(prog: str, *, key_file: str | None, identity_file: str | No
     return key, identity, roster
 
 
-def _say_compiling(airframe: Any) -> None:
+def _say_compiling(airframe: Airframe) -> None:
     """One line before the kernels load: cold, they compile for about a minute."""
     print(f"uavmpc node: loading the compiled kernels for {airframe.name} before the link "
           "opens (the first run after install compiles them: about a minute)",
@@ -378,7 +389,7 @@ def run_node(spec: NodeLaunch) -> int:
     return 0
 
 
-def _node_mission(spec: NodeLaunch) -> Any:
+def _node_mission(spec: NodeLaunch) -> Reference | None:
     """The node's mission (a Reference) from ``--mission-file`` or ``--goto``, or None."""
     from uavmpc.missions.format import mission_from_table, read_mission
     from uavmpc.reference import InvalidReferenceError
@@ -397,7 +408,8 @@ def _node_mission(spec: NodeLaunch) -> Any:
     return None
 
 
-def _node_formation(spec: NodeLaunch, mission: Any) -> tuple[Any, dict[str, float]]:
+def _node_formation(spec: NodeLaunch, mission: Reference | None
+                    ) -> tuple[FormationFollower | None, dict[str, float]]:
     """With ``--formation``: a follower's mission (its slot) and the members' pair radii."""
     if not spec.formation_file:
         return None, {}
@@ -415,7 +427,8 @@ def _node_formation(spec: NodeLaunch, mission: Any) -> tuple[Any, dict[str, floa
     return FormationFollower(formation, spec.uav_id), pair_radius
 
 
-def _node_vehicle(spec: NodeLaunch, airframe: Any) -> tuple[Any, tuple[type[Exception], ...]]:
+def _node_vehicle(spec: NodeLaunch, airframe: Airframe
+                  ) -> tuple[Px4Vehicle | None, tuple[type[Exception], ...]]:
     """With ``--mavlink``: the PX4 vehicle (kernels loaded first) and the error it raises
     when the autopilot never answers; else (None, ())."""
     if spec.geo_origin is not None and not spec.mavlink:
@@ -438,7 +451,8 @@ def _node_vehicle(spec: NodeLaunch, airframe: Any) -> tuple[Any, tuple[type[Exce
     return vehicle, (VehicleLost,)
 
 
-def _node_ros2(spec: NodeLaunch, commands: bool) -> tuple[Any, Any]:
+def _node_ros2(spec: NodeLaunch, commands: bool
+               ) -> tuple[RosGraph | None, UavTopics | None]:
     """With ``--ros2``: the graph and the UAV's topics (taking commands if ``commands``);
     else (None, None)."""
     if not spec.ros2:
@@ -481,7 +495,7 @@ def run_sitl(spec: SitlLaunch) -> int:
     return 0
 
 
-def _report(report_file: str | None, report: Any) -> None:
+def _report(report_file: str | None, report: NodeStats | SitlReport) -> None:
     if report_file is not None:
         write_report(report_file, report)
     else:

@@ -460,7 +460,7 @@ class Node:
         self._take_missions(now)
         if not (sup.launched and flying and not landing):
             return
-        if sup.mission_due(now) and sup.paused is None:
+        if sup.mission_due(now):
             self._step_mission(now, state)
         if sup.fence_due(ticks):
             self._watch_fence(state)

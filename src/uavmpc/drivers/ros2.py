@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from uavmpc.comms.ros2 import Ros2Graph, UavTopics
+from uavmpc.comms.ros2 import Ros2Graph, RosGraph, UavTopics
 from uavmpc.geofence import GeofenceError
 from uavmpc.missions.format import mission_from_table
 from uavmpc.onboard import OnboardStack
@@ -58,7 +58,7 @@ def require_graph(where: str) -> None:
         require()
 
 
-def open_graph(where: str, node_name: str) -> Ros2Graph | Any:
+def open_graph(where: str, node_name: str) -> RosGraph:
     """The ROS 2 node ``node_name`` on the graph ``where``: a Zenoh router's endpoint
     (rmw_zenoh, :class:`~uavmpc.comms.ros2.Ros2Graph`) or ``dds/<domain>``
     (:class:`~uavmpc.comms.dds.DdsGraph`). Raises ValueError / OSError naming the problem, and
@@ -114,7 +114,7 @@ def publish_plan(topics: UavTopics, stamp_s: float, stack: OnboardStack,
 class WorldOnRos2:
     """Mirror ``uav_ids`` of a world on ``graph``; ``commands``: take ROS 2 missions."""
 
-    def __init__(self, graph: Ros2Graph, uav_ids: Sequence[str], *, commands: bool = True,
+    def __init__(self, graph: RosGraph, uav_ids: Sequence[str], *, commands: bool = True,
                  epoch_s: float | None = None) -> None:
         self.topics = {u: UavTopics(graph, u, commands=commands) for u in uav_ids}
         self.epoch_s = time.time() if epoch_s is None else float(epoch_s)
@@ -151,7 +151,7 @@ class WorldOnRos2:
                 u.supervisor.fly(ref)
                 self.missions_taken += 1
 
-    def _mission(self, now: float) -> Any:
-        def build(times: np.ndarray | None, points: np.ndarray) -> Any:
+    def _mission(self, now: float) -> Callable[[np.ndarray | None, np.ndarray], Reference]:
+        def build(times: np.ndarray | None, points: np.ndarray) -> Reference:
             return ros2_mission(None if times is None else times - self.epoch_s, points, now)
         return build

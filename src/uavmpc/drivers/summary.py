@@ -16,9 +16,12 @@ import typing
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from uavmpc.typed_json import decode, plain
+
+if TYPE_CHECKING:
+    from uavmpc.missions.formation import FormationSpec
 
 __all__ = ["SUMMARY_VERSION", "CalmError", "Contact", "ErrorStats", "Formation", "Landing",
            "LinkCounts", "RunStatus", "RunSummary", "SummaryError", "Touchdown", "UavSummary",
@@ -244,7 +247,7 @@ class Formation:
     while_no_member_avoids: CalmError | None
 
     @classmethod
-    def of(cls, spec: Any, measured_from_s: float, error: Mapping[str, Any] | None,
+    def of(cls, spec: FormationSpec, measured_from_s: float, error: Mapping[str, Any] | None,
            outsiders: Iterable[str] = ()) -> Formation:
         """The formation ``spec`` (a ``FormationSpec``) and its error's dictionary
         (``uavmpc.missions.formation.formation_error`` without the series, or None)."""
@@ -302,7 +305,7 @@ class RunSummary:
             raise ValueError(f"driver: one of {', '.join(DRIVERS)}, not {self.driver!r}")
         object.__setattr__(self, "sections", plain(self.sections))
 
-    def with_sections(self, **sections: Any) -> RunSummary:
+    def with_sections(self, **sections: object) -> RunSummary:
         """This summary with ``sections`` added (or replaced)."""
         return dataclasses.replace(self, sections={**self.sections, **sections})
 
@@ -315,7 +318,7 @@ class RunSummary:
         Path(path).write_text(json.dumps(self.to_json(), indent=2, allow_nan=False) + "\n")
 
     @classmethod
-    def from_json(cls, data: Any, source: str = "summary") -> RunSummary:
+    def from_json(cls, data: object, source: str = "summary") -> RunSummary:
         """A summary from its JSON object.
 
         Raises:
@@ -386,22 +389,22 @@ def summary_fields() -> list[tuple[str, str, type, str]]:
     return rows
 
 
-def _is_mapping(tp: Any) -> bool:
+def _is_mapping(tp: object) -> bool:
     return typing.get_origin(_strip_none(tp)) in (Mapping, dict)
 
 
-def _is_tuple(tp: Any) -> bool:
+def _is_tuple(tp: object) -> bool:
     return typing.get_origin(_strip_none(tp)) is tuple
 
 
-def _strip_none(tp: Any) -> Any:
+def _strip_none(tp: object) -> object:
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
         rest = [a for a in typing.get_args(tp) if a is not type(None)]
         return rest[0] if len(rest) == 1 else tp
     return tp
 
 
-def _dataclasses_in(tp: Any) -> list[type]:
+def _dataclasses_in(tp: object) -> list[type]:
     tp = _strip_none(tp)
     if dataclasses.is_dataclass(tp) and isinstance(tp, type):
         return [tp]
@@ -412,7 +415,7 @@ def _dataclasses_in(tp: Any) -> list[type]:
     return []
 
 
-def _type_name(tp: Any) -> str:
+def _type_name(tp: object) -> str:
     if tp is Any:
         return "any JSON"
     if isinstance(tp, type):

@@ -75,7 +75,7 @@ from uavmpc.plant.sensors import TargetSensor
 from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 from uavmpc.scenarios.run import RunSpec
-from uavmpc.supervisor import FENCE_CHECK_TICKS, FenceGuard, Supervisor
+from uavmpc.supervisor import FenceGuard, Supervisor
 from uavmpc.tracker import TrackerConfig
 from uavmpc.view.scene import UavView
 
@@ -289,8 +289,7 @@ class World:
                    else np.array(faults.clock_offsets_s, dtype=float))
         #: The records of every UAV's numbers, one row each: their stacks' and their plants'.
         self.onboard = OnboardBatch(scenario.limits.over(tracker_config), n)
-        #: The ground vehicle carrying the landing deck, when the scenario has one.
-        self.ground_vehicle = scenario.ground_vehicle
+        self.ground_vehicle = scenario.ground_vehicle  #: carrying the landing deck, or None
         #: The scenario's operational volume: each UAV's failsafe, and its avoidance's
         #: ceiling over its mission (:mod:`uavmpc.geofence`, :class:`~uavmpc.supervisor.
         #: FenceGuard`).
@@ -337,6 +336,7 @@ class World:
                               self.silent_from_s, recorder)
         self.shown = WorldScene(self)
         self._missions = [u for u in self.uavs if u.supervisor.mission is not None]
+        self._fenced = [u for u in self.uavs if u.supervisor.fence is not None]
         self._finder = _world_finder(self._stacks, index)
         self._steering = [s.steering for s in self._stacks]
         self._overrides = [s.overrides() for s in self._steering]
@@ -443,7 +443,7 @@ class World:
             self._tick_objects(now, tr.kernel_args(k))
         self.t_s = now + self.period_s
         tr.t_s[k] = self.t_s
-        if self.geofence is not None and k % FENCE_CHECK_TICKS == 0:
+        if self._fenced and self._fenced[0].supervisor.fence_due(k):
             self._watch_fence()
         if tr.members.size:
             tr.members_avoiding[k] = self.onboard.stats.avoiding[tr.members].any()

@@ -13,6 +13,7 @@ the oldest when a client is slow; clients may connect late or leave at any time.
 from __future__ import annotations
 
 import json
+from types import ModuleType
 from typing import Any
 
 from uavmpc.view.scene import METRICS_SCHEMA, SCENE_SCHEMA, published_schema
@@ -23,7 +24,7 @@ DEFAULT_PORT = 8765
 #: the flight loses nothing).
 BACKLOG = 256
 
-def _sdk() -> Any:
+def _sdk() -> ModuleType:
     try:
         import foxglove
     except ImportError:

@@ -23,11 +23,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any
+from typing import TypeVar
 
 import numpy as np
 
 __all__ = ["ClockMap"]
+
+#: A sample whose second element is its arrival on our clock.
+_Sample = TypeVar("_Sample", bound=tuple[float, ...])
 
 #: Samples older than this (by our clock) leave the fit: long enough to see the rate through
 #: jitter, short enough to follow a lockstep simulation whose speed changes with the load.
@@ -106,7 +109,7 @@ class ClockMap:
         if not self._round_trips:
             self._fit()
 
-    def _trim(self, samples: deque[Any], now_s: float) -> None:
+    def _trim(self, samples: deque[_Sample], now_s: float) -> None:
         while samples and samples[0][1] < now_s - self.window_s:
             samples.popleft()
 

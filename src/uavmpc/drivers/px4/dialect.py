@@ -7,15 +7,20 @@ AUTO) in bits 24–31 (PX4's ``px4_custom_mode.h``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from enum import IntEnum
+from typing import Protocol
 
 try:
     from pymavlink.dialects.v20 import common as mavlink
 except ImportError:  # an optional extra: one line saying what to install
     raise ImportError("the PX4/MAVLink link needs pymavlink: pip install 'uavmpc[px4]'") from None
 
-__all__ = ["COM_OF_LOSS_T_S", "OFFBOARD_STREAM_S", "AutoSubMode", "MainMode", "Px4Mode",
-           "command_name", "mavlink", "result_name"]
+__all__ = ["COM_OF_LOSS_T_S", "OFFBOARD_STREAM_S", "AttitudeQuaternionMsg", "AutoSubMode",
+           "CommandAckMsg", "CommandMsg", "ExtendedSysStateMsg", "GpsGlobalOriginMsg",
+           "HeartbeatMsg", "LocalPositionNedMsg", "MainMode", "OdometryMsg", "ParamValueMsg",
+           "Px4Mode", "SetAttitudeTargetMsg", "SetPositionTargetLocalNedMsg", "StatusTextMsg",
+           "TimesyncMsg", "command_name", "mavlink", "result_name"]
 
 #: PX4's default ``COM_OF_LOSS_T``: offboard setpoints older than this are a lost stream.
 COM_OF_LOSS_T_S = 1.0
@@ -110,3 +115,120 @@ def command_name(command: int) -> str:
     """``MAV_CMD`` value → its name (e.g. ``MAV_CMD_DO_SET_MODE``)."""
     entry = mavlink.enums["MAV_CMD"].get(int(command))
     return entry.name if entry is not None else f"MAV_CMD {command}"
+
+
+# --- the fields we read of each message ----------------------------------------------------
+# pymavlink has no types: these say what a handler reads of the message its name dispatched to
+# (a pymavlink message of that type has these among its fields). A char array arrives as str,
+# or as bytes when it does not decode.
+
+
+class HeartbeatMsg(Protocol):
+    type: int
+    autopilot: int
+    base_mode: int
+    custom_mode: int
+
+
+class TimesyncMsg(Protocol):
+    tc1: int
+    ts1: int
+
+
+class GpsGlobalOriginMsg(Protocol):
+    latitude: int
+    longitude: int
+    altitude: int
+
+
+class OdometryMsg(Protocol):
+    time_usec: int
+    frame_id: int
+    child_frame_id: int
+    x: float
+    y: float
+    z: float
+    q: Sequence[float]
+    vx: float
+    vy: float
+    vz: float
+    rollspeed: float
+    pitchspeed: float
+    yawspeed: float
+    pose_covariance: Sequence[float]
+
+
+class LocalPositionNedMsg(Protocol):
+    time_boot_ms: int
+    x: float
+    y: float
+    z: float
+    vx: float
+    vy: float
+    vz: float
+
+
+class AttitudeQuaternionMsg(Protocol):
+    time_boot_ms: int
+    q1: float
+    q2: float
+    q3: float
+    q4: float
+    rollspeed: float
+    pitchspeed: float
+    yawspeed: float
+
+
+class CommandAckMsg(Protocol):
+    command: int
+    result: int
+
+
+class ParamValueMsg(Protocol):
+    param_id: str | bytes
+    param_value: float
+
+
+class ExtendedSysStateMsg(Protocol):
+    landed_state: int
+
+
+class StatusTextMsg(Protocol):
+    text: str | bytes
+
+
+class SetAttitudeTargetMsg(Protocol):
+    type_mask: int
+    q: Sequence[float]
+    body_yaw_rate: float
+    thrust: float
+
+
+class SetPositionTargetLocalNedMsg(Protocol):
+    coordinate_frame: int
+    type_mask: int
+    x: float
+    y: float
+    z: float
+    vx: float
+    vy: float
+    vz: float
+    afx: float
+    afy: float
+    afz: float
+    yaw: float
+    yaw_rate: float
+
+
+class CommandMsg(Protocol):
+    """COMMAND_LONG or COMMAND_INT."""
+
+    command: int
+    param1: float
+    param2: float
+    param3: float
+    param4: float
+
+    def get_srcSystem(self) -> int: ...
+
+    def get_srcComponent(self) -> int: ...

@@ -94,7 +94,7 @@ import struct
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 
@@ -106,8 +106,14 @@ from uavmpc.drivers.px4.dialect import (
     LAND,
     OFFBOARD,
     POSCTL,
+    CommandMsg,
+    HeartbeatMsg,
     MainMode,
+    OdometryMsg,
     Px4Mode,
+    SetAttitudeTargetMsg,
+    SetPositionTargetLocalNedMsg,
+    TimesyncMsg,
     mavlink,
 )
 from uavmpc.drivers.px4.endpoint import MavlinkEndpoint
@@ -130,6 +136,11 @@ from uavmpc.plant.multirotor import Multirotor
 __all__ = ["PX4_SITL_HOME", "StandInPx4", "run_sitl"]
 
 _M = mavlink
+# The MAV_RESULTs a command is answered with (pymavlink's constants have no types).
+_ACCEPTED: int = _M.MAV_RESULT_ACCEPTED
+_TEMPORARILY_REJECTED: int = _M.MAV_RESULT_TEMPORARILY_REJECTED
+_DENIED: int = _M.MAV_RESULT_DENIED
+_UNSUPPORTED: int = _M.MAV_RESULT_UNSUPPORTED
 #: Physics and control period on PX4's clock [s].
 PERIOD_S = 0.01
 G = 9.80665
@@ -190,7 +201,8 @@ _POSE_COV, _TWIST_COV = _covariance(EKF_XY[0] ** 2, 0.01)
 class _Setpoint:
     kind: str  # "attitude" or "position"
     received_s: float  # PX4's clock
-    values: Any
+    #: Attitude: (q NED/FRD, body rates FRD [rad/s], normalised thrust); position: the hold.
+    values: tuple[np.ndarray, np.ndarray, float] | _Hold
     #: Position: the trajectory setpoint's vz (NED, down > 0), NaN when not given.
     vz_down_mps: float = math.nan
     #: Position: whether it asks to go up (a position above, or an upward velocity or
@@ -477,18 +489,19 @@ class StandInPx4:
         return self._estimate_of(self.plant.state())
 
     def odometry_message(self, t_s: float, truth: VehicleState,
-                         est: VehicleState) -> Any:
+                         est: VehicleState) -> OdometryMsg:
         """``ODOMETRY`` as PX4 sends it at its time ``t_s`` [s since boot]: EKF2's position
         and velocity in local NED (``child_frame_id`` LOCAL_NED), the attitude body FRD →
         NED and the body rates of ``truth`` (the estimate's error is in position and
         velocity only)."""
         p = enu_to_ned(est.position_m - self.origin_m)
-        return _M.MAVLink_odometry_message(
+        msg: OdometryMsg = _M.MAVLink_odometry_message(
             int(t_s * 1e6), _M.MAV_FRAME_LOCAL_NED, _M.MAV_FRAME_LOCAL_NED, *map(float, p),
             enu_flu_quat_to_ned_frd(truth.attitude_wxyz).tolist(),
             *map(float, enu_to_ned(est.velocity_mps)),
             *map(float, flu_to_frd(truth.body_rates_radps)), _POSE_COV, _TWIST_COV, 0,
             _M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0)
+        return msg
 
     def _estimate_of(self, s: VehicleState) -> VehicleState:
         if not self.estimator.enabled:
@@ -512,6 +525,7 @@ class StandInPx4:
         if self.mode == OFFBOARD and self.setpoint is not None \
                 and self.setpoint.kind == "attitude":
             self._takeoff_update(t, False)
+            assert isinstance(self.setpoint.values, tuple)  # what an attitude setpoint holds
             q_ned, rates_frd, thrust = self.setpoint.values
             self._attitude_throttle = thrust
             return AttitudeTarget(ned_frd_quat_to_enu_flu(q_ned),
@@ -519,6 +533,7 @@ class StandInPx4:
         # Position control (Takeoff.cpp, MulticopterPositionControl.cpp) on the estimate.
         if self.mode == OFFBOARD and self.setpoint is not None:
             command = self.setpoint.values
+            assert isinstance(command, _Hold)  # what a position setpoint holds
             wants_up = self.setpoint.wants_up
         else:
             if self.hold is None:
@@ -636,7 +651,8 @@ class StandInPx4:
         self._status(_M.MAV_SEVERITY_INFO, f"Disarmed by {why}", t)
 
     # ------------------------------------------------------------------ receiving
-    def _handle(self, msg: Any, sender: tuple[str, int], now_s: float) -> None:
+    def _handle(self, msg: mavlink.MAVLink_message, sender: tuple[str, int],
+                now_s: float) -> None:
         kind = msg.get_type()
         if kind in ("SET_ATTITUDE_TARGET", "SET_POSITION_TARGET_LOCAL_NED", "COMMAND_LONG",
                     "COMMAND_INT", "PARAM_REQUEST_READ", "PARAM_REQUEST_LIST"):
@@ -673,7 +689,7 @@ class StandInPx4:
             for i, name in enumerate(self.params):
                 self._send_param(name, i)
 
-    def _on_timesync(self, msg: Any, now_s: float) -> None:
+    def _on_timesync(self, msg: TimesyncMsg, now_s: float) -> None:
         """mavlink_timesync.cpp: a request (tc1 = 0) is answered with our time [ns] and its
         ts1; an answer to our own requests only feeds PX4's offset filter (not modelled)."""
         if int(msg.tc1) == 0:
@@ -681,7 +697,7 @@ class StandInPx4:
             self.link.send(_M.MAVLink_timesync_message(
                 max(1, round(float(self.px4_time_s(now_s) * 1e9))), int(msg.ts1)))
 
-    def _on_attitude_target(self, msg: Any, t: float) -> None:
+    def _on_attitude_target(self, msg: SetAttitudeTargetMsg, t: float) -> None:
         q = np.array(msg.q, dtype=float)
         mask = int(msg.type_mask)
         rate_mode = not mask & (_M.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
@@ -697,7 +713,7 @@ class StandInPx4:
             return  # PX4 drops invalid setpoints
         self.setpoint = _Setpoint("attitude", t, (q / np.linalg.norm(q), rates, float(msg.thrust)))
 
-    def _on_position_target(self, msg: Any, t: float) -> None:
+    def _on_position_target(self, msg: SetPositionTargetLocalNedMsg, t: float) -> None:
         if msg.coordinate_frame != _M.MAV_FRAME_LOCAL_NED:
             return
         mask = int(msg.type_mask)
@@ -726,13 +742,13 @@ class StandInPx4:
             t, self.origin_m + ned_to_enu(pos_ned), ned_to_enu(vel), ned_to_enu(acc), heading,
             rate), vz_down_mps=float(vals[5]), wants_up=bool(wants_up))
 
-    def _on_command(self, msg: Any, t: float) -> None:
+    def _on_command(self, msg: CommandMsg, t: float) -> None:
         cmd = int(msg.command)
         p = [msg.param1, msg.param2, msg.param3, msg.param4]
         acks = 1
         if cmd == _M.MAV_CMD_DO_SET_MODE:
             result = self._request_mode(p, t)
-            if result == _M.MAV_RESULT_ACCEPTED:
+            if result == _ACCEPTED:
                 acks = 2  # PX4 v1.16 answers an accepted mode change twice (measured)
         elif cmd == _M.MAV_CMD_COMPONENT_ARM_DISARM:
             result = self._request_arming(p, t)
@@ -741,7 +757,7 @@ class StandInPx4:
         elif cmd == _M.MAV_CMD_REQUEST_MESSAGE:
             result = self._request_message(int(p[0]), t)
         else:
-            result = _M.MAV_RESULT_UNSUPPORTED
+            result = _UNSUPPORTED
         for _ in range(acks):
             self.link.send(_M.MAVLink_command_ack_message(
                 cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
@@ -755,33 +771,33 @@ class StandInPx4:
         elif msg_id == _M.MAVLINK_MSG_ID_HOME_POSITION and self.boot_geodetic is not None:
             self._send_home(t)
         else:
-            return _M.MAV_RESULT_DENIED
-        return _M.MAV_RESULT_ACCEPTED
+            return _DENIED
+        return _ACCEPTED
 
     def _request_mode(self, p: list[float], t: float) -> int:
         if not int(p[0]) & _M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            return _M.MAV_RESULT_UNSUPPORTED  # PX4 takes modes as its custom modes
+            return _UNSUPPORTED  # PX4 takes modes as its custom modes
         mode = Px4Mode(int(p[1]), int(p[2]) if int(p[1]) == MainMode.AUTO else 0)
         if mode not in MODES:
-            return _M.MAV_RESULT_UNSUPPORTED
+            return _UNSUPPORTED
         if mode == OFFBOARD and self.armed and not self._offboard_available(t):
             self._status(_M.MAV_SEVERITY_CRITICAL, "Switching to Offboard is currently not "
                          "available: No offboard signal", t)
-            return _M.MAV_RESULT_TEMPORARILY_REJECTED
+            return _TEMPORARILY_REJECTED
         self.intention = mode
         self._set_mode(mode, t)
-        return _M.MAV_RESULT_ACCEPTED
+        return _ACCEPTED
 
     def _request_arming(self, p: list[float], t: float) -> int:
         arm = p[0] > 0.5
         if arm == self.armed:
-            return _M.MAV_RESULT_ACCEPTED
+            return _ACCEPTED
         if arm:
             if not self.plant.landed:
-                return _M.MAV_RESULT_TEMPORARILY_REJECTED
+                return _TEMPORARILY_REJECTED
             if self.mode == OFFBOARD and not self._offboard_available(t):
                 self._status(_M.MAV_SEVERITY_CRITICAL, "Arming denied: No offboard signal", t)
-                return _M.MAV_RESULT_TEMPORARILY_REJECTED
+                return _TEMPORARILY_REJECTED
             self.armed = True
             self.armed_s = t
             self.taken_off = False
@@ -794,9 +810,9 @@ class StandInPx4:
             landed = self.detector.landed.state or self.detector.maybe_landed.state
             if not landed and p[1] != FORCE_DISARM:
                 self._status(_M.MAV_SEVERITY_CRITICAL, "Disarming denied: not landed", t)
-                return _M.MAV_RESULT_TEMPORARILY_REJECTED
+                return _TEMPORARILY_REJECTED
             self._disarm(t, "external command")
-        return _M.MAV_RESULT_ACCEPTED
+        return _ACCEPTED
 
     # ------------------------------------------------------------------ sending
     def _due(self, name: str, t: float) -> bool:
@@ -894,7 +910,7 @@ class StandInPx4:
         except OSError:
             pass
 
-    def _heartbeat(self) -> Any:
+    def _heartbeat(self) -> HeartbeatMsg:
         # PX4's flags: auto modes AUTO|GUIDED|STABILIZE, position mode MANUAL_INPUT|STABILIZE,
         # offboard (attitude or position setpoints) STABILIZE only.
         base = _M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | _M.MAV_MODE_FLAG_STABILIZE_ENABLED
@@ -907,10 +923,11 @@ class StandInPx4:
         failsafe = self.mode != self.intention
         status = (_M.MAV_STATE_STANDBY if not self.armed
                   else _M.MAV_STATE_CRITICAL if failsafe else _M.MAV_STATE_ACTIVE)
-        return _M.MAVLink_heartbeat_message(_M.MAV_TYPE_QUADROTOR, _M.MAV_AUTOPILOT_PX4, base,
-                                            self.mode.custom_mode, status, 3)
+        msg: HeartbeatMsg = _M.MAVLink_heartbeat_message(
+            _M.MAV_TYPE_QUADROTOR, _M.MAV_AUTOPILOT_PX4, base, self.mode.custom_mode, status, 3)
+        return msg
 
-    def _attitude_target_message(self, ms: int) -> Any:
+    def _attitude_target_message(self, ms: int) -> mavlink.MAVLink_message:
         tgt = self._last_target
         if tgt is None:
             q, ff, thrust = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.0
@@ -921,9 +938,10 @@ class StandInPx4:
         return _M.MAVLink_attitude_target_message(ms, 0, q.tolist(), *map(float, ff),
                                                   min(max(thrust, 0.0), 1.0))
 
-    def _position_target_message(self, ms: int) -> Any:
+    def _position_target_message(self, ms: int) -> mavlink.MAVLink_message:
         h = (self.setpoint.values if self.mode == OFFBOARD and self.setpoint is not None
              and self.setpoint.kind == "position" else self.hold)
+        assert not isinstance(h, tuple)  # what a position setpoint holds
         if h is None:
             vals = [math.nan] * 11
         else:

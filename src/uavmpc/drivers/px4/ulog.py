@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from uavmpc.drivers.px4.frames import enu_to_geodetic, geodetic_to_enu, ned_to_enu
 from uavmpc.drivers.px4.truth import Track, closest_by_pair, resample, time_grid
@@ -122,12 +123,13 @@ def read_estimate(path: str | Path, geo_origin: tuple[float, float, float]) -> T
                   ESTIMATE_TOPIC)
 
 
-def _referenced(data: dict[str, np.ndarray]) -> np.ndarray:
+def _referenced(data: dict[str, np.ndarray]) -> npt.NDArray[np.bool_]:
     """The samples whose local frame has a place on the globe (a reference of exactly
     (0, 0) is PX4's "none yet"; either alone is a real place)."""
     lat = data["ref_lat"].astype(float)
     lon = data["ref_lon"].astype(float)
-    ok = np.isfinite(lat) & np.isfinite(lon) & ~((lat == 0.0) & (lon == 0.0))
+    ok: npt.NDArray[np.bool_] = (np.isfinite(lat) & np.isfinite(lon)
+                                 & ~((lat == 0.0) & (lon == 0.0)))
     for flag in ("xy_global", "z_global"):
         if flag in data:
             ok &= data[flag].astype(bool)
@@ -147,6 +149,54 @@ def on_wall_clock(track: Track, clock_offset_s: float, clock_rate: float) -> Tra
 
 
 # --- a swarm run -----------------------------------------------------------------------------
+
+def _uav_tracks(run: Path, uav: str, details: dict[str, Any],
+                origin: tuple[float, float, float]
+                ) -> tuple[dict[str, Any], tuple[Track, Track] | None]:
+    """One UAV of a run: what its entry of :func:`swarm_truth` says (its ULog, its truth's
+    samples and largest gap, or why it could not be read) and its (truth, estimate) tracks
+    on the wall clock, or None."""
+    entry: dict[str, Any] = {}
+    try:
+        path = _ulog_path(run, uav, (details.get("px4") or {}).get("ulog"))
+        entry["ulog"] = str(path)
+        vehicle = (details.get("node") or {}).get("vehicle") or {}
+        offset, rate = vehicle.get("clock_offset_s"), vehicle.get("clock_rate", 1.0)
+        if offset is None:
+            raise ValueError("its node reported no clock map (clock_offset_s): PX4 "
+                             "stamps cannot be placed on our clock")
+        data = _datasets(path, (TRUTH_TOPIC, ESTIMATE_TOPIC))
+        tr = on_wall_clock(_place(data[TRUTH_TOPIC], origin, path, TRUTH_TOPIC), offset, rate)
+        es = on_wall_clock(_place(data[ESTIMATE_TOPIC], origin, path, ESTIMATE_TOPIC),
+                           offset, rate)
+    except (ValueError, TypeError, OSError) as exc:  # ULogError is a ValueError
+        entry["error"] = str(exc)
+        return entry, None
+    entry["truth_samples"] = int(tr.t_s.size)
+    entry["truth_max_gap_s"] = (round(float(np.diff(tr.t_s).max()), 4)
+                                if tr.t_s.size > 1 else None)
+    return entry, (tr, es)
+
+
+def _truth_window(run: Path, truth_section: object, truth: dict[str, Track]
+                  ) -> tuple[float, float, str]:
+    """The window [t0, t1] (wall clock [s]) a run's truth is judged over, and where it came
+    from: the swarm's own, else the overlap of the truth tracks (NaN without any)."""
+    window = (truth_section.get("window_unix_s") if isinstance(truth_section, dict)
+              else None)
+    spans = [tr.span_s for tr in truth.values() if tr.t_s.size]
+    if window is not None:
+        try:
+            t0, t1 = (float(v) for v in window)
+        except (TypeError, ValueError):
+            raise ValueError(f"{run}: sections.truth.window_unix_s must be [t0, t1], got "
+                             f"{window!r}") from None
+        return t0, t1, "sections.truth.window_unix_s"
+    if spans:
+        return (max(s[0] for s in spans), min(s[1] for s in spans),
+                "overlap of the truth tracks")
+    return math.nan, math.nan, "none: no truth track was read"
+
 
 def swarm_truth(run_dir: str | Path, step_s: float = 0.02) -> dict[str, Any]:
     """A real-PX4 swarm run's separation as PX4's own logs saw it.
@@ -181,46 +231,11 @@ def swarm_truth(run_dir: str | Path, step_s: float = 0.02) -> dict[str, Any]:
     estimate: dict[str, Track] = {}
     per_uav: dict[str, dict[str, Any]] = {}
     for uav in uav_ids:
-        entry: dict[str, Any] = {}
-        per_uav[uav] = entry
         details = (summary["uavs"][uav] or {}).get("details") or {}
-        try:
-            path = _ulog_path(run, uav, (details.get("px4") or {}).get("ulog"))
-            entry["ulog"] = str(path)
-            vehicle = (details.get("node") or {}).get("vehicle") or {}
-            offset, rate = vehicle.get("clock_offset_s"), vehicle.get("clock_rate", 1.0)
-            if offset is None:
-                raise ValueError("its node reported no clock map (clock_offset_s): PX4 "
-                                 "stamps cannot be placed on our clock")
-            data = _datasets(path, (TRUTH_TOPIC, ESTIMATE_TOPIC))
-            tr = on_wall_clock(_place(data[TRUTH_TOPIC], origin, path, TRUTH_TOPIC), offset,
-                               rate)
-            es = on_wall_clock(_place(data[ESTIMATE_TOPIC], origin, path, ESTIMATE_TOPIC),
-                               offset, rate)
-        except (ValueError, TypeError, OSError) as exc:  # ULogError is a ValueError
-            entry["error"] = str(exc)
-            continue
-        truth[uav], estimate[uav] = tr, es
-        entry["truth_samples"] = int(tr.t_s.size)
-        entry["truth_max_gap_s"] = (round(float(np.diff(tr.t_s).max()), 4)
-                                    if tr.t_s.size > 1 else None)
-    truth_section = sections.get("truth")
-    window = (truth_section.get("window_unix_s") if isinstance(truth_section, dict)
-              else None)
-    spans = [tr.span_s for tr in truth.values() if tr.t_s.size]
-    if window is not None:
-        try:
-            t0, t1 = (float(v) for v in window)
-        except (TypeError, ValueError):
-            raise ValueError(f"{run}: sections.truth.window_unix_s must be [t0, t1], got "
-                             f"{window!r}") from None
-        source = "sections.truth.window_unix_s"
-    elif spans:
-        t0, t1 = max(s[0] for s in spans), min(s[1] for s in spans)
-        source = "overlap of the truth tracks"
-    else:
-        t0 = t1 = math.nan
-        source = "none: no truth track was read"
+        per_uav[uav], tracks = _uav_tracks(run, uav, details, origin)
+        if tracks is not None:
+            truth[uav], estimate[uav] = tracks
+    t0, t1, source = _truth_window(run, sections.get("truth"), truth)
     pairs = [(uav_ids[i], b) for i in range(len(uav_ids)) for b in uav_ids[i + 1:]]
     closest: dict[tuple[str, str], float] = {}
     if truth and math.isfinite(t0) and math.isfinite(t1) and t1 >= t0:

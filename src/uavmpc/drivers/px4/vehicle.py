@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
@@ -55,7 +56,19 @@ from uavmpc.drivers.px4.dialect import (
     FORCE_DISARM,
     OFFBOARD,
     OFFBOARD_STREAM_S,
+    AttitudeQuaternionMsg,
+    CommandAckMsg,
+    ExtendedSysStateMsg,
+    GpsGlobalOriginMsg,
+    HeartbeatMsg,
+    LocalPositionNedMsg,
+    OdometryMsg,
+    ParamValueMsg,
     Px4Mode,
+    SetAttitudeTargetMsg,
+    SetPositionTargetLocalNedMsg,
+    StatusTextMsg,
+    TimesyncMsg,
     command_name,
     mavlink,
     result_name,
@@ -199,7 +212,7 @@ class Px4Report:
     status_texts: list[str] = field(default_factory=list)
 
 
-def _position_sigma(pose_covariance: Any) -> tuple[float, float]:
+def _position_sigma(pose_covariance: Sequence[float]) -> tuple[float, float]:
     """(horizontal, vertical) 1σ [m] from ODOMETRY's ``pose_covariance`` (the upper triangle
     of a 6×6, row-major: x, y, z variances at 0, 6, 11; PX4's ``streams/ODOMETRY.hpp``); NaN
     where it states none (NaN, negative, or absurd)."""
@@ -291,8 +304,8 @@ class Px4Vehicle:
         #: The estimate's (horizontal, vertical) 1σ from ODOMETRY's covariances [m]; NaN
         #: until an ODOMETRY states them (PX4 fills the diagonal with EKF2's variances).
         self.position_sigma_m = (math.nan, math.nan)
-        self._lpn: Any = None
-        self._att: Any = None
+        self._lpn: tuple[float, LocalPositionNedMsg] | None = None  # (receipt, message)
+        self._att: tuple[float, AttitudeQuaternionMsg] | None = None
         self._origin_known = geo_origin is None
         self._next_gcs_s = -math.inf
         self._next_timesync_s = -math.inf
@@ -428,7 +441,7 @@ class Px4Vehicle:
         self._advance(now_s, est)
         return est
 
-    def actuate(self, now_s: float, target: AttitudeTarget, command: Any) -> None:
+    def actuate(self, now_s: float, target: AttitudeTarget, command: TrackerCommand) -> None:
         """Send the setpoint of this tick (when commanding): the attitude target, or the
         tracker's ``command`` (p, v, a, heading) in position mode and whenever the estimate is
         not fresh (our attitude would be flown on an old state; PX4's is fresh)."""
@@ -437,6 +450,7 @@ class Px4Vehicle:
             self._enter(Phase.STREAMING, now_s)  # the stream (and our failsafes) start here
         if not self.commanding or self.system_id is None:
             return
+        msg: SetAttitudeTargetMsg | SetPositionTargetLocalNedMsg
         if self.setpoints == "attitude" and self.estimate(now_s) is not None:
             msg = self.attitude_target_message(now_s, target)
         else:  # position mode, or no fresh estimate to fly our attitude on: PX4 flies it
@@ -455,7 +469,8 @@ class Px4Vehicle:
     def _time_boot_ms(self, now_s: float) -> int:
         return int((now_s - self._t0_s) * 1e3) & 0xFFFFFFFF
 
-    def attitude_target_message(self, now_s: float, target: AttitudeTarget) -> Any:
+    def attitude_target_message(self, now_s: float,
+                                target: AttitudeTarget) -> SetAttitudeTargetMsg:
         """The SET_ATTITUDE_TARGET that flies our SE(3) controller's attitude and thrust
         (built, not sent)."""
         assert self.hover_thrust is not None, "the hover thrust is known from start()"
@@ -471,21 +486,24 @@ class Px4Vehicle:
             attitude = yaw_quat(float(heading_of(attitude)))
         q = enu_flu_quat_to_ned_frd(attitude)
         rates = flu_to_frd(target.body_rates_ff_radps)  # only the yaw rate is used
-        return _M.MAVLink_set_attitude_target_message(
+        msg: SetAttitudeTargetMsg = _M.MAVLink_set_attitude_target_message(
             self._time_boot_ms(now_s), self.system_id, self.component_id, _ATT_TYPE_MASK,
             q.tolist(), float(rates[0]), float(rates[1]), float(rates[2]), thrust)
+        return msg
 
-    def position_target_message(self, now_s: float, command: TrackerCommand) -> Any:
+    def position_target_message(self, now_s: float,
+                                command: TrackerCommand) -> SetPositionTargetLocalNedMsg:
         """The SET_POSITION_TARGET_LOCAL_NED that flies the tracker's p, v, a and heading
         (built, not sent)."""
         p = enu_to_ned(np.asarray(command.position_m) - self.origin_m)
         v = enu_to_ned(command.velocity_mps)
         a = enu_to_ned(command.acceleration_mps2)
-        return _M.MAVLink_set_position_target_local_ned_message(
+        msg: SetPositionTargetLocalNedMsg = _M.MAVLink_set_position_target_local_ned_message(
             self._time_boot_ms(now_s), self.system_id, self.component_id,
             _M.MAV_FRAME_LOCAL_NED, _POS_TYPE_MASK,
             *map(float, p), *map(float, v), *map(float, a),
             heading_enu_to_ned(command.heading_rad), -float(command.heading_rate_radps))
+        return msg
 
     def land(self, now_s: float) -> None:
         """The mission is over: the node now flies down; disarm when on the ground."""
@@ -550,7 +568,7 @@ class Px4Vehicle:
             if handler is not None:
                 handler(self, msg, arrived_s)
 
-    def _on_heartbeat(self, msg: Any, now_s: float) -> None:
+    def _on_heartbeat(self, msg: HeartbeatMsg, now_s: float) -> None:
         if msg.type == _M.MAV_TYPE_GCS or msg.autopilot == _M.MAV_AUTOPILOT_INVALID:
             return  # not the autopilot's own (e.g. another component on its id)
         self.report_data.heartbeats_received += 1
@@ -572,14 +590,14 @@ class Px4Vehicle:
             self.report_data.modes.append(f"{now_s - self._t0_s:.2f} s: {mode}")
         self.mode = mode
 
-    def _on_timesync(self, msg: Any, now_s: float) -> None:
+    def _on_timesync(self, msg: TimesyncMsg, now_s: float) -> None:
         if msg.tc1 == 0:  # the autopilot's own request: answer with our time, as PX4 expects
             self.link.send(_M.MAVLink_timesync_message(time.time_ns(), msg.ts1))
             return
         # An answer to one of ours: ts1 is our send time [ns], tc1 its time [ns].
         self.clock.add_round_trip(msg.ts1 * 1e-9, msg.tc1 * 1e-9, now_s)
 
-    def _on_global_origin(self, msg: Any, now_s: float) -> None:
+    def _on_global_origin(self, msg: GpsGlobalOriginMsg, now_s: float) -> None:
         if self.geo_origin is None or self._origin_known:
             return
         lat, lon, alt = msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3
@@ -588,7 +606,7 @@ class Px4Vehicle:
         self.report_data.origin_source = (f"GPS_GLOBAL_ORIGIN {lat:.7f}, {lon:.7f}, {alt:.2f} m "
                                           f"against --geo-origin")
 
-    def _on_odometry(self, msg: Any, now_s: float) -> None:
+    def _on_odometry(self, msg: OdometryMsg, now_s: float) -> None:
         if msg.frame_id not in (_M.MAV_FRAME_LOCAL_NED, _M.MAV_FRAME_LOCAL_FRD):
             self.report_data.foreign += 1  # not a local-frame odometry we know how to read
             return
@@ -613,14 +631,14 @@ class Px4Vehicle:
             velocity_mps=ned_to_enu(v_ned), attitude_wxyz=ned_frd_quat_to_enu_flu(q_ned),
             body_rates_radps=frd_to_flu(vals[6:9])))
 
-    def _on_local_position(self, msg: Any, now_s: float) -> None:
+    def _on_local_position(self, msg: LocalPositionNedMsg, now_s: float) -> None:
         self.clock.add_one_way(msg.time_boot_ms * 1e-3, now_s)
         self._lpn = (now_s, msg)
 
-    def _on_attitude(self, msg: Any, now_s: float) -> None:
+    def _on_attitude(self, msg: AttitudeQuaternionMsg, now_s: float) -> None:
         self._att = (now_s, msg)
 
-    def _on_ack(self, msg: Any, now_s: float) -> None:
+    def _on_ack(self, msg: CommandAckMsg, now_s: float) -> None:
         cmd = self._pending
         if cmd is None or msg.command != cmd.command or cmd.result is not None:
             return  # not ours, or a second ACK (PX4 answers DO_SET_MODE twice)
@@ -641,14 +659,14 @@ class Px4Vehicle:
             "params": list(cmd.params[:3]), "result": result_name(msg.result),
             "attempts": cmd.attempts})
 
-    def _on_param(self, msg: Any, now_s: float) -> None:
+    def _on_param(self, msg: ParamValueMsg, now_s: float) -> None:
         name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else ""
         if name == "MPC_THR_HOVER" and self.hover_thrust is None \
                 and 0.0 < msg.param_value < 1.0:
             self.hover_thrust = float(msg.param_value)
             self.report_data.hover_thrust_source = "MPC_THR_HOVER"
 
-    def _on_extended_state(self, msg: Any, now_s: float) -> None:
+    def _on_extended_state(self, msg: ExtendedSysStateMsg, now_s: float) -> None:
         if int(msg.landed_state) != self.landed_state:
             name = mavlink.enums["MAV_LANDED_STATE"].get(int(msg.landed_state))
             self.report_data.landed_states.append(
@@ -659,7 +677,7 @@ class Px4Vehicle:
                 and self.landed_state == _M.MAV_LANDED_STATE_ON_GROUND:
             self._ground_seen = True
 
-    def _on_status_text(self, msg: Any, now_s: float) -> None:
+    def _on_status_text(self, msg: StatusTextMsg, now_s: float) -> None:
         text = msg.text.rstrip("\x00") if isinstance(msg.text, str) else repr(msg.text)
         self.report_data.status_texts.append(f"{now_s - self._t0_s:.2f} s: {text}")
         del self.report_data.status_texts[:-20]
@@ -832,7 +850,7 @@ class Px4Vehicle:
         """Landed by the autopilot's land detector (PX4's EXTENDED_SYS_STATE); only an
         autopilot that never reports it is judged by its estimate (height and speed)."""
         if self.landed_state != _M.MAV_LANDED_STATE_UNDEFINED:
-            return self.landed_state == _M.MAV_LANDED_STATE_ON_GROUND
+            return bool(self.landed_state == _M.MAV_LANDED_STATE_ON_GROUND)
         return (est.position_m[2] - self.ground_z_m < LANDED_HEIGHT_M
                 and float(np.linalg.norm(est.velocity_mps)) < LANDED_SPEED_MPS)
 
@@ -893,7 +911,8 @@ class Px4Vehicle:
         return "; ".join(f'PX4: "{t}"' for t in texts[-3:])
 
 
-_HANDLERS = {
+#: By message name: pymavlink's message of that name has the fields its handler reads.
+_HANDLERS: dict[str, Callable[[Px4Vehicle, mavlink.MAVLink_message, float], None]] = {
     "HEARTBEAT": Px4Vehicle._on_heartbeat,
     "ODOMETRY": Px4Vehicle._on_odometry,
     "LOCAL_POSITION_NED": Px4Vehicle._on_local_position,
