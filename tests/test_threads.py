@@ -160,11 +160,16 @@ def test_a_run_ticks_on_the_cores_left_idle(monkeypatch) -> None:
 
     top = available_threads()
     monkeypatch.delenv("UAVMPC_THREADS", raising=False)
+    monkeypatch.setattr("uavmpc.jit.runnable_others", lambda: 0)
     monkeypatch.setattr("os.getloadavg", lambda: (5.0, 5.0, 5.0))
     assert idle_threads() == 1  # a busy machine: one thread, never a wait for a parked one
     monkeypatch.setattr("os.getloadavg", lambda: (0.3, 0.3, 0.3))
     assert idle_threads() == top
     monkeypatch.setattr("os.getloadavg", lambda: (top - 0.5, 1.0, 1.0))
+    assert idle_threads() == 1
+    # A load that began a moment ago is not yet in the average: the tasks runnable now count
+    monkeypatch.setattr("os.getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr("uavmpc.jit.runnable_others", lambda: top)
     assert idle_threads() == 1
     monkeypatch.setenv("UAVMPC_THREADS", "1")
     monkeypatch.setattr("os.getloadavg", lambda: (0.0, 0.0, 0.0))

@@ -186,12 +186,24 @@ def default_threads() -> int:
     return top
 
 
+def runnable_others() -> int:
+    """How many other tasks are runnable on this machine right now (Linux's
+    ``/proc/loadavg``, less this one), or 0 where it cannot be read."""
+    try:
+        with open("/proc/loadavg") as f:
+            running = int(f.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        return 0
+    return max(0, running - 1)
+
+
 def idle_threads() -> int:
-    """The threads a world's tick should take by default on this machine now: the cores the
-    last minute left idle (:func:`default_threads` less the 1-minute load average, rounded
-    down), at least 1; ``$UAVMPC_THREADS`` when set. A parallel tick waits at every tick for
-    its slowest thread, and a thread the OS has parked for other work makes it wait for a
-    whole time slice: on this 2-core machine with a load of 3, ``uavmpc run
+    """The threads a world's tick should take by default on this machine now: the cores left
+    idle (:func:`default_threads` less the busier of the 1-minute load average, rounded down,
+    and the tasks runnable right now besides this one: a load that just began has not yet
+    reached the average), at least 1; ``$UAVMPC_THREADS`` when set. A parallel tick waits at
+    every tick for its slowest thread, and a thread the OS has parked for other work makes
+    it wait for a whole time slice: on this 2-core machine with a load of 3, ``uavmpc run
     swap_through_static`` flew 0.41× real time on 2 threads and 16× on 1 (docs/scale.md)."""
     top = default_threads()
     if os.environ.get(THREADS_ENV, "").strip():
@@ -200,7 +212,8 @@ def idle_threads() -> int:
         load = os.getloadavg()[0]
     except (AttributeError, OSError):  # no load average here (Windows): every core
         return top
-    return max(1, min(top, top - math.floor(load)))
+    busy = max(math.floor(load), runnable_others())
+    return max(1, min(top, top - busy))
 
 
 def set_threads(n: int | None) -> int:
