@@ -110,6 +110,7 @@ from uavmpc.view.scene import (
     UavView,
     detail_of,
     ground_around,
+    metrics_update,
     scene_update,
     state_of,
 )
@@ -279,12 +280,10 @@ def _scene(t_s: float, states: dict[str, NodeState],
                      yielding_to=list(s.yielding_to), z_offset_m=z_off, avoiding=s.avoiding),
             prm.radius_m, prm.height_m,
             detail_of(yielding_to=list(s.yielding_to), waiting_for=list(s.waiting_for))))
-    metrics = {"t_s": t_s, "min_distance_m": min_distance_m,
-               "uavs": {v.uav_id: {"state": v.state, "detail": v.detail,
-                                   "z_offset_m": v.z_offset_m,
-                                   "avoiding": states[v.uav_id].avoiding}
-                        for v in views}}
-    return scene_update(t_s, views, ground=ground), metrics
+    rows = {v.uav_id: {"z_offset_m": v.z_offset_m, "avoiding": states[v.uav_id].avoiding}
+            for v in views}
+    return (scene_update(t_s, views, ground=ground),
+            metrics_update(t_s, min_distance_m, views, rows))
 
 
 def _end(p: subprocess.Popen[bytes]) -> None:

@@ -16,6 +16,7 @@ from uavmpc.view.scene import (
     UavView,
     detail_of,
     ground_around,
+    metrics_update,
     scene_update,
     state_of,
 )
@@ -112,18 +113,14 @@ class WorldScene:
         :meth:`views`), its z offset, how far its virtual UAV is outside the limits, its
         tracker fallbacks."""
         w = self.world
-        shown = {v.uav_id: v for v in (self.views() if views is None else views)}
-        out: dict[str, Any] = {}
-        for u in w.uavs:
-            row: dict[str, Any] = {"z_offset_m": u.stack.tracker.z_offset_m,
-                                   "limit_excess": u.stack.tracker.limit_excess(),
-                                   "tracker_fallbacks": u.stack.tracker.fallback_count,
-                                   "avoiding": bool(u.stack.steering.decision is not None
-                                                    and u.stack.steering.decision.avoiding)}
-            if u.uav_id in shown:
-                row.update(state=shown[u.uav_id].state, detail=shown[u.uav_id].detail)
-            out[u.uav_id] = row
-        return {"t_s": w.t_s, "min_distance_m": min_distance_m, "uavs": out}
+        rows = {u.uav_id: {"z_offset_m": u.stack.tracker.z_offset_m,
+                           "limit_excess": u.stack.tracker.limit_excess(),
+                           "tracker_fallbacks": u.stack.tracker.fallback_count,
+                           "avoiding": bool(u.stack.steering.decision is not None
+                                            and u.stack.steering.decision.avoiding)}
+                for u in w.uavs}
+        return metrics_update(w.t_s, min_distance_m, self.views() if views is None else views,
+                              rows)
 
     def log(self) -> None:
         """The poses (state, command, reference) and status of every flying UAV, and the

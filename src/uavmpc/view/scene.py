@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
 from importlib import resources
@@ -273,6 +273,18 @@ def scene_update(t_s: float, uavs: Sequence[UavView], *,
             "pose": pose(o.position_m, o.heading_rad), "size": _vec(*o.size_m),
             "color": _color(o.rgba)}]))
     return {"deletions": [], "entities": entities}
+
+
+def metrics_update(t_s: float, min_distance_m: float | None, views: Sequence[UavView],
+                   rows: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """The plot-ready numbers shown beside a :func:`scene_update` (the live view's plots, a
+    flight log's metrics): the closest pair's distance [m] and, per UAV, what its driver
+    knows (``rows``: its z offset, whether it avoids, …) with its view's cylinder state and
+    whom it yields to or waits for."""
+    out = {uav: dict(row) for uav, row in rows.items()}
+    for v in views:
+        out.setdefault(v.uav_id, {}).update(state=v.state, detail=v.detail)
+    return {"t_s": t_s, "min_distance_m": min_distance_m, "uavs": out}
 
 
 def encode(msg: dict[str, Any]) -> bytes:
