@@ -322,6 +322,7 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool,
     peak = _maxrss_mib()
     digest = hashlib.sha256(np.ascontiguousarray(result.positions_m).tobytes())
     digest.update(np.ascontiguousarray(result.z_offset_m).tobytes())
+    timing = result.timing
     return {
         "uavs": n, "path": "batched" if batched else "per-object", "area_m": area,
         "threads": threads,
@@ -331,11 +332,10 @@ def _world_child(n: int, duration_s: float, avoidance: bool, batched: bool,
         "collisions": len(result.collisions),
         "min_distance_m": float(np.min(result.min_distance_m)) if n > 1 else None,
         "baseline_rss_mib": baseline, "peak_rss_mib": peak, "flight_digest": digest.hexdigest(),
-        "wall_s_by_phase": result.sections.get("timing", {}).get("wall_s_by_phase"),
-        "compiled_us_per_uav_tick": result.sections.get("timing", {}).get(
-            "compiled_us_per_uav_tick"),
-        "threads_wait_us_per_uav_tick": result.sections.get("timing", {}).get(
-            "threads_wait_us_per_uav_tick"),
+        "wall_s_by_phase": timing.wall_s_by_phase if timing else None,
+        "compiled_us_per_uav_tick": timing.compiled_us_per_uav_tick if timing else None,
+        "threads_wait_us_per_uav_tick": (timing.threads_wait_us_per_uav_tick if timing
+                                         else None),
         "ticks_per_s": 1.0 / world.period_s,
     }
 

@@ -22,6 +22,7 @@ from uavmpc.drivers.summary import (
     run_status,
 )
 from uavmpc.drivers.world_tick import STAGES, WAIT, pair_distances
+from uavmpc.jit import thread_count
 from uavmpc.missions.formation import formation_error
 from uavmpc.missions.landing import LandingMission, landing_outcome
 
@@ -159,6 +160,26 @@ class UavOutcome:
     goal_reached_s: float | None = None
 
 
+@dataclass(frozen=True)
+class Timing:
+    """Where a batched run's wall time went (its summary's ``timing`` section).
+
+    Attributes:
+        threads: the threads its tick ran on.
+        wall_s_by_phase: wall time of receiving and planning, the compiled tick and the
+            broadcasts [s] (a kernel compiled mid-flight left out).
+        compiled_us_per_uav_tick: CPU µs per UAV and tick of each stage inside the compiled
+            tick, summed over the threads (None without the x86 cycle counter).
+        threads_wait_us_per_uav_tick: µs per UAV and tick the threads waited for the slowest
+            block (None without the cycle counter).
+    """
+
+    threads: int
+    wall_s_by_phase: dict[str, float]
+    compiled_us_per_uav_tick: dict[str, float] | None = None
+    threads_wait_us_per_uav_tick: float | None = None
+
+
 @dataclass
 class WorldResult:
     """What a run produced (:meth:`summary` gives its :class:`~uavmpc.drivers.summary.RunSummary`).
@@ -191,6 +212,7 @@ class WorldResult:
     messages: dict[str, int]
     wall_s: float
     sections: dict[str, Any] = field(default_factory=dict)
+    timing: Timing | None = None
     landing: Landing | None = None
     formation: Formation | None = None
     ground_vehicle_m: np.ndarray | None = None
@@ -226,7 +248,9 @@ class WorldResult:
                                 self.messages["dropped"]),
             wall_s=self.wall_s,
             realtime_factor=self.duration_s / self.wall_s if self.wall_s > 0 else None,
-            landing=self.landing, formation=self.formation, sections=self.sections)
+            landing=self.landing, formation=self.formation,
+            sections=(self.sections if self.timing is None
+                      else {**self.sections, "timing": dataclasses.asdict(self.timing)}))
 
 
 def _point(p: Any) -> tuple[float, float, float]:
@@ -354,7 +378,7 @@ def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
     if tr.members.size:
         result.members_avoiding = tr.members_avoiding
     if world.batched:
-        _timing_extras(result, world.phase_wall_s, world.ticker.cycles, cycles_per_s)
+        result.timing = _timing(world.phase_wall_s, world.ticker.cycles, cycles_per_s)
     fleet_extras(result, world.uavs, launch_check_s=world.launch_check_s,
                  launches=world.launches, non_cooperative=world.non_cooperative,
                  avoidance=world.avoidance)
@@ -362,21 +386,18 @@ def world_result(world: World, tr: Traces, contacts: Contacts, wall_s: float,
     return result
 
 
-def _timing_extras(result: WorldResult, phase_wall_s: Sequence[float], cycles: np.ndarray,
-                   cycles_per_s: float) -> None:
+def _timing(phase_wall_s: Sequence[float], cycles: np.ndarray, cycles_per_s: float
+            ) -> Timing:
     """Where a batched run's wall time went: the numbers of a scale benchmark."""
-    timing: dict[str, Any] = {"wall_s_by_phase": dict(zip(
-        ("receive_and_plan", "compiled_tick", "broadcast"),
-        (round(v, 6) for v in phase_wall_s), strict=True))}
-    result.sections["timing"] = timing
+    by_phase = dict(zip(("receive_and_plan", "compiled_tick", "broadcast"),
+                        (round(v, 6) for v in phase_wall_s), strict=True))
     c = cycles
-    if c.size and c[-1] > 0 and cycles_per_s > 0:
-        # Per UAV and tick, inside the compiled call: the floor of a UAV-second (CPU time,
-        # summed over the threads).
-        timing["compiled_us_per_uav_tick"] = {
-            name: round(float(c[j] / c[-1] / cycles_per_s * 1e6), 3)
-            for j, name in enumerate(STAGES)}
-        # The threads idle at the end of the compiled call, waiting for the slowest block
-        # (summed over the threads; not part of any UAV's work).
-        timing["threads_wait_us_per_uav_tick"] = round(
-            float(c[WAIT] / c[-1] / cycles_per_s * 1e6), 3)
+    if not (c.size and c[-1] > 0 and cycles_per_s > 0):
+        return Timing(thread_count(), by_phase)
+    # Per UAV and tick, inside the compiled call: the floor of a UAV-second (CPU time, summed
+    # over the threads); and the threads idle at the end of the call, waiting for the slowest
+    # block (summed over the threads; not part of any UAV's work).
+    return Timing(thread_count(), by_phase,
+                  {name: round(float(c[j] / c[-1] / cycles_per_s * 1e6), 3)
+                   for j, name in enumerate(STAGES)},
+                  round(float(c[WAIT] / c[-1] / cycles_per_s * 1e6), 3))
