@@ -19,8 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from uavmpc.apps.campaign import RandomWalkSpec, run_campaign
+from uavmpc.apps.campaign import Execution, RandomWalkSpec, run_campaign
 from uavmpc.scenarios import LinkSettings
+from uavmpc.scenarios.run import RunSettings
 
 #: The launch check of the lossy rows of docs/safety.md: no UAV sets off before it has heard
 #: every other one (at most this long).
@@ -40,9 +41,9 @@ def _levels(text: str, name: str, upper: float) -> list[float]:
 def point(out: Path, kind: str, value: float, hours: float, workers: int) -> dict[str, Any]:
     """One campaign: ``kind`` is "loss" (probability, 50 ms latency) or "latency" [s]."""
     link = LinkSettings(loss=value) if kind == "loss" else LinkSettings(latency_s=value)
-    spec = RandomWalkSpec(link=link, launch_check_s=LAUNCH_CHECK_S)
-    report = run_campaign(out / f"{kind}_{value:g}", spec, hours=hours, workers=workers, logs=0,
-                          progress=False)
+    spec = RandomWalkSpec(run=RunSettings(link=link, launch_check_s=LAUNCH_CHECK_S))
+    report = run_campaign(out / f"{kind}_{value:g}", spec,
+                          Execution(workers=workers, progress=False), hours=hours, logs=0)
     return {kind: value, **{k: report[k] for k in (
         "simulated_hours", "trials", "collisions", "trials_with_collision", "waypoints_reached",
         "waypoints_due")}, "closest_m": report["min_distance_m"]}

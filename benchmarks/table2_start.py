@@ -30,9 +30,16 @@ from typing import Any
 
 import numpy as np
 
-from uavmpc.apps.campaign import PERCENTILES, RandomWalkSpec, load_trials, run_campaign
+from uavmpc.apps.campaign import (
+    PERCENTILES,
+    Execution,
+    RandomWalkSpec,
+    load_trials,
+    run_campaign,
+)
 from uavmpc.apps.published import PublishedResult, inside
 from uavmpc.scenarios.random_walk import WalkVariant
+from uavmpc.scenarios.run import RunSettings
 from uavmpc.scenarios.stats import bootstrap_interval, percentile
 
 #: name → (what it tests, the campaign's keywords beyond the protocol's).
@@ -99,8 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         what, kw = HYPOTHESES[name]
         folder = out / name
-        run_campaign(folder, RandomWalkSpec(avoidance=False, **kw), trials=args.trials,
-                     workers=args.workers, logs=0, progress=False)
+        run_campaign(folder, RandomWalkSpec(run=RunSettings(avoidance=False), **kw),
+                     Execution(workers=args.workers, progress=False), trials=args.trials,
+                     logs=0)
         firsts = [r["first_collision_s"] for r in
                   sorted(load_trials(folder, 0).values(), key=lambda r: r["index"])]
         print(_row(name, what, firsts, table), flush=True)

@@ -869,8 +869,9 @@ def test_a_stuck_uav_broadcasts_its_flag_down_and_the_others_yield_to_it() -> No
     uav3 at 0.40 m): uav3 says it is stuck, uav1 yields and climbs over it."""
     from uavmpc.apps.campaign import RandomWalkSpec, trial_run
     from uavmpc.drivers.world import World
+    from uavmpc.scenarios.run import RunSettings
 
-    world = World(trial_run(RandomWalkSpec(avoidance=True), 42))
+    world = World(trial_run(RandomWalkSpec(run=RunSettings(avoidance=True)), 42))
     flags = []
     world.wire.publish = lambda stacks, data, now, send=world.wire.publish: (
         flags.extend((s.uav_id, s.steering.decision is not None

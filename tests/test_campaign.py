@@ -3,6 +3,7 @@
 Kept short: 3 UAVs in a 30 m area, trials of 20–40 simulated seconds.
 """
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import pytest
 
 from uavmpc.apps.campaign import (
     CampaignError,
+    Execution,
     RandomWalkSpec,
     aggregate,
     load_trials,
@@ -22,6 +24,7 @@ from uavmpc.apps.campaign import (
 )
 from uavmpc.config import ConfigError
 from uavmpc.scenarios import LinkSettings
+from uavmpc.scenarios.faults import Faults, FaultSpec
 from uavmpc.scenarios.random_walk import (
     MIN_START_SEPARATION_M,
     STEP_S,
@@ -30,15 +33,22 @@ from uavmpc.scenarios.random_walk import (
     walk_start_s,
     waypoints_reached,
 )
-from uavmpc.scenarios.run import RunSpec
+from uavmpc.scenarios.run import RunSettings, RunSpec
 
 
 def small(**kw) -> RandomWalkSpec:
-    """A campaign of 3 UAVs in a 30 m area, the other fields as given."""
-    return RandomWalkSpec(**{"uavs": 3, "area_m": 30.0, **kw})
+    """A campaign of 3 UAVs in a 30 m area, the other fields (its own or its run settings')
+    as given."""
+    run = {k: kw.pop(k) for k in list(kw) if k in RUN_FIELDS}
+    return RandomWalkSpec(**{"uavs": 3, "area_m": 30.0, "run": RunSettings(**run), **kw})
 
 
-QUIET = {"progress": False}
+RUN_FIELDS = {f.name for f in dataclasses.fields(RunSettings)}
+
+
+def quiet(workers: int = 1, **kw) -> Execution:
+    """Flown on ``workers`` local processes without a progress bar."""
+    return Execution(workers=workers, progress=False, **kw)
 
 
 def test_random_walk_is_seeded_and_valid() -> None:
@@ -84,8 +94,8 @@ def test_trial_seeds_are_derived_from_the_campaign_seed() -> None:
 
 @pytest.mark.slow
 def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) -> None:
-    r = run_campaign(tmp_path, small(avoidance=False, length_s=40.0), trials=3, workers=1,
-                     **QUIET)
+    r = run_campaign(tmp_path, small(avoidance=False, length_s=40.0), quiet(),
+                     trials=3)
     recs = sorted(load_trials(tmp_path, 0).values(), key=lambda x: x["index"])
     assert r["trials"] == 3 and r["collisions"] >= 1
     hit = [x for x in recs if x["first_collision_s"] is not None]
@@ -108,7 +118,7 @@ def test_without_avoidance_trials_stop_at_the_first_collision(tmp_path: Path) ->
 
 @pytest.mark.slow
 def test_with_avoidance_no_collision(tmp_path: Path) -> None:
-    r = run_campaign(tmp_path, small(length_s=20.0), trials=3, workers=1, **QUIET)
+    r = run_campaign(tmp_path, small(length_s=20.0), quiet(), trials=3)
     assert r["trials"] == 3 and r["collisions"] == 0
     assert r["time_to_first_collision_s"] == {"p50": None, "p75": None, "p95": None,
                                               "p99": None}
@@ -135,8 +145,7 @@ def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
 
     from uavmpc.log import read_topics
 
-    r = run_campaign(tmp_path, small(length_s=12.0), trials=4, workers=workers, logs=2,
-                     **QUIET)
+    r = run_campaign(tmp_path, small(length_s=12.0), quiet(workers), trials=4, logs=2)
     page = (tmp_path / "report.html").read_text()
     trials = {t["index"]: t for t in (json.loads(line) for line in
                                       (tmp_path / "trials.jsonl").read_text().splitlines())}
@@ -179,20 +188,19 @@ def test_report_html_is_one_page_with_every_trial_and_the_closest_trials_logs(
     assert {k: v for k, v in again.items() if k != "wall_s"} == {
         k: v for k, v in closest[0].items() if k != "wall_s"}
     with pytest.raises(CampaignError, match="logs: must be an integer"):
-        run_campaign(tmp_path, small(length_s=12.0), trials=4, workers=1, logs=-1, **QUIET)
+        run_campaign(tmp_path, small(length_s=12.0), quiet(), trials=4, logs=-1)
 
 
 @pytest.mark.slow
 def test_hours_stop_rule(tmp_path: Path) -> None:
-    r = run_campaign(tmp_path, small(length_s=20.0), hours=50.0 / 3600.0, workers=1, **QUIET)
+    r = run_campaign(tmp_path, small(length_s=20.0), quiet(), hours=50.0 / 3600.0)
     assert r["trials"] == 3 and r["simulated_hours"] == pytest.approx(60.0 / 3600.0)
 
 
 def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> None:
     # (no flight logs: those re-fly trials on purpose, this counts the campaign's own)
     spec = small(avoidance=False, length_s=20.0, seed=3)
-    kw = dict(workers=1, logs=0, **QUIET)
-    run_campaign(tmp_path, spec, trials=2, **kw)
+    run_campaign(tmp_path, spec, quiet(), trials=2, logs=0)
     assert len((tmp_path / "trials.jsonl").read_text().splitlines()) == 2
     # a crash mid-write leaves a torn line: it is dropped and the trial re-run
     with open(tmp_path / "trials.jsonl", "a") as f:
@@ -206,30 +214,30 @@ def test_resume_runs_only_the_missing_trials(tmp_path: Path, monkeypatch) -> Non
         return run_trial(spec, index)
 
     monkeypatch.setattr(campaign, "run_trial", spy)
-    r = run_campaign(tmp_path, spec, trials=4, **kw)
+    r = run_campaign(tmp_path, spec, quiet(), trials=4, logs=0)
     assert flown == [2, 3]
     assert r["trials"] == 4
     lines = (tmp_path / "trials.jsonl").read_text().splitlines()
     assert [json.loads(x)["index"] for x in lines] == [0, 1, 2, 3]
     # the same, done again: nothing to fly, same report
     flown.clear()
-    again = run_campaign(tmp_path, spec, trials=4, **kw)
+    again = run_campaign(tmp_path, spec, quiet(), trials=4, logs=0)
     assert flown == []
     assert again == r  # also the wall time: the sum over the invocations that flew trials
     runs = [json.loads(x) for x in (tmp_path / "runs.jsonl").read_text().splitlines()]
     assert [x["new_trials"] for x in runs] == [2, 2]
     assert r["wall_s"] == pytest.approx(sum(x["wall_s"] for x in runs))
     # fewer trials than done: the report covers the first ones
-    assert run_campaign(tmp_path, spec, trials=1, **kw)["trials"] == 1
+    assert run_campaign(tmp_path, spec, quiet(), trials=1, logs=0)["trials"] == 1
 
 
 def test_changed_parameters_are_refused(tmp_path: Path) -> None:
-    run_campaign(tmp_path, small(avoidance=False, length_s=10.0), trials=1, workers=1, **QUIET)
+    run_campaign(tmp_path, small(avoidance=False, length_s=10.0), quiet(), trials=1)
     with pytest.raises(CampaignError, match=r"other parameters \(loss: 0\.0 there, 0\.2 now"):
         run_campaign(tmp_path, small(avoidance=False, length_s=10.0,
-                                     link=LinkSettings(loss=0.2)), trials=2, workers=1, **QUIET)
+                                     link=LinkSettings(loss=0.2)), quiet(), trials=2)
     with pytest.raises(CampaignError, match="avoidance"):
-        run_campaign(tmp_path, small(length_s=10.0), trials=2, workers=1, **QUIET)
+        run_campaign(tmp_path, small(length_s=10.0), quiet(), trials=2)
     assert len((tmp_path / "trials.jsonl").read_text().splitlines()) == 1
 
 
@@ -239,33 +247,56 @@ def test_changed_parameters_are_refused(tmp_path: Path) -> None:
     ({}, {"trials": 0}, "trials"),
     ({"uavs": 1}, {"trials": 1}, "uavs"),
     ({"link": {"loss": 1.0}}, {"trials": 1}, "loss"),
-    ({}, {"trials": 1, "workers": 0}, "workers"),
     ({"avoidance": False, "length_s": -1.0}, {"trials": 1}, "cap_s"),
     ({"length_s": -1.0}, {"trials": 1}, "trial_s"),
+    ({"seed": -1}, {"trials": 1}, "seed"),
+    ({"wind_mps": 31.0}, {"trials": 1}, "wind_mps"),
+    ({"launch_check_s": 30.0, "length_s": 20.0}, {"trials": 1},
+     r"launch_check_s: .*the flight's 20 s\], got 30"),
+    ({"faults": FaultSpec(silent=4)}, {"trials": 1}, "exceed the 3 UAVs"),
+    ({"duration_s": 20.0}, {"trials": 1}, "run.duration_s: a trial's length is length_s"),
+    ({"drawn": Faults.given(non_cooperative=["uav1"])}, {"trials": 1},
+     "run.drawn: a campaign draws each trial's faults"),
+    ({"link": {"range_m": 50.0}}, {"trials": 1}, "run.link: a campaign's link"),
 ])
 def test_bad_parameters(tmp_path: Path, spec: dict, kw: dict, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         if "link" in spec:
             spec = {**spec, "link": LinkSettings.from_dict(spec["link"])}
-        run_campaign(tmp_path, RandomWalkSpec(**spec), **{"progress": False, **kw})
+        run_campaign(tmp_path, small(**spec), quiet(), **kw)
+    assert not any(tmp_path.iterdir())  # refused before a folder or a trial
     with pytest.raises(CampaignError, match="spec: must be a RandomWalkSpec"):
-        run_campaign(tmp_path, {"uavs": 3}, trials=1)  # type: ignore[arg-type]
+        run_campaign(tmp_path, {"uavs": 3}, quiet(), trials=1)  # type: ignore[arg-type]
+    with pytest.raises(CampaignError, match="execution: must be an Execution"):
+        run_campaign(tmp_path, small(), {"workers": 1}, trials=1)  # type: ignore[arg-type]
+    with pytest.raises(CampaignError, match="run: must be RunSettings"):
+        RandomWalkSpec(run=RunSpec(random_walk(3, duration_s=10.0)))
+
+
+@pytest.mark.parametrize("given, match", [
+    ({"workers": 0}, "workers: must be an integer ≥ 1, got 0"),
+    ({"threads": 0}, "threads"), ({"threads": 1.5}, "threads"),
+    ({"ray_address": ""}, "ray_address"), ({"progress": "no"}, "progress"),
+])
+def test_a_bad_execution_is_refused_by_name(given: dict, match: str) -> None:
+    with pytest.raises(CampaignError, match=match):
+        Execution(**given)
 
 
 @pytest.mark.slow
 def test_same_seed_same_report_with_1_or_2_workers(tmp_path: Path) -> None:
     spec = small(avoidance=False, length_s=20.0, seed=11)
-    one = run_campaign(tmp_path / "one", spec, trials=4, workers=1, **QUIET)
-    two = run_campaign(tmp_path / "two", spec, trials=4, workers=2, **QUIET)
+    one = run_campaign(tmp_path / "one", spec, quiet(), trials=4)
+    two = run_campaign(tmp_path / "two", spec, quiet(2), trials=4)
     one.pop("wall_s"), two.pop("wall_s")
     one.pop("trial_wall_s"), two.pop("trial_wall_s")
     assert json.dumps(one) == json.dumps(two)
 
 
 def test_merge_reports_fills_both_columns(tmp_path: Path) -> None:
-    run_campaign(tmp_path / "a", small(avoidance=False, length_s=10.0), trials=1, workers=1,
-                 **QUIET)
-    run_campaign(tmp_path / "b", small(length_s=10.0), trials=1, workers=1, **QUIET)
+    run_campaign(tmp_path / "a", small(avoidance=False, length_s=10.0), quiet(),
+                 trials=1)
+    run_campaign(tmp_path / "b", small(length_s=10.0), quiet(), trials=1)
     md = merge_reports(tmp_path / "a", tmp_path / "b", out=tmp_path / "both.md")
     row = next(x for x in md.splitlines() if x.startswith("| trials |"))
     assert row == "| trials | 1 | 1 |"
@@ -378,7 +409,7 @@ def test_without_the_ground_start_the_protocol_is_unchanged() -> None:
     assert u.mission.times_s[:3].tolist() == [0.0, 12.453405950530426, 12.463405950530426]
     assert u.mission.points[0].tolist() == [-1.9417994264188252, -44.04581933284578, 10.0, 0.0]
     assert len(u.mission.times_s) == 39
-    spec = RandomWalkSpec(uavs=3, area_m=30.0, avoidance=False, length_s=30.0, seed=5)
+    spec = small(avoidance=False, length_s=30.0, seed=5)
     assert "ground_start" not in spec.to_json()
     rec = run_trial(spec, 2)
     assert rec["first_collision_s"] == pytest.approx(9.40, abs=1e-9)
@@ -400,9 +431,9 @@ def local_ray():
 def test_ray_path_on_a_local_ray_instance_gives_the_same_report(tmp_path: Path,
                                                                 local_ray) -> None:
     spec = small(avoidance=False, length_s=10.0)
-    r = run_campaign(tmp_path / "ray", spec, trials=3, ray_address="local", **QUIET)
+    r = run_campaign(tmp_path / "ray", spec, quiet(None, ray_address="local"), trials=3)
     assert local_ray.is_initialized()
-    ref = run_campaign(tmp_path / "ref", spec, trials=3, workers=1, **QUIET)
+    ref = run_campaign(tmp_path / "ref", spec, quiet(), trials=3)
     walls = ("wall_s", "trial_wall_s")
     assert {k: v for k, v in r.items() if k not in walls} == {
         k: v for k, v in ref.items() if k not in walls}
@@ -421,8 +452,8 @@ def test_ray_missing_is_a_clear_error(tmp_path: Path, monkeypatch) -> None:
 
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(CampaignError, match=r"pip install 'uavmpc\[cluster\]'"):
-        run_campaign(tmp_path, small(avoidance=False, length_s=10.0), trials=1,
-                     ray_address="auto", **QUIET)
+        run_campaign(tmp_path, small(avoidance=False, length_s=10.0),
+                     quiet(None, ray_address="auto"), trials=1)
 
 
 #: Collisions found by the first 24-hour runs of (b), each fixed by a rule of the strategy
@@ -444,9 +475,9 @@ def test_collisions_found_by_the_24_hour_campaigns_no_longer_happen(
         index: int, loss: float, latency_s: float, duration_s: float, story: str) -> None:
     """``uavmpc campaign random-walk --avoidance --hours 24 [--loss 0.3 --latency 0.2]``,
     seed 0: the trial that collided, flown past the moment of its collision."""
-    spec = RandomWalkSpec(uavs=5, area_m=100.0, height_m=10.0, avoidance=True, seed=0,
-                          link=LinkSettings(latency_s=latency_s, jitter_s=0.02, loss=loss),
-                          length_s=duration_s)
+    link = LinkSettings(latency_s=latency_s, jitter_s=0.02, loss=loss)
+    spec = RandomWalkSpec(run=RunSettings(avoidance=True, seed=0, link=link), uavs=5,
+                          area_m=100.0, height_m=10.0, length_s=duration_s)
     record = run_trial(spec, index)
     assert record["collisions"] == 0, story
     assert record["min_distance_m"] > 2.0, story

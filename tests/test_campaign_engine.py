@@ -15,23 +15,26 @@ from uavmpc.apps.campaign_engine import (
     CAMPAIGN_FILE,
     FORMAT,
     CampaignError,
+    Execution,
     open_campaign,
     stored_spec,
 )
 from uavmpc.avoidance import AvoidanceParams
 from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.faults import FaultSpec
+from uavmpc.scenarios.random_walk import WalkVariant
+from uavmpc.scenarios.run import RunSettings
 from uavmpc.scenarios.stats import percentile
 
 SPECS = [
-    RandomWalkSpec(uavs=4, area_m=80.0, height_m=12.0, avoidance=True, seed=9,
-                   link=LinkSettings(latency_s=0.2, jitter_s=0.01, loss=0.3), wind_mps=2.5,
-                   length_s=90.0,
-                   faults=FaultSpec(clock_offset_s=0.3, time_reference="receive",
-                                    gnss="single", burst_len=2.0, non_cooperative=1, silent=1),
-                   avoidance_params=AvoidanceParams(radius_m=7.5, height_m=5.0),
-                   launch_check_s=4.0),
-    RandomWalkSpec(avoidance=False, length_s=123.0),
+    RandomWalkSpec(run=RunSettings(
+        avoidance=True, seed=9, link=LinkSettings(latency_s=0.2, jitter_s=0.01, loss=0.3),
+        wind_mps=2.5, launch_check_s=4.0,
+        faults=FaultSpec(clock_offset_s=0.3, time_reference="receive", gnss="single",
+                         burst_len=2.0, non_cooperative=1, silent=1)),
+                   uavs=4, area_m=80.0, height_m=12.0, length_s=90.0,
+                   avoidance_params=AvoidanceParams(radius_m=7.5, height_m=5.0)),
+    RandomWalkSpec(run=RunSettings(avoidance=False), length_s=123.0),
     landing.LandingSpec("moving_target_landing_30kmh", seed=4, speed_kmh=25.0, duration_s=60.0),
     landing.LandingSpec(),
     traffic.TrafficSpec(uavs=12, seed=3, duration_s=45.0,
@@ -47,7 +50,7 @@ def test_a_spec_round_trips_through_campaign_json_exactly(tmp_path: Path, spec) 
     back = type(spec).from_json(stored_spec(tmp_path, spec.kind))
     assert back == spec and back.to_json() == spec.to_json()
     open_campaign(tmp_path, spec, type(spec).from_json)  # the same spec: continued
-    other = type(spec).from_json({**spec.to_json(), "seed": spec.seed + 1})
+    other = type(spec).from_json({**spec.to_json(), "seed": spec.to_json()["seed"] + 1})
     with pytest.raises(CampaignError, match=r"other parameters \(seed: "):
         open_campaign(tmp_path, other, type(spec).from_json)
 
@@ -77,16 +80,54 @@ def test_an_old_or_unknown_campaign_file_is_refused_naming_its_format(tmp_path: 
         landing.run_landing_campaign(old, trials=1, duration_s=1.0, workers=1)
 
 
+#: A random walk's campaign.json spec as written before its run settings became a template
+#: (RandomWalkSpec(avoidance=..., seed=..., link=..., ...)): the same fields, side by side.
+WRITTEN_BEFORE = {
+    "scenario": "random_walk", "uavs": 4, "area_m": 80.0, "height_m": 12.0, "avoidance": True,
+    "seed": 9, "loss": 0.3, "latency_s": 0.2, "jitter_s": 0.01, "wind_mps": 2.5,
+    "trial_s": 90.0, "faults": {"clock_offset_s": 0.3, "non_cooperative": 1},
+    "avoidance_params": {"radius_m": 7.5}, "launch_check_s": 4.0, "ground_start": True,
+    "walk": {"clearance_m": 20.0}}
+
+
+def test_a_random_walk_written_before_the_run_template_reads_back_and_continues(
+        tmp_path: Path) -> None:
+    spec = RandomWalkSpec(
+        run=RunSettings(avoidance=True, seed=9, wind_mps=2.5, launch_check_s=4.0,
+                        link=LinkSettings(latency_s=0.2, jitter_s=0.01, loss=0.3),
+                        faults=FaultSpec(clock_offset_s=0.3, non_cooperative=1)),
+        uavs=4, area_m=80.0, height_m=12.0, length_s=90.0,
+        avoidance_params=AvoidanceParams(radius_m=7.5), ground_start=True,
+        walk=WalkVariant(clearance_m=20.0))
+    assert spec.to_json() == WRITTEN_BEFORE
+    assert RandomWalkSpec.from_json(WRITTEN_BEFORE) == spec
+    (tmp_path / CAMPAIGN_FILE).write_text(json.dumps(
+        {"format": FORMAT, "kind": "random_walk", "version": "0.0.0", "spec": WRITTEN_BEFORE}))
+    open_campaign(tmp_path, spec, RandomWalkSpec.from_json)  # continued, not refused
+    # one it cannot read is a CampaignError naming the field, not a traceback
+    (tmp_path / CAMPAIGN_FILE).write_text(json.dumps(
+        {"format": FORMAT, "kind": "random_walk", "version": "0.0.0",
+         "spec": {**WRITTEN_BEFORE, "wind_mps": 45.0}}))
+    with pytest.raises(CampaignError, match=r"unreadable campaign spec \(wind_mps: "):
+        open_campaign(tmp_path, spec, RandomWalkSpec.from_json)
+    (tmp_path / CAMPAIGN_FILE).write_text(json.dumps(
+        {"format": FORMAT, "kind": "random_walk", "version": "0.0.0",
+         "spec": {k: v for k, v in WRITTEN_BEFORE.items() if k != "seed"}}))
+    with pytest.raises(CampaignError, match=r"unreadable campaign spec \('seed'\)"):
+        open_campaign(tmp_path, spec, RandomWalkSpec.from_json)
+
+
 def test_a_format_1_random_walk_folder_is_read_as_its_parameters(tmp_path: Path) -> None:
-    spec = RandomWalkSpec(uavs=3, area_m=30.0, avoidance=False, length_s=10.0)
-    kw = dict(workers=1, logs=0, progress=False)
-    run_campaign(tmp_path, spec, trials=1, **kw)
+    spec = RandomWalkSpec(run=RunSettings(avoidance=False), uavs=3, area_m=30.0,
+                          length_s=10.0)
+    one = Execution(workers=1, progress=False)
+    run_campaign(tmp_path, spec, one, trials=1, logs=0)
     new = json.loads((tmp_path / CAMPAIGN_FILE).read_text())
     (tmp_path / CAMPAIGN_FILE).write_text(json.dumps(
         {"format": 1, "version": "0.0.9", "parameters": new["spec"]}))
-    assert run_campaign(tmp_path, spec, trials=2, **kw)["trials"] == 2
+    assert run_campaign(tmp_path, spec, one, trials=2, logs=0)["trials"] == 2
     with pytest.raises(CampaignError, match="other parameters"):
-        run_campaign(tmp_path, dataclasses.replace(spec, length_s=11.0), trials=2, **kw)
+        run_campaign(tmp_path, dataclasses.replace(spec, length_s=11.0), one, trials=2, logs=0)
 
 
 def _records(out: Path) -> list[dict]:

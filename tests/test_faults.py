@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from uavmpc.apps.campaign import RandomWalkSpec, run_campaign
+from uavmpc.apps.campaign import Execution, RandomWalkSpec, run_campaign
 from uavmpc.apps.cli import main
 from uavmpc.config import ConfigError
 from uavmpc.drivers.summary import RunSummary
@@ -15,7 +15,7 @@ from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.faults import Faults, FaultSpec, draw_faults
 from uavmpc.scenarios.random_walk import random_walk, waypoints_reached
-from uavmpc.scenarios.run import RunSpec
+from uavmpc.scenarios.run import RunSettings, RunSpec
 
 IDS = [f"uav{i}" for i in range(1, 6)]
 
@@ -99,8 +99,9 @@ def test_waypoints_reached_counts_misses() -> None:
 def test_a_campaign_with_faults_records_them_and_counts_goals(tmp_path) -> None:
     spec = FaultSpec(clock_offset_s=0.5, time_reference="receive", burst_len=3.0,
                      non_cooperative=1, silent=1)
-    campaign = RandomWalkSpec(length_s=20.0, link=LinkSettings(loss=0.3), faults=spec)
-    r = run_campaign(tmp_path / "c", campaign, trials=2, workers=1, progress=False)
+    campaign = RandomWalkSpec(run=RunSettings(link=LinkSettings(loss=0.3), faults=spec),
+                              length_s=20.0)
+    r = run_campaign(tmp_path / "c", campaign, Execution(workers=1, progress=False), trials=2)
     assert r["parameters"]["faults"] == spec.active()
     assert r["waypoints_due"] > 0 and 0 <= r["waypoints_reached"] <= r["waypoints_due"]
     trials = [json.loads(line) for line in (tmp_path / "c" / "trials.jsonl").read_text()
@@ -109,11 +110,12 @@ def test_a_campaign_with_faults_records_them_and_counts_goals(tmp_path) -> None:
     assert all(len(t["faults"]["clock_offsets_s"]) == 5 for t in trials)
     assert "faults" in (tmp_path / "c" / "report.md").read_text()
     # The same campaign with 2 workers: the same records (but wall times).
-    r2 = run_campaign(tmp_path / "c2", campaign, trials=2, workers=2, progress=False)
+    r2 = run_campaign(tmp_path / "c2", campaign, Execution(workers=2, progress=False),
+                      trials=2)
     assert r2["min_distance_m"] == r["min_distance_m"]
     assert r2["waypoints_reached"] == r["waypoints_reached"]
     with pytest.raises(ConfigError, match="burst-loss needs a loss rate"):
-        RandomWalkSpec(faults=FaultSpec(burst_len=3.0))
+        RandomWalkSpec(run=RunSettings(faults=FaultSpec(burst_len=3.0)))
 
 
 def test_the_fault_flags_reach_a_run(tmp_path, capsys) -> None:

@@ -1,6 +1,7 @@
 """The campaign beside a published result: bootstrap intervals on our percentiles, the reference
 design's Table II as data, and the walk variants that test what explains the difference."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from uavmpc.scenarios.random_walk import (
     random_walk,
     walk_start_s,
 )
+from uavmpc.scenarios.run import RunSettings
 from uavmpc.scenarios.stats import bootstrap_interval, percentile
 
 
@@ -95,7 +97,7 @@ def test_the_report_sets_our_percentiles_and_intervals_beside_the_published_ones
     # 200 trials: first collisions at 1, 2, ..., 200 s (a trial per second)
     recs = [{"index": i, "first_collision_s": float(i + 1), "min_distance_m": 0.9,
              "sim_s": float(i + 1), "collisions": 1, "wall_s": 0.0} for i in range(200)]
-    params = RandomWalkSpec(avoidance=False).to_json()
+    params = RandomWalkSpec(run=RunSettings(avoidance=False)).to_json()
     report = aggregate(recs, params, 0.0)
     report["reference"] = PublishedResult.load("table2").to_json()
     ci = report["time_to_first_collision_ci95_s"]
@@ -192,9 +194,9 @@ def test_counting_after_the_first_waypoint_ignores_earlier_collisions() -> None:
     """5 UAVs in a 14 m square collide within seconds; counted from the first waypoints' end,
     the first collision counted comes after it, and the flight goes on through the earlier
     ones."""
-    plain = RandomWalkSpec(uavs=5, area_m=14.0, avoidance=False, length_s=60.0, seed=1)
-    late = RandomWalkSpec(uavs=5, area_m=14.0, avoidance=False, length_s=60.0, seed=1,
-                          walk=WalkVariant(count_after_first=True))
+    plain = RandomWalkSpec(run=RunSettings(avoidance=False, seed=1), uavs=5, area_m=14.0,
+                           length_s=60.0)
+    late = dataclasses.replace(plain, walk=WalkVariant(count_after_first=True))
     assert late.to_json()["walk"] == {"count_after_first": True}
     assert RandomWalkSpec.from_json(late.to_json()) == late
     sc = random_walk(5, 14.0, 10.0, 60.0, trial_seeds_of(late, 0),
@@ -207,7 +209,7 @@ def test_counting_after_the_first_waypoint_ignores_earlier_collisions() -> None:
 def trial_seeds_of(spec: RandomWalkSpec, index: int) -> int:
     from uavmpc.apps.campaign import trial_seeds
 
-    return trial_seeds(spec.seed, index)[0]
+    return trial_seeds(spec.run.seed, index)[0]
 
 
 def test_the_campaign_cli_sets_its_report_beside_table_ii_or_a_file_or_nothing(

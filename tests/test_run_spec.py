@@ -18,7 +18,7 @@ from uavmpc.drivers.world import World
 from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.faults import Faults, FaultSpec
 from uavmpc.scenarios.random_walk import random_walk
-from uavmpc.scenarios.run import RunSpec
+from uavmpc.scenarios.run import RunChanges, RunSettings, RunSettingsChanges, RunSpec
 
 
 @pytest.mark.parametrize(("changes", "named"), [
@@ -73,9 +73,10 @@ def test_from_spec_flies_what_the_world_flies_given_the_same_settings_by_hand() 
 
 
 def test_a_campaign_trial_is_a_run_spec_rebuilt_alike_from_campaign_json() -> None:
-    spec = RandomWalkSpec(uavs=3, length_s=30.0, seed=7, wind_mps=1.0,
-                          link=LinkSettings(loss=0.1), launch_check_s=4.0,
-                          faults=FaultSpec(clock_offset_s=0.3))
+    spec = RandomWalkSpec(run=RunSettings(seed=7, wind_mps=1.0, link=LinkSettings(loss=0.1),
+                                          launch_check_s=4.0,
+                                          faults=FaultSpec(clock_offset_s=0.3)),
+                          uavs=3, length_s=30.0)
     reloaded = RandomWalkSpec.from_json(json.loads(json.dumps(spec.to_json())))
     a, b = trial_run(spec, 2), trial_run(reloaded, 2)
     for name in ("avoidance", "seed", "link", "faults", "wind_mps", "launch_check_s",
@@ -85,6 +86,59 @@ def test_a_campaign_trial_is_a_run_spec_rebuilt_alike_from_campaign_json() -> No
     assert [u.start_m for u in a.scenario.uavs] == [u.start_m for u in b.scenario.uavs]
     assert a.launch_check_s == 4.0 and a.wind_mps == 1.0 and a.flight_s == 30.0
     assert trial_run(spec, 3).seed != a.seed
+    # the template's fields but the seed and the length, as the campaign gave them
+    for f in dataclasses.fields(RunSettings):
+        if f.name not in ("seed", "duration_s"):
+            assert getattr(a, f.name) == getattr(spec.run, f.name), f.name
+
+
+def test_run_changes_name_every_field_of_the_spec() -> None:
+    """RunSpec.replace is typed by RunChanges: a field added to one and not the other would
+    go unchecked by mypy."""
+    assert set(RunChanges.__annotations__) == {f.name for f in dataclasses.fields(RunSpec)}
+    assert set(RunSettingsChanges.__annotations__) == {
+        f.name for f in dataclasses.fields(RunSettings)}
+    assert {f.name for f in dataclasses.fields(RunSpec)} == {
+        "scenario", *(f.name for f in dataclasses.fields(RunSettings))}
+
+
+@pytest.mark.parametrize(("changes", "named"), [
+    ({"seed": -1}, "seed"), ({"avoidance": "yes"}, "avoidance"), ({"wind_mps": 31.0}, "wind_mps"),
+    ({"duration_s": -1.0}, "duration_s"), ({"launch_check_s": -1.0}, "launch_check_s"),
+    ({"launch_check_s": 12.0, "duration_s": 10.0}, r"launch_check_s: .*the flight's 10 s"),
+    ({"link": LinkSettings(jitter_s=-1.0)}, r"link\.jitter_s"), ({"faults": None}, "faults"),
+    ({"drawn": Faults.given(gnss="rtk"), "faults": FaultSpec(gnss="single")}, "faults"),
+])
+def test_a_template_refuses_what_no_scenario_could_fly(changes: dict, named: str) -> None:
+    with pytest.raises(ConfigError, match=named):
+        RunSettings(**changes)
+    with pytest.raises(ConfigError, match=named):
+        RunSettings().replace(**changes)
+
+
+def test_a_template_meets_its_scenario_in_for_scenario() -> None:
+    """What needs the scenario is checked when a template becomes a spec: the faults against
+    its UAVs and link, the launch check within its flight, the given faults' UAV ids."""
+    sc = scenarios.load("swap_through_static")  # 3 UAVs, 50 s
+    template = RunSettings(seed=3, wind_mps=1.5, link=LinkSettings(loss=0.1),
+                           faults=FaultSpec(clock_offset_s=0.2), launch_check_s=5.0)
+    spec = template.for_scenario(sc)
+    assert spec.scenario is sc and isinstance(spec, RunSettings)
+    by_hand = RunSpec(sc, seed=3, wind_mps=1.5, link=LinkSettings(loss=0.1),
+                      faults=FaultSpec(clock_offset_s=0.2), launch_check_s=5.0)
+    assert spec.describe() == by_hand.describe()
+    assert spec.flown.faults == by_hand.flown.faults
+    assert spec != by_hand and spec == spec  # a flight is equal to itself only
+    for bad, named in [(RunSettings(faults=FaultSpec(non_cooperative=3)), "non_cooperative"),
+                       (RunSettings(launch_check_s=60.0), r"the flight's 50 s\], got 60"),
+                       (RunSettings(faults=FaultSpec(burst_len=2.0)), "--burst-loss"),
+                       (RunSettings(drawn=Faults.given(non_cooperative=["uav9"])), "'uav9'")]:
+        with pytest.raises(ConfigError, match=named):
+            bad.for_scenario(sc)
+    # a longer flight than the scenario's holds a longer launch check
+    assert RunSettings(launch_check_s=60.0, duration_s=70.0).for_scenario(sc).flight_s == 70.0
+    with pytest.raises(ConfigError, match="scenario: must be a Scenario"):
+        template.for_scenario("swap_through_static")  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(("changes", "named"), [

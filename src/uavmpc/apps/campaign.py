@@ -55,11 +55,11 @@ import numpy as np
 from uavmpc.apps.campaign_engine import (
     TRIALS_FILE,
     CampaignError,
+    Execution,
     Task,
     iter_trials,
     load_records,
     run_trials,
-    split_cores,
 )
 from uavmpc.apps.published import PublishedResult
 from uavmpc.avoidance import AvoidanceParams
@@ -72,7 +72,7 @@ from uavmpc.scenarios.random_walk import (
     SPEED_MPS,
     WalkVariant,
 )
-from uavmpc.scenarios.run import RunSpec
+from uavmpc.scenarios.run import RunSettings, RunSpec
 from uavmpc.scenarios.stats import bootstrap_interval, percentile
 
 if TYPE_CHECKING:
@@ -94,25 +94,24 @@ def trial_seeds(seed: int, index: int) -> tuple[int, int]:
 @dataclass(frozen=True)
 class RandomWalkSpec:
     """What every trial of a random-walk campaign flies (validated, frozen; its ``to_json`` is
-    the campaign's ``campaign.json`` spec and the report's ``parameters``)."""
+    the campaign's ``campaign.json`` spec and the report's ``parameters``): the run settings
+    ``run`` over a random walk of its own."""
 
     kind: ClassVar[str] = "random_walk"
 
+    #: How every trial flies (avoidance, link, faults, wind, launch check), its seed the
+    #: campaign's: a trial flies it over its own walk with seeds of its own (:func:`trial_run`).
+    #: Its link is latency, jitter and loss (a burst length comes with the faults; None: the
+    #: walk's); its faults are drawn per trial and its length is ``length_s``, so neither
+    #: ``drawn`` nor ``duration_s`` is given.
+    run: RunSettings = field(default_factory=RunSettings)
     uavs: int = 5
     area_m: float = 100.0
     height_m: float = 10.0
-    avoidance: bool = True
-    seed: int = 0
-    #: Latency, jitter and loss (a burst length comes with the faults).
-    link: LinkSettings = field(default_factory=LinkSettings)
-    wind_mps: float = 0.0
     #: With avoidance: every trial's length; without: its cap (it ends at its first collision).
     length_s: float = 600.0
-    faults: FaultSpec = field(default_factory=FaultSpec)
     #: The avoidance parameters every UAV flies (a fault's time reference over them).
     avoidance_params: AvoidanceParams = field(default_factory=AvoidanceParams)
-    #: The world's launch check (longest wait at the start [s]; None: set off at once).
-    launch_check_s: float | None = None
     #: Start on the ground and take off to ``height_m`` before the walk (False: start in the
     #: air at ``height_m``, the protocol as it was).
     ground_start: bool = False
@@ -121,25 +120,16 @@ class RandomWalkSpec:
     walk: WalkVariant = field(default_factory=WalkVariant)
 
     def __post_init__(self) -> None:
-        for name in ("uavs", "seed"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int):
-                raise CampaignError(f"{name}: must be an integer, got {v!r}")
-        if not 2 <= self.uavs <= 1000:
+        self._check_run()
+        if isinstance(self.uavs, bool) or not isinstance(self.uavs, int) or not (
+                2 <= self.uavs <= 1000):
             raise CampaignError(f"uavs: must be an integer in [2, 1000], got {self.uavs!r}")
-        if self.seed < 0:
-            raise CampaignError(f"seed: must be a non-negative integer, got {self.seed!r}")
+        length = "trial_s" if self.run.avoidance else "cap_s"  # the flag that sets it
         for name in ("length_s", "area_m", "height_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
-                shown = {"length_s": "trial_s" if self.avoidance else "cap_s"}.get(name, name)
-                raise CampaignError(f"{shown}: must be > 0, got {v}")
-        if not (math.isfinite(self.wind_mps) and self.wind_mps >= 0):
-            raise CampaignError(f"wind: must be ≥ 0, got {self.wind_mps}")
-        lc = self.launch_check_s
-        if lc is not None and not (math.isfinite(lc) and 0.0 <= lc <= self.length_s):
-            raise CampaignError(f"launch check: must be a time in [0, the trial's length] [s], "
-                                f"got {lc!r}")
+                raise CampaignError(f"{length if name == 'length_s' else name}: must be > 0, "
+                                    f"got {v}")
         if not isinstance(self.ground_start, bool):
             raise CampaignError(f"ground_start: must be true or false, got "
                                 f"{self.ground_start!r}")
@@ -153,27 +143,55 @@ class RandomWalkSpec:
 
             walk = walk_start_s(self.height_m) + (self.uavs - 1) * self.walk.takeoff_interval_s
             if walk >= self.length_s:
-                shown = "trial_s" if self.avoidance else "cap_s"
-                raise CampaignError(f"{shown}: {self.length_s:g} s ends before the walk, which "
+                raise CampaignError(f"{length}: {self.length_s:g} s ends before the walk, which "
                                     f"begins {walk:.2f} s after the start from the ground")
-        self.faults.check(self.uavs, self.link.loss)
+        try:  # what a trial's RunSpec would refuse, refused before any trial flies
+            self.run.check_flight(self.uavs, self.link, self.length_s)
+        except ConfigError as exc:
+            raise CampaignError(str(exc)) from None
+
+    def _check_run(self) -> None:
+        """Refuse a template that ``campaign.json`` could not hold; give it the walk's link."""
+        if type(self.run) is not RunSettings:  # a RunSpec's scenario would be ignored
+            raise CampaignError(f"run: must be RunSettings (the template every trial flies), "
+                                f"got {type(self.run).__name__}")
+        if self.run.drawn is not None:
+            raise CampaignError("run.drawn: a campaign draws each trial's faults from "
+                                "run.faults and the trial's seed; give none")
+        if self.run.duration_s is not None:
+            raise CampaignError(f"run.duration_s: a trial's length is length_s; give none, "
+                                f"got {self.run.duration_s!r}")
+        link = self.run.link
+        if link is None:  # the walk's, written out so that campaign.json reads back the same
+            object.__setattr__(self, "run", self.run.replace(link=LinkSettings()))
+        elif link.range_m or link.burst_len:
+            raise CampaignError(f"run.link: a campaign's link is its latency, jitter and loss "
+                                f"(a burst length comes with run.faults), got range_m="
+                                f"{link.range_m:g}, burst_len={link.burst_len:g}")
+
+    @property
+    def link(self) -> LinkSettings:
+        """The link every trial flies (the template's, the walk's when it gave none)."""
+        return self.run.link or LinkSettings()
 
     def to_json(self) -> dict[str, Any]:
         """The parameters that define the trials (``campaign.json``, the report)."""
+        run = self.run
+        # flat, the run settings beside the walk's: the format of every campaign before
         params: dict[str, Any] = {
             "scenario": "random_walk", "uavs": self.uavs, "area_m": float(self.area_m),
-            "height_m": float(self.height_m), "avoidance": bool(self.avoidance),
-            "seed": self.seed, "loss": self.link.loss, "latency_s": self.link.latency_s,
-            "jitter_s": self.link.jitter_s, "wind_mps": float(self.wind_mps),
+            "height_m": float(self.height_m), "avoidance": bool(run.avoidance),
+            "seed": run.seed, "loss": self.link.loss, "latency_s": self.link.latency_s,
+            "jitter_s": self.link.jitter_s, "wind_mps": float(run.wind_mps),
         }
         # only the length that applies defines the trials
-        params["trial_s" if self.avoidance else "cap_s"] = float(self.length_s)
-        if self.faults.active():  # a clean campaign's parameters stay what they were
-            params["faults"] = self.faults.active()
+        params["trial_s" if run.avoidance else "cap_s"] = float(self.length_s)
+        if run.faults.active():  # a clean campaign's parameters stay what they were
+            params["faults"] = run.faults.active()
         if changed_fields(self.avoidance_params):
             params["avoidance_params"] = changed_fields(self.avoidance_params)
-        if self.launch_check_s is not None:
-            params["launch_check_s"] = float(self.launch_check_s)
+        if run.launch_check_s is not None:
+            params["launch_check_s"] = float(run.launch_check_s)
         if self.ground_start:  # absent: started in the air, as every campaign before it
             params["ground_start"] = True
         if self.walk.changed():  # absent: the protocol's walk
@@ -185,18 +203,19 @@ class RandomWalkSpec:
         """The spec of :meth:`to_json`'s dictionary (a campaign.json's)."""
         avoid = bool(params["avoidance"])
         lc = params.get("launch_check_s")
-        return cls(
-            uavs=params["uavs"], area_m=float(params["area_m"]),
-            height_m=float(params["height_m"]), avoidance=avoid, seed=params["seed"],
+        run = RunSettings(
+            avoidance=avoid, seed=params["seed"],
             link=LinkSettings.from_dict({"loss": params["loss"],
                                          "latency_s": params["latency_s"],
                                          "jitter_s": params["jitter_s"]}),
-            wind_mps=float(params["wind_mps"]),
+            wind_mps=float(params["wind_mps"]), faults=FaultSpec(**params.get("faults", {})),
+            launch_check_s=None if lc is None else float(lc))
+        return cls(
+            run=run, uavs=params["uavs"], area_m=float(params["area_m"]),
+            height_m=float(params["height_m"]),
             length_s=float(params["trial_s" if avoid else "cap_s"]),
-            faults=FaultSpec(**params.get("faults", {})),
             avoidance_params=avoidance_params(params.get("avoidance_params", {}),
                                               "avoidance_params"),
-            launch_check_s=None if lc is None else float(lc),
             ground_start=params.get("ground_start", False),
             walk=WalkVariant.from_dict(params.get("walk", {})))
 
@@ -207,25 +226,23 @@ class RandomWalkSpec:
         return results[0]
 
     def foreign(self, index: int, record: dict[str, Any]) -> str | None:
-        if (record.get("scenario_seed"), record.get("world_seed")) != trial_seeds(self.seed,
-                                                                                  index):
-            return f"has seeds that do not derive from the campaign seed {self.seed}"
+        seed = self.run.seed
+        if (record.get("scenario_seed"), record.get("world_seed")) != trial_seeds(seed, index):
+            return f"has seeds that do not derive from the campaign seed {seed}"
         return None
 
 
 def trial_run(spec: RandomWalkSpec, index: int) -> RunSpec:
-    """Trial ``index`` of ``spec`` as the world flies it: its random walk (from the ground
-    with ``ground_start``), link, faults, wind and launch check, seeded from the campaign's
-    seed (:func:`trial_seeds`)."""
+    """Trial ``index`` of ``spec`` as the world flies it: the campaign's run settings over the
+    trial's random walk (from the ground with ``ground_start``) for ``length_s``, seeded from
+    the campaign's seed (:func:`trial_seeds`)."""
     from uavmpc.scenarios.random_walk import random_walk
 
-    scenario_seed, world_seed = trial_seeds(spec.seed, index)
+    scenario_seed, world_seed = trial_seeds(spec.run.seed, index)
     sc = random_walk(spec.uavs, spec.area_m, spec.height_m, spec.length_s, scenario_seed,
                      link=spec.link, ground_start=spec.ground_start, variant=spec.walk)
-    return RunSpec(dataclasses.replace(sc, avoidance=spec.avoidance_params),
-                   avoidance=spec.avoidance, seed=world_seed, link=spec.link,
-                   faults=spec.faults, wind_mps=spec.wind_mps,
-                   launch_check_s=spec.launch_check_s, duration_s=spec.length_s)
+    trial = spec.run.replace(seed=world_seed, duration_s=spec.length_s)
+    return trial.for_scenario(dataclasses.replace(sc, avoidance=spec.avoidance_params))
 
 
 def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) -> dict[str, Any]:
@@ -234,7 +251,7 @@ def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) ->
     from uavmpc.drivers.world import World
 
     wall0 = time.perf_counter()
-    scenario_seed, world_seed = trial_seeds(spec.seed, index)
+    scenario_seed, world_seed = trial_seeds(spec.run.seed, index)
     run = trial_run(spec, index)
     recorder = None
     if log_path is not None:
@@ -248,7 +265,7 @@ def run_trial(spec: RandomWalkSpec, index: int, log_path: Path | None = None) ->
         flown, extra = _fly_trial(spec, run.scenario, world)
         record = {"index": index, "scenario_seed": scenario_seed, "world_seed": world_seed,
                   **flown, "wall_s": time.perf_counter() - wall0, **extra}
-        if spec.faults.active():
+        if spec.run.faults.active():
             record["faults"] = run.flown.faults.summary()
         return record
     finally:
@@ -262,7 +279,7 @@ def _fly_trial(spec: RandomWalkSpec, sc: Scenario, world: World
     from uavmpc.scenarios.random_walk import waypoints_reached
 
     count_from = float(getattr(sc, "count_from_s", 0.0))  # earlier collisions count for nothing
-    if spec.avoidance:
+    if spec.run.avoidance:
         res = world.run(spec.length_s)
         collisions = [(c.t, c.a, c.b, c.distance_m) for c in res.collisions
                       if c.t >= count_from]
@@ -291,7 +308,7 @@ def _fly_trial(spec: RandomWalkSpec, sc: Scenario, world: World
             collisions = [c for c in collisions if c[0] <= sim_s + 1e-9]
     first = collisions[0] if collisions else None
     extra: dict[str, Any] = {}
-    if spec.avoidance:  # without, a trial ends at its first collision: no goals to count
+    if spec.run.avoidance:  # without, a trial ends at its first collision: no goals to count
         reached, due = waypoints_reached(sc, res.t_s, res.positions_m)
         extra = {"waypoints_reached": reached, "waypoints_due": due}
     return {
@@ -533,41 +550,42 @@ def _figures(out: Path, selected: list[dict[str, Any]], report: dict[str, Any]) 
 def run_campaign(
     out_dir: str | Path,
     spec: RandomWalkSpec,
+    execution: Execution,
     *,
     hours: float | None = None,
     trials: int | None = None,
-    workers: int | None = None,
-    threads: int | None = None,
-    ray_address: str | None = None,
-    progress: bool = True,
     logs: int = 3,
     reference: str | Path | None = "table2",
 ) -> dict[str, Any]:
     """Run (or continue) the random-walk campaign ``spec`` in ``out_dir``; returns the report.
 
-    ``spec`` is what every trial flies (:class:`RandomWalkSpec`: UAVs, area, avoidance, link,
-    wind, trial length, seed, faults, avoidance parameters, launch check, start, walk); the
-    keywords say how much to fly and how. Stops after ``trials`` trials, or once the trials
-    cover ``hours`` of flight (the smallest prefix of trials, by index, whose flight time
-    reaches it). ``workers`` processes each fly a trial's world on ``threads`` threads
-    (:func:`~uavmpc.apps.campaign_engine.split_cores`; the report does not depend on them),
-    or Ray at ``ray_address``. ``logs``: the ``logs`` trials with the closest approach are
-    re-flown from their seeds into flight logs (``logs/trial_<index>.mcap``; a full
-    campaign's would be gigabytes), linked from ``report.html``. ``reference``: the published
-    result the report is set beside (:class:`~uavmpc.apps.published.PublishedResult`:
-    ``table2``, the reference design's, or a TOML file; None: none).
+    ``spec`` is what every trial flies (:class:`RandomWalkSpec`: the run settings, UAVs, area,
+    trial length, avoidance parameters, start, walk); ``execution`` how the trials are flown
+    (:class:`~uavmpc.apps.campaign_engine.Execution`: workers, threads, Ray, progress; the
+    report does not depend on it); the keywords how much to fly and what to write. Stops
+    after ``trials`` trials, or once the trials cover ``hours`` of flight (the smallest prefix
+    of trials, by index, whose flight time reaches it). ``logs``: the ``logs`` trials with
+    the closest approach are re-flown from their seeds into flight logs
+    (``logs/trial_<index>.mcap``; a full campaign's would be gigabytes), linked from
+    ``report.html``. ``reference``: the published result the report is set beside
+    (:class:`~uavmpc.apps.published.PublishedResult`: ``table2``, the reference design's, or
+    a TOML file; None: none).
     """
     if not isinstance(spec, RandomWalkSpec):
         raise CampaignError(f"spec: must be a RandomWalkSpec, got {type(spec).__name__}")
+    if not isinstance(execution, Execution):
+        raise CampaignError(f"execution: must be an Execution, got {type(execution).__name__}")
     _check_size(hours=hours, trials=trials, logs=logs)
     published = None if reference is None else PublishedResult.load(reference)
-    workers, threads = split_cores(workers, threads, say=progress)
+    workers, threads = execution.cores()
+    progress = execution.progress
     out = Path(out_dir)
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
     selected = run_trials(out, spec, RandomWalkSpec.from_json, trials=trials,
                           target_s=target_s, max_trial_s=spec.length_s, workers=workers,
-                          threads=threads, ray_address=ray_address, progress=progress)
+                          threads=threads, ray_address=execution.ray_address,
+                          progress=progress)
     from uavmpc.apps.campaign_engine import campaign_wall_s
 
     flown_s = sum(r["sim_s"] for r in selected)
@@ -582,7 +600,7 @@ def run_campaign(
 
 def load_trials(out_dir: str | Path, seed: int) -> dict[int, dict[str, Any]]:
     """The finished trials of the random-walk campaign seeded ``seed`` in ``out_dir``."""
-    return load_records(out_dir, RandomWalkSpec(seed=seed).foreign)
+    return load_records(out_dir, RandomWalkSpec(run=RunSettings(seed=seed)).foreign)
 
 
 def _write_report(out: Path, selected: list[dict[str, Any]], spec: RandomWalkSpec,
@@ -678,6 +696,17 @@ def build_parser_campaign(
         "campaign", help="statistical campaign (resumable): many seeded random_walk trials, "
                          "many landings on the moving deck, or dense traffics flown with and "
                          "without avoidance")
+    _add_campaign_arguments(p)
+    add_execution_arguments(p)
+    _add_random_walk_arguments(p)
+    _add_walk_arguments(p)
+    add_fault_arguments(p)
+    p.set_defaults(func=campaign_command)
+    return p
+
+
+def _add_campaign_arguments(p: argparse.ArgumentParser) -> None:
+    """What every kind of campaign flies, how many and where it is kept."""
     p.add_argument("kind", choices=["random-walk", "landing", "traffic"],
                    help="the campaign's scenario")
     p.add_argument("--scenario", default="moving_target_landing",
@@ -695,16 +724,29 @@ def build_parser_campaign(
     stop.add_argument("--hours", type=float, help="total simulated flight hours")
     stop.add_argument("--trials", type=int, help="number of trials")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None,
+                   help="campaign folder (default out/campaign-{with,without}-avoidance, "
+                        "out/campaign-landing, out/campaign-traffic); re-run the same command "
+                        "to continue it")
+
+
+def add_execution_arguments(p: argparse.ArgumentParser) -> None:
+    """How the trials are flown (:func:`execution_of`): workers, threads, Ray, progress."""
     p.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: CPU count, or the cores left by "
                         "--threads)")
     p.add_argument("--threads", type=int, default=None,
                    help="threads each trial's world ticks on (default: the cores left by "
                         "--workers, at least 1); the records do not depend on it")
-    p.add_argument("--out", default=None,
-                   help="campaign folder (default out/campaign-{with,without}-avoidance, "
-                        "out/campaign-landing, out/campaign-traffic); re-run the same command "
-                        "to continue it")
+    p.add_argument("--ray", default=None, metavar="ADDRESS",
+                   help="run the trials on Ray ('auto', 'local' or ray://host:port); "
+                        "pip install 'uavmpc[cluster]'")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def _add_random_walk_arguments(p: argparse.ArgumentParser) -> None:
+    """A random-walk campaign's own: its link, wind, length, area, avoidance, start, logs and
+    the published result beside it."""
     p.add_argument("--loss", type=float, default=0.0, help="message loss probability")
     p.add_argument("--latency", type=float, default=0.05, help="link latency [s]")
     p.add_argument("--wind", type=float, default=0.0, help="mean wind along x [m/s]")
@@ -716,10 +758,6 @@ def build_parser_campaign(
     p.add_argument("--avoidance-file", default=None, metavar="TOML",
                    help="random-walk: fly the [avoidance] table of this file (any "
                         "AvoidanceParams field) instead of the defaults")
-    p.add_argument("--ray", default=None, metavar="ADDRESS",
-                   help="run the trials on Ray ('auto', 'local' or ray://host:port); "
-                        "pip install 'uavmpc[cluster]'")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--ground-start", action="store_true",
                    help="random-walk: every UAV starts on the ground and takes off vertically "
                         "to the walk's height before its walk, as the reference design's "
@@ -728,6 +766,14 @@ def build_parser_campaign(
     p.add_argument("--logs", type=int, default=3, metavar="N",
                    help="random-walk: re-fly the N trials with the closest approach into "
                         "flight logs linked from report.html (default 3)")
+    p.add_argument("--reference", default="table2", metavar="TABLE",
+                   help="random-walk: the published result the report is set beside: 'table2' "
+                        "(the reference design's Table II, default), a TOML file in its "
+                        "format, or 'none'")
+
+
+def _add_walk_arguments(p: argparse.ArgumentParser) -> None:
+    """How a random walk departs from the protocol (:func:`walk_variant`)."""
     w = p.add_argument_group("random-walk: how the walk departs from the protocol (the start "
                              "hypotheses of docs/campaign.md; default: it does not)")
     w.add_argument("--paper-start", action="store_true",
@@ -747,13 +793,6 @@ def build_parser_campaign(
                    help=f"the walk's horizontal acceleration limit (default {ACCEL_MPS2:g})")
     w.add_argument("--count-after-first-waypoint", action="store_true",
                    help="count no collision before every UAV's first waypoint was due")
-    p.add_argument("--reference", default="table2", metavar="TABLE",
-                   help="random-walk: the published result the report is set beside: 'table2' "
-                        "(the reference design's Table II, default), a TOML file in its "
-                        "format, or 'none'")
-    add_fault_arguments(p)
-    p.set_defaults(func=campaign_command)
-    return p
 
 
 def add_fault_arguments(p: argparse.ArgumentParser) -> None:
@@ -785,10 +824,16 @@ def fault_spec(args: argparse.Namespace) -> FaultSpec:
                      non_cooperative=args.non_cooperative, silent=args.silent)
 
 
+def execution_of(args: argparse.Namespace) -> Execution:
+    """The :class:`~uavmpc.apps.campaign_engine.Execution` of the flags of
+    :func:`add_execution_arguments`."""
+    return Execution(workers=args.workers, threads=args.threads, ray_address=args.ray,
+                     progress=not args.no_progress)
+
+
 def _run_from_args(out: str, args: argparse.Namespace) -> dict[str, Any]:
-    return run_campaign(out, campaign_spec(args), hours=args.hours, trials=args.trials,
-                        workers=args.workers, threads=args.threads, ray_address=args.ray,
-                        progress=not args.no_progress, logs=args.logs,
+    return run_campaign(out, campaign_spec(args), execution_of(args), hours=args.hours,
+                        trials=args.trials, logs=args.logs,
                         reference=None if args.reference == "none" else args.reference)
 
 
@@ -800,15 +845,41 @@ def campaign_spec(args: argparse.Namespace) -> RandomWalkSpec:
         if not (math.isfinite(v) and v > 0):
             raise CampaignError(f"{name}: must be > 0, got {v}")
     faults = fault_spec(args)
-    return RandomWalkSpec(
-        uavs=5 if args.uavs is None else args.uavs, area_m=args.area, avoidance=args.avoidance,
-        seed=args.seed,
-        link=LinkSettings.from_dict({"loss": args.loss, "latency_s": args.latency,
-                                     "jitter_s": LinkSettings().jitter_s}),
-        wind_mps=args.wind, length_s=float(args.trial_s if args.avoidance else args.cap_s),
-        faults=faults, avoidance_params=_avoidance(avoidance_file(args.avoidance_file), faults),
-        launch_check_s=None if args.launch_check is None else float(args.launch_check),
-        ground_start=args.ground_start, walk=walk_variant(args))
+    run = run_settings(args, faults)
+    params = _avoidance(avoidance_file(args.avoidance_file), faults)
+    walk = walk_variant(args)
+    try:
+        return RandomWalkSpec(
+            run=run, uavs=5 if args.uavs is None else args.uavs, area_m=args.area,
+            length_s=float(args.trial_s if args.avoidance else args.cap_s),
+            avoidance_params=params, ground_start=args.ground_start, walk=walk)
+    except ConfigError as e:  # the run settings checked against the trials
+        raise _by_flag(e) from None
+
+
+#: Each RunSettings field's flag (the link's are named by LinkSettings).
+_RUN_FLAGS = {"seed": "--seed", "wind_mps": "--wind", "launch_check_s": "--launch-check"}
+
+
+def _by_flag(e: ConfigError) -> CampaignError:
+    """``e`` with the :class:`RunSettings` field it names replaced by that field's flag."""
+    msg = str(e)
+    name = msg.split(":", 1)[0]
+    return CampaignError(msg.replace(name, _RUN_FLAGS[name], 1) if name in _RUN_FLAGS else msg)
+
+
+def run_settings(args: argparse.Namespace, faults: FaultSpec) -> RunSettings:
+    """The :class:`~uavmpc.scenarios.run.RunSettings` every trial of ``campaign random-walk``
+    flies (a bad value fails here, named by its flag)."""
+    try:
+        return RunSettings(
+            avoidance=args.avoidance, seed=args.seed,
+            link=LinkSettings.from_dict({"loss": args.loss, "latency_s": args.latency,
+                                         "jitter_s": LinkSettings().jitter_s}),
+            wind_mps=args.wind, faults=faults,
+            launch_check_s=None if args.launch_check is None else float(args.launch_check))
+    except ConfigError as e:
+        raise _by_flag(e) from None
 
 
 #: Each WalkVariant field's flag.
@@ -939,6 +1010,7 @@ def campaign_command(args: argparse.Namespace) -> int:
 
 __all__ = [
     "CampaignError",
+    "Execution",
     "RandomWalkSpec",
     "aggregate",
     "build_parser_campaign",

@@ -249,6 +249,39 @@ def split_cores(workers: int | None, threads: int | None, *,
     return workers, threads
 
 
+@dataclass(frozen=True)
+class Execution:
+    """How a campaign's trials are flown, not what they fly (its records do not depend on it):
+    ``workers`` local processes, each ticking a trial's world on ``threads`` threads (None:
+    :func:`split_cores` chooses), or on Ray at ``ray_address`` ('auto', 'local' or
+    ray://host:port); ``progress``: a progress bar and what the campaign does on stderr.
+    Validated when made; the threads against this machine's cores when the trials start
+    (:meth:`cores`), as the cores are the flying machine's."""
+
+    workers: int | None = None
+    threads: int | None = None
+    ray_address: str | None = None
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.workers is not None:
+            check_workers(self.workers)
+        t = self.threads
+        if t is not None and (isinstance(t, bool) or not isinstance(t, int) or t < 1):
+            raise CampaignError(f"threads: must be an integer ≥ 1, got {t!r}")
+        if self.ray_address is not None and (not isinstance(self.ray_address, str)
+                                             or not self.ray_address.strip()):
+            raise CampaignError(f"ray_address: must be 'auto', 'local' or ray://host:port, "
+                                f"got {self.ray_address!r}")
+        if not isinstance(self.progress, bool):
+            raise CampaignError(f"progress: must be true or false, got {self.progress!r}")
+
+    def cores(self) -> tuple[int, int]:
+        """(workers, threads per worker) on this machine (:func:`split_cores`; said on
+        stderr with ``progress``)."""
+        return split_cores(self.workers, self.threads, say=self.progress)
+
+
 def executor(*, ray_address: str | None, workers: int, threads: int = 1) -> Executor:
     """Where tasks run: Ray, this process (one worker) or a local pool; each task's world
     ticks on ``threads`` threads."""

@@ -353,9 +353,11 @@ def campaign_tables() -> dict[str, list[tuple[str, str]]]:
     from uavmpc.apps.traffic_campaign import TrafficSpec
     from uavmpc.avoidance import AvoidanceParams
     from uavmpc.scenarios.faults import FaultSpec
+    from uavmpc.scenarios.run import RunSettings
 
     full = {
-        "random_walk": {**RandomWalkSpec(faults=FaultSpec(gnss="rtk"), launch_check_s=1.0,
+        "random_walk": {**RandomWalkSpec(run=RunSettings(faults=FaultSpec(gnss="rtk"),
+                                                         launch_check_s=1.0),
                                          avoidance_params=AvoidanceParams(radius_m=6.0),
                                          ground_start=True)
                         .to_json(), **{"cap_s": 0.0}},

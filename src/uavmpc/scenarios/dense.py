@@ -33,7 +33,7 @@ from uavmpc.reference import Reference
 from uavmpc.scenarios import LinkSettings, Scenario, UavSpec
 
 if TYPE_CHECKING:
-    from uavmpc.drivers.world_report import WorldResult
+    from uavmpc.scenarios.run import Flight
 
 #: Same tolerance as the world's ``reached_goal`` (uavmpc.drivers.world.GOAL_TOLERANCE_M; not
 #: imported from there: the drivers import the scenarios; a test checks they agree).
@@ -220,7 +220,7 @@ def antipodal_toml(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
     return "\n".join(lines) + "\n"
 
 
-def time_to_goals(result: WorldResult, scenario: Scenario, *, settled: bool = True,
+def time_to_goals(result: Flight, scenario: Scenario, *, settled: bool = True,
                   tolerance_m: float = GOAL_TOLERANCE_M) -> dict[str, float | None]:
     """Per UAV id, when it reached its goal [s, the world's clock], from
     ``result.positions_m`` (K, N, 3) and ``result.t_s`` (K,) of a

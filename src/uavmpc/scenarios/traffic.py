@@ -77,7 +77,7 @@ from uavmpc.scenarios.stats import percentile
 from uavmpc.tracker.params import DynamicLimits
 
 if TYPE_CHECKING:
-    from uavmpc.drivers.world_report import WorldResult
+    from uavmpc.scenarios.run import Flight
 
 DEFAULT_UAVS = 300
 DEFAULT_DENSITY_PER_KM2 = 50.0
@@ -343,7 +343,7 @@ def traffic(n_uavs: int = DEFAULT_UAVS, seed: int = 0, *,
 
 
 # ------------------------------------------------------------------------------ outcome
-def arrival_times(result: WorldResult, scenario: TrafficScenario) -> dict[str, float | None]:
+def arrival_times(result: Flight, scenario: TrafficScenario) -> dict[str, float | None]:
     """Per UAV: the first sample time it was within :data:`ARRIVAL_TOLERANCE_M` of its goal
     (3-D), or None if never."""
     index = {uid: k for k, uid in enumerate(result.uav_ids)}
@@ -356,7 +356,7 @@ def arrival_times(result: WorldResult, scenario: TrafficScenario) -> dict[str, f
     return out
 
 
-def trip_times(result: WorldResult, scenario: TrafficScenario) -> dict[str, float | None]:
+def trip_times(result: Flight, scenario: TrafficScenario) -> dict[str, float | None]:
     """Per UAV: its trip time, from its scheduled departure to its first arrival within
     :data:`ARRIVAL_TOLERANCE_M` of its goal [s] (None if it never came that close)."""
     arrive = arrival_times(result, scenario)
@@ -367,7 +367,7 @@ def trip_times(result: WorldResult, scenario: TrafficScenario) -> dict[str, floa
     return trips
 
 
-def airborne_counts(result: WorldResult, scenario: TrafficScenario) -> np.ndarray:
+def airborne_counts(result: Flight, scenario: TrafficScenario) -> np.ndarray:
     """(K,) how many UAVs are airborne at each sample: more than :data:`AIRBORNE_HEIGHT_M`
     above both its pads (all pads of a scenario are at one height)."""
     pad_z = np.array([u.start_m[2] for u in scenario.uavs])
@@ -376,7 +376,7 @@ def airborne_counts(result: WorldResult, scenario: TrafficScenario) -> np.ndarra
     return np.asarray(np.count_nonzero(z > pad_z[None, :] + AIRBORNE_HEIGHT_M, axis=1))
 
 
-def traffic_outcome(result: WorldResult, scenario: TrafficScenario) -> dict[str, Any]:
+def traffic_outcome(result: Flight, scenario: TrafficScenario) -> dict[str, Any]:
     """The traffic's figures from a :class:`~uavmpc.drivers.world.WorldResult` of
     ``scenario``: collisions, closest approach, goals reached, trip times, airborne density."""
     n = len(scenario.uavs)
