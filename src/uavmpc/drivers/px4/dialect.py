@@ -158,14 +158,19 @@ class OdometryMsg(Protocol):
     pose_covariance: Sequence[float]
 
 
-class LocalPositionNedMsg(Protocol):
-    time_boot_ms: int
+class _NedPositionVelocity(Protocol):
+    """A position and velocity in PX4's local NED frame [m, m/s]."""
+
     x: float
     y: float
     z: float
     vx: float
     vy: float
     vz: float
+
+
+class LocalPositionNedMsg(_NedPositionVelocity, Protocol):
+    time_boot_ms: int
 
 
 class AttitudeQuaternionMsg(Protocol):
@@ -204,15 +209,9 @@ class SetAttitudeTargetMsg(Protocol):
     thrust: float
 
 
-class SetPositionTargetLocalNedMsg(Protocol):
+class SetPositionTargetLocalNedMsg(_NedPositionVelocity, Protocol):
     coordinate_frame: int
     type_mask: int
-    x: float
-    y: float
-    z: float
-    vx: float
-    vy: float
-    vz: float
     afx: float
     afy: float
     afz: float
