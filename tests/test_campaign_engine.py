@@ -26,6 +26,8 @@ from uavmpc.scenarios.random_walk import WalkVariant
 from uavmpc.scenarios.run import RunSettings
 from uavmpc.scenarios.stats import percentile
 
+#: One local worker, nothing said on stderr.
+ONE = Execution(workers=1, progress=False)
 SPECS = [
     RandomWalkSpec(run=RunSettings(
         avoidance=True, seed=9, link=LinkSettings(latency_s=0.2, jitter_s=0.01, loss=0.3),
@@ -77,7 +79,7 @@ def test_an_old_or_unknown_campaign_file_is_refused_naming_its_format(tmp_path: 
     old.mkdir()
     (old / "trials.jsonl").write_text('{"index": 0}\n')
     with pytest.raises(CampaignError, match=r"holds trials but no campaign\.json"):
-        landing.run_landing_campaign(old, trials=1, duration_s=1.0, workers=1)
+        landing.run_landing_campaign(old, trials=1, duration_s=1.0, execution=ONE)
 
 
 #: A random walk's campaign.json spec as written before its run settings became a template
@@ -120,14 +122,13 @@ def test_a_random_walk_written_before_the_run_template_reads_back_and_continues(
 def test_a_format_1_random_walk_folder_is_read_as_its_parameters(tmp_path: Path) -> None:
     spec = RandomWalkSpec(run=RunSettings(avoidance=False), uavs=3, area_m=30.0,
                           length_s=10.0)
-    one = Execution(workers=1, progress=False)
-    run_campaign(tmp_path, spec, one, trials=1, logs=0)
+    run_campaign(tmp_path, spec, ONE, trials=1, logs=0)
     new = json.loads((tmp_path / CAMPAIGN_FILE).read_text())
     (tmp_path / CAMPAIGN_FILE).write_text(json.dumps(
         {"format": 1, "version": "0.0.9", "parameters": new["spec"]}))
-    assert run_campaign(tmp_path, spec, one, trials=2, logs=0)["trials"] == 2
+    assert run_campaign(tmp_path, spec, ONE, trials=2, logs=0)["trials"] == 2
     with pytest.raises(CampaignError, match="other parameters"):
-        run_campaign(tmp_path, dataclasses.replace(spec, length_s=11.0), one, trials=2, logs=0)
+        run_campaign(tmp_path, dataclasses.replace(spec, length_s=11.0), ONE, trials=2, logs=0)
 
 
 def _records(out: Path) -> list[dict]:
@@ -154,7 +155,7 @@ class _Interrupt:
 
 def test_a_landing_campaign_resumes_where_it_was_interrupted(tmp_path: Path,
                                                              monkeypatch) -> None:
-    kw = dict(trials=3, seed=5, duration_s=6.0, workers=1)
+    kw = dict(trials=3, seed=5, duration_s=6.0, execution=ONE)
     whole = landing.run_landing_campaign(tmp_path / "whole", **kw)
     real = landing.landing_trial
     # the first call is the scenario check before the campaign; Ctrl-C in the third trial
@@ -172,7 +173,7 @@ def test_a_landing_campaign_resumes_where_it_was_interrupted(tmp_path: Path,
 
 def test_a_traffic_campaign_resumes_where_it_was_interrupted(tmp_path: Path,
                                                              monkeypatch) -> None:
-    kw = dict(trials=2, uavs=4, seed=2, duration_s=4.0, workers=1)
+    kw = dict(trials=2, uavs=4, seed=2, duration_s=4.0, execution=ONE)
     whole = traffic.run_traffic_campaign(tmp_path / "whole", **kw)
     real = traffic.traffic_flight
     monkeypatch.setattr(traffic, "traffic_flight", _Interrupt(real, 4))  # trial 1's 2nd side

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from uavmpc.apps.campaign_engine import Execution
 from uavmpc.apps.cli import main
 from uavmpc.apps.traffic_campaign import run_traffic_campaign
 from uavmpc.config import ConfigError
@@ -169,8 +170,8 @@ def test_cli_run_traffic_with_two_layers_and_without_a_log_above_the_limit(tmp_p
 
 def test_campaign_flies_each_trial_with_and_without_avoidance(tmp_path, capsys) -> None:
     out = tmp_path / "api"
-    r = run_traffic_campaign(out, trials=1, uavs=8, seed=1, workers=1,
-                             scenario_options=SMALL)
+    r = run_traffic_campaign(out, trials=1, uavs=8, seed=1, scenario_options=SMALL,
+                             execution=Execution(workers=1, progress=False))
     lines = (out / "trials.jsonl").read_text().splitlines()
     assert len(lines) == 1
     trial = json.loads(lines[0])

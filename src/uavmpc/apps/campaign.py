@@ -577,15 +577,14 @@ def run_campaign(
         raise CampaignError(f"execution: must be an Execution, got {type(execution).__name__}")
     _check_size(hours=hours, trials=trials, logs=logs)
     published = None if reference is None else PublishedResult.load(reference)
-    workers, threads = execution.cores()
+    execution = execution.on_this_machine()
+    workers, threads = execution.counts
     progress = execution.progress
     out = Path(out_dir)
     target_s = None if hours is None else float(hours) * 3600.0
     wall0 = time.perf_counter()
-    selected = run_trials(out, spec, RandomWalkSpec.from_json, trials=trials,
-                          target_s=target_s, max_trial_s=spec.length_s, workers=workers,
-                          threads=threads, ray_address=execution.ray_address,
-                          progress=progress)
+    selected = run_trials(out, spec, RandomWalkSpec.from_json, execution, trials=trials,
+                          target_s=target_s, max_trial_s=spec.length_s)
     from uavmpc.apps.campaign_engine import campaign_wall_s
 
     flown_s = sum(r["sim_s"] for r in selected)
@@ -923,8 +922,7 @@ def _landing_command(args: argparse.Namespace) -> int:
     out = args.out or "out/campaign-landing"
     r = _interruptible(out, lambda: run_landing_campaign(
         out, trials=args.trials, seed=args.seed, scenario=args.scenario,
-        speed_kmh=args.speed_kmh, duration_s=args.duration, workers=args.workers,
-        threads=args.threads, ray_address=args.ray, progress=not args.no_progress))
+        speed_kmh=args.speed_kmh, duration_s=args.duration, execution=execution_of(args)))
     if r is None:
         return 130
     t = r["time_to_land_s"]
@@ -949,8 +947,7 @@ def _traffic_command(args: argparse.Namespace) -> int:
     out = args.out or "out/campaign-traffic"
     r = _interruptible(out, lambda: run_traffic_campaign(
         out, trials=args.trials, uavs=300 if args.uavs is None else args.uavs, seed=args.seed,
-        duration_s=args.duration, workers=args.workers, threads=args.threads,
-        ray_address=args.ray, progress=not args.no_progress))
+        duration_s=args.duration, execution=execution_of(args)))
     if r is None:
         return 130
     print("\n".join(report_lines(r)))

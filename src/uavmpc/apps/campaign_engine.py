@@ -21,6 +21,7 @@ or on interruptions.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import dataclasses
 import json
 import math
 import multiprocessing as mp
@@ -281,6 +282,20 @@ class Execution:
         stderr with ``progress``)."""
         return split_cores(self.workers, self.threads, say=self.progress)
 
+    def on_this_machine(self) -> Execution:
+        """This execution with its workers and threads as :meth:`cores` chooses them here."""
+        workers, threads = self.cores()
+        return dataclasses.replace(self, workers=workers, threads=threads)
+
+    @property
+    def counts(self) -> tuple[int, int]:
+        """(workers, threads) as set (1 where not: :meth:`on_this_machine` sets both)."""
+        return self.workers or 1, self.threads or 1
+
+
+#: The default of a campaign flown from code: the machine's cores, nothing said on stderr.
+QUIET = Execution(progress=False)
+
 
 def executor(*, ray_address: str | None, workers: int, threads: int = 1) -> Executor:
     """Where tasks run: Ray, this process (one worker) or a local pool; each task's world
@@ -532,29 +547,28 @@ def _execute(out: Path, run: _Run, ex: Executor) -> None:
     run.progress.end()
 
 
-def run_trials(out: Path, spec: CampaignSpec, load: Callable[[dict[str, Any]], CampaignSpec], *,
-               trials: int | None, target_s: float | None = None,
-               max_trial_s: float = math.inf, workers: int, threads: int = 1,
-               ray_address: str | None = None, progress: bool = False
-               ) -> list[dict[str, Any]]:
-    """Open (or continue) the campaign ``spec`` in ``out`` and fly its missing trials; the
-    records of the selection (``trials`` of them, or the shortest prefix whose ``sim_s`` reach
+def run_trials(out: Path, spec: CampaignSpec, load: Callable[[dict[str, Any]], CampaignSpec],
+               execution: Execution, *, trials: int | None, target_s: float | None = None,
+               max_trial_s: float = math.inf) -> list[dict[str, Any]]:
+    """Open (or continue) the campaign ``spec`` in ``out`` and fly its missing trials as
+    ``execution`` says (its cores chosen: :meth:`Execution.on_this_machine`); the records of
+    the selection (``trials`` of them, or the shortest prefix whose ``sim_s`` reach
     ``target_s``; ``max_trial_s``: a trial's longest ``sim_s``), sorted by index."""
+    workers, threads = execution.counts
     open_campaign(out, spec, load)
     done = load_records(out, spec.foreign)
     wall0 = time.perf_counter()
     if not selected(done, trials, target_s)[1]:
-        ex = executor(ray_address=ray_address, workers=workers, threads=threads)
+        ex = executor(ray_address=execution.ray_address, workers=workers, threads=threads)
         before = len(done)
         try:
-            _execute(out, _Run(spec, done, trials, target_s, max_trial_s, Progress(progress)),
-                     ex)
+            _execute(out, _Run(spec, done, trials, target_s, max_trial_s,
+                               Progress(execution.progress)), ex)
         finally:  # also when interrupted: the time was spent on this campaign
             with open(out / RUNS_FILE, "a") as f:
                 append(f, {"wall_s": time.perf_counter() - wall0,
                             "new_trials": len(done) - before, "workers": workers,
-                            "threads": threads,
-                            "ray": ray_address})
+                            "threads": threads, "ray": execution.ray_address})
     chosen, complete = selected(done, trials, target_s)
     assert complete
     return chosen

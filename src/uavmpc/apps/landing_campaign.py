@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from uavmpc import scenarios
-from uavmpc.apps.campaign_engine import Task, run_trials, split_cores
+from uavmpc.apps.campaign_engine import QUIET, Execution, Task, run_trials
 from uavmpc.config import ConfigError
 from uavmpc.plant.ground_vehicle import KMH, GroundVehicle
 from uavmpc.scenarios.run import RunSpec
@@ -145,19 +145,17 @@ def landing_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
 def run_landing_campaign(out: str | Path, *, trials: int, seed: int = 0,
                          scenario: str = "moving_target_landing",
                          speed_kmh: float | None = None, duration_s: float | None = None,
-                         workers: int | None = None, threads: int | None = None,
-                         ray_address: str | None = None, progress: bool = False
-                         ) -> dict[str, Any]:
-    """Fly (or continue) ``trials`` landings (``workers`` processes of ``threads`` threads, or
-    Ray at ``ray_address``) and write trials.jsonl, report.json; return the report."""
+                         execution: Execution = QUIET) -> dict[str, Any]:
+    """Fly (or continue) ``trials`` landings as ``execution`` says (local processes or Ray;
+    default: the machine's cores, no progress shown) and write trials.jsonl, report.json;
+    return the report."""
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ConfigError(f"--trials: must be ≥ 1, got {trials}")
     spec = LandingSpec(scenario, seed, speed_kmh, duration_s)
-    workers, threads = split_cores(workers, threads, say=progress)
+    execution = execution.on_this_machine()
     landing_trial(scenario, 0, seed, speed_kmh, 0.1)  # a bad scenario fails here, at once
     out = Path(out)
-    results = run_trials(out, spec, LandingSpec.from_json, trials=trials, workers=workers,
-                         threads=threads, ray_address=ray_address, progress=progress)
+    results = run_trials(out, spec, LandingSpec.from_json, execution, trials=trials)
     report = {"scenario": scenario, "seed": seed, **landing_report(results)}
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     return report

@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from uavmpc.apps.campaign_engine import Task, campaign_wall_s, run_trials, split_cores
+from uavmpc.apps.campaign_engine import QUIET, Execution, Task, campaign_wall_s, run_trials
 from uavmpc.config import ConfigError
 from uavmpc.scenarios.run import RunSpec
 from uavmpc.scenarios.stats import percentile
@@ -169,13 +169,12 @@ def traffic_report(trials: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def run_traffic_campaign(out: str | Path, *, trials: int, uavs: int = 300, seed: int = 0,
-                         duration_s: float | None = None, workers: int | None = None,
-                         threads: int | None = None, scenario_options: dict[str, Any] | None = None,
-                         ray_address: str | None = None,
-                         progress: bool = False) -> dict[str, Any]:
-    """Fly (or continue) ``trials`` traffics with and without avoidance (``workers``
-    processes, or Ray at ``ray_address``); write trials.jsonl (one line per trial, both sides)
-    and report.json; return the report.
+                         duration_s: float | None = None,
+                         scenario_options: dict[str, Any] | None = None,
+                         execution: Execution = QUIET) -> dict[str, Any]:
+    """Fly (or continue) ``trials`` traffics with and without avoidance as ``execution`` says
+    (local processes or Ray; default: the machine's cores, no progress shown); write
+    trials.jsonl (one line per trial, both sides) and report.json; return the report.
 
     ``duration_s``: simulated seconds per flight (default: each scenario's, long enough for
     every trip); ``scenario_options``: more keyword arguments of
@@ -183,19 +182,17 @@ def run_traffic_campaign(out: str | Path, *, trials: int, uavs: int = 300, seed:
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ConfigError(f"--trials: must be an integer ≥ 1, got {trials!r}")
     spec = TrafficSpec(uavs, seed, duration_s, tuple((scenario_options or {}).items()))
-    if workers is not None and not (isinstance(workers, int) and workers >= 1):
-        raise ConfigError(f"--workers: must be ≥ 1, got {workers}")
-    workers, threads = split_cores(workers, threads, say=progress)
+    execution = execution.on_this_machine()
     for i in range(trials):  # a layout that cannot be drawn fails here, before any flight
         traffic(uavs, trial_seeds(seed, i)[0], duration_s=duration_s,
                 **(scenario_options or {}))
     out = Path(out)
     wall0 = time.perf_counter()
-    records = run_trials(out, spec, TrafficSpec.from_json, trials=trials, workers=workers,
-                         threads=threads, ray_address=ray_address, progress=progress)
+    records = run_trials(out, spec, TrafficSpec.from_json, execution, trials=trials)
     report = {"scenario": "traffic", "seed": seed, "options": scenario_options or {},
               **traffic_report(records),
-              "workers": workers, "threads": threads, "wall_s": campaign_wall_s(out, wall0)}
+              "workers": execution.counts[0], "threads": execution.counts[1],
+              "wall_s": campaign_wall_s(out, wall0)}
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
 
