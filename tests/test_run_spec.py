@@ -59,7 +59,7 @@ def test_the_faults_act_once_and_in_one_place() -> None:
     assert described["link"]["burst_len"] == 3.0 and described["duration_s"] == 20.0
 
 
-def test_from_spec_flies_what_the_world_flies_given_the_same_settings_by_hand() -> None:
+def test_a_spec_flies_what_its_faults_given_by_hand_fly() -> None:
     sc = random_walk(3, duration_s=8.0, seed=4)
     spec = RunSpec(sc, seed=5, link=LinkSettings(loss=0.3, latency_s=0.1), wind_mps=2.0,
                    faults=FaultSpec(clock_offset_s=0.2, non_cooperative=1), duration_s=6.0)

@@ -23,8 +23,9 @@ scenario's or the link's random streams, so a fault changes nothing else of a tr
 
 A spec acts in three places: the link (its burst length), the scenario (the time reference
 its avoidance judges ages by) and the world (offsets, GNSS, non-cooperative and silent UAVs:
-:func:`uavmpc.drivers.world.world_faults` of the draw). :func:`apply_faults` is the one place
-that splits it, for ``uavmpc run`` and every campaign.
+the draw, which :class:`uavmpc.drivers.world.World` reads from its run spec).
+:func:`apply_faults` is the one place that splits it, for ``uavmpc run`` and every campaign;
+:meth:`Faults.given` states a draw by hand (a test's, a replay's).
 """
 
 from __future__ import annotations
