@@ -146,7 +146,9 @@ class RandomWalkSpec:
                 raise CampaignError(f"{length}: {self.length_s:g} s ends before the walk, which "
                                     f"begins {walk:.2f} s after the start from the ground")
         try:  # what a trial's RunSpec would refuse, refused before any trial flies
-            self.run.check_flight(self.uavs, self.link, self.length_s)
+            from uavmpc.scenarios.random_walk import walk_ids
+
+            self.run.check_flight(walk_ids(self.uavs), "random_walk", self.link, self.length_s)
         except ConfigError as exc:
             raise CampaignError(str(exc)) from None
 

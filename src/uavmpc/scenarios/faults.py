@@ -185,6 +185,18 @@ def draw_faults(spec: FaultSpec, uav_ids: list[str], duration_s: float, start_s:
     return Faults(spec, offsets, non_coop, silent)
 
 
+def check_faults(spec: FaultSpec, given: Faults | None, uav_ids: Sequence[str],
+                 scenario_name: str, link_loss: float) -> None:
+    """Raise :class:`ConfigError` unless ``spec`` can act on the UAVs ``uav_ids`` of the
+    scenario ``scenario_name`` over a link losing ``link_loss``: drawn, it needs room among
+    them; ``given`` (:meth:`Faults.given`), any of them may be named, none other."""
+    if given is None:
+        spec.check(len(uav_ids), link_loss)
+    else:
+        spec.check_link(link_loss)
+        given.check_against(uav_ids, scenario_name)
+
+
 def apply_faults(spec: FaultSpec, scenario: Scenario, link: LinkSettings, *, duration_s: float,
                  seed: int, given: Faults | None = None
                  ) -> tuple[Scenario, LinkSettings, Faults]:
@@ -192,10 +204,8 @@ def apply_faults(spec: FaultSpec, scenario: Scenario, link: LinkSettings, *, dur
     reference, ``link`` with its burst length, and the faults drawn for a flight of
     ``duration_s`` from 0 with ``seed`` (or ``given``, :meth:`Faults.given`, whose spec
     ``spec`` is)."""
-    if given is None:
-        spec.check(len(scenario.uavs), link.loss)
-    else:  # given, not drawn: any UAVs may be named (Faults.check_against)
-        spec.check_link(link.loss)
+    ids = [u.uav_id for u in scenario.uavs]
+    check_faults(spec, given, ids, scenario.name, link.loss)
     if spec.burst_len:
         link = dataclasses.replace(link, burst_len=spec.burst_len)
     if spec.time_reference is not None:
@@ -203,8 +213,6 @@ def apply_faults(spec: FaultSpec, scenario: Scenario, link: LinkSettings, *, dur
         time_reference = cast(Literal["stamp", "receive"], spec.time_reference)
         scenario = dataclasses.replace(scenario, avoidance=dataclasses.replace(
             scenario.avoidance, time_reference=time_reference))
-    ids = [u.uav_id for u in scenario.uavs]
     if given is not None:
-        given.check_against(ids, scenario.name)
         return scenario, link, given
     return scenario, link, draw_faults(spec, ids, duration_s, 0.0, seed)

@@ -228,6 +228,11 @@ def _walks(starts: np.ndarray, rngs: list[np.random.Generator], half: float, hei
             for i in range(n)]
 
 
+def walk_ids(n_uavs: int) -> list[str]:
+    """The ids of a walk's ``n_uavs`` UAVs (their priorities in the same order)."""
+    return [f"uav{i + 1}" for i in range(n_uavs)]
+
+
 def random_walk(n_uavs: int = 5, area_m: float = 100.0, height_m: float = 10.0,
                 duration_s: float = 600.0, seed: int = 0, *,
                 link: LinkSettings | None = None,
@@ -263,9 +268,10 @@ def random_walk(n_uavs: int = 5, area_m: float = 100.0, height_m: float = 10.0,
     walks = _walks(starts, [np.random.default_rng(c) for c in children[1:]], half,
                    float(height_m), float(duration_s), ground_start, variant)
     uavs = []
+    ids = walk_ids(n_uavs)
     for i, (mission, wps) in enumerate(walks):
         goal = (float(wps[-1, 0]), float(wps[-1, 1]), float(height_m))
-        uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550",
+        uavs.append(UavSpec(ids[i], i + 1, "f550",
                             (float(starts[i, 0]), float(starts[i, 1]),
                              0.0 if ground_start else float(height_m)), 0.0,
                             mission, goal))

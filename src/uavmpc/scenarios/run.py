@@ -29,7 +29,7 @@ import numpy as np
 
 from uavmpc.config import ConfigError
 from uavmpc.scenarios import LinkSettings, Scenario
-from uavmpc.scenarios.faults import Faults, FaultSpec, apply_faults
+from uavmpc.scenarios.faults import Faults, FaultSpec, apply_faults, check_faults
 
 
 @dataclass(frozen=True)
@@ -126,16 +126,13 @@ class RunSettings:
             raise ConfigError(f"launch_check_s: the launch check's longest wait must be a "
                               f"time in [0, the flight's {flight_s:g} s], got {lc!r}")
 
-    def check_flight(self, n_uavs: int, link: LinkSettings, flight_s: float) -> None:
-        """Raise :class:`ConfigError` unless it can fly ``n_uavs`` UAVs over ``link`` (before
-        the faults' burst length) for ``flight_s`` [s]: what a scenario adds to the checks
-        (a given fault draw's UAV ids aside: :meth:`~uavmpc.scenarios.faults.Faults.
-        check_against`)."""
+    def check_flight(self, uav_ids: Sequence[str], scenario_name: str, link: LinkSettings,
+                     flight_s: float) -> None:
+        """Raise :class:`ConfigError` unless it can fly the UAVs ``uav_ids`` of the scenario
+        ``scenario_name`` over ``link`` (before the faults' burst length) for ``flight_s``
+        [s]: what a scenario adds to the checks."""
         self._check_launch_within(flight_s)
-        if self.drawn is None:
-            self.faults.check(n_uavs, link.loss)
-        else:  # given, not drawn: any UAVs may be named (Faults.check_against)
-            self.faults.check_link(link.loss)
+        check_faults(self.faults, self.drawn, uav_ids, scenario_name, link.loss)
 
     def replace(self, **changes: Unpack[RunSettingsChanges]) -> Self:
         """A copy with ``changes`` (validated again)."""
@@ -162,10 +159,8 @@ class RunSpec(RunSettings):
         if not isinstance(self.scenario, Scenario):
             raise ConfigError(f"scenario: must be a Scenario, got {type(self.scenario).__name__}")
         super().__post_init__()
-        if self.drawn is not None:
-            self.drawn.check_against([u.uav_id for u in self.scenario.uavs],
-                                     self.scenario.name)
-        self.check_flight(len(self.scenario.uavs), self.run_link, self.flight_s)
+        self.check_flight([u.uav_id for u in self.scenario.uavs], self.scenario.name,
+                          self.run_link, self.flight_s)
 
     @property
     def flight_s(self) -> float:
