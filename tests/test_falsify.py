@@ -143,3 +143,80 @@ def test_the_falsifier_s_case_of_a_uav_released_while_holding_keeps_2_m() -> Non
         faults=FaultSpec(clock_offset_s=0.5, gnss="single", burst_len=3.0))).run()
     assert not res.collisions
     assert float(res.min_distance_m.min()) >= 2.0
+
+
+@pytest.mark.parametrize("family", ["vertical", "grid", "walk"])
+def test_a_family_s_worst_case_replays_from_its_file_to_the_same_separation(
+        family: str, tmp_path: Path) -> None:
+    space = Space(uavs=3, area_m=30.0, duration_s=12.0, family=family)
+    outcomes = falsify(space, 3, seed=2, generation=2)
+    assert all(space.valid(np.array(o.theta)) for o in outcomes)
+    assert all(len(o.theta) == space.dims for o in outcomes)
+    paths = write_results(space, outcomes, tmp_path)
+    worst = min(outcomes, key=lambda o: o.min_distance_m)
+    head = paths[0].read_text().splitlines()
+    assert f"family {family}" in head[0] and f"--seed {worst.seed}" in head[1]
+    res = World(RunSpec(scenarios.load(paths[0]), seed=worst.seed)).run()
+    assert float(res.min_distance_m.min()) == pytest.approx(worst.min_distance_m, abs=1e-9)
+    assert json.loads((tmp_path / "cases.json").read_text())["space"]["family"] == family
+
+
+def test_the_vertical_family_stacks_columns_across_the_height_range() -> None:
+    space = Space(uavs=6, family="vertical")
+    theta = np.concatenate([[0.0, 0.5, 1.0, 0.5],  # two columns: x = -30 and 30 m, y = 0
+                            np.tile([0.0, 0.9, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0], (6, 1)).ravel()])
+    theta[4:].reshape(6, 8)[3:, 0:2] = [0.9, 0.0]  # uav4–6 from the east column to the west
+    theta[4:].reshape(6, 8)[:, 2] = [0.0, 0.5, 1.0, 0.0, 0.5, 1.0]  # start heights, in order
+    theta[4:].reshape(6, 8)[:, 3] = [1.0, 0.5, 0.0, 1.0, 0.5, 0.0]  # goal heights, inverted
+    starts, goals, _, _ = space.points(theta)
+    assert starts[:, 0].tolist() == [-30.0] * 3 + [30.0] * 3
+    assert goals[:, 0].tolist() == [30.0] * 3 + [-30.0] * 3
+    assert starts[:, 2].tolist() == [5.0, 12.5, 20.0] * 2  # 15 m spread, ≥ 5 m apart
+    assert goals[:, 2].tolist() == [20.0, 12.5, 5.0] * 2  # two stacks swap and invert
+    assert space.valid(theta)
+
+
+def test_the_grid_family_s_goals_are_the_grid_s_points_shuffled() -> None:
+    space = Space(uavs=6, family="grid", ceiling_m=25.0)
+    keys = [0.5, 0.1, 0.9, 0.3, 0.7, 0.2]  # their order: 1, 5, 3, 0, 4, 2
+    theta = np.column_stack([keys, np.zeros((6, 4))]).ravel()
+    starts, goals, _, _ = space.points(theta)
+    grid = [[-10.0, -5.0], [0.0, -5.0], [10.0, -5.0], [-10.0, 5.0], [0.0, 5.0], [10.0, 5.0]]
+    assert starts[:, :2].tolist() == grid
+    assert goals[:, :2].tolist() == [grid[k] for k in (1, 5, 3, 0, 4, 2)]
+    assert not space.valid(theta)  # uav5 flies to its own start: drawn again
+    keys = [0.9, 0.1, 0.2, 0.3, 0.4, 0.5]  # 1, 2, 3, 4, 5, 0: a cycle through all
+    assert space.valid(np.column_stack([keys, np.zeros((6, 4))]).ravel())
+
+
+def test_the_walk_family_flies_its_waypoints_in_one_band() -> None:
+    space = Space(uavs=2, family="walk")
+    theta = np.random.default_rng(0).random(space.dims)
+    data = tomllib.loads(space.toml(theta, "walk"))
+    for u in data["uavs"]:
+        w = np.array(u["path"]["waypoints"])
+        assert w.shape == (5, 3) and len(set(w[:, 2])) == 1
+        assert 11.5 <= w[0, 2] <= 13.5 and w[0].tolist() == u["start"]
+
+
+@pytest.mark.parametrize(("kw", "named"), [
+    ({"family": "spiral"}, "family"),
+    ({"family": "vertical", "uavs": 12, "min_height_m": 10.0, "max_height_m": 10.0},
+     "family vertical"),
+])
+def test_a_bad_family_names_the_problem(kw: dict, named: str) -> None:
+    with pytest.raises(ConfigError, match=named):
+        Space(**kw)
+
+
+@pytest.mark.parametrize(("argv", "named"), [
+    (["--family", "spiral"], "--family"),
+    (["--family", "vertical", "--uavs", "12", "--max-height", "5"], "family vertical"),
+    (["--family", "grid", "--max-height", "24"], "ceiling_m"),  # the grid's 25 m ceiling
+])
+def test_cli_family_mistakes_are_one_line(argv: list[str], named: str, capsys,
+                                          tmp_path) -> None:
+    assert main(["falsify", "--out", str(tmp_path / "f"), *argv]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert named in line
+    assert not (tmp_path / "f").exists()

@@ -891,13 +891,18 @@ def _add_falsify_parser(sub: Subparsers) -> None:
     f.add_argument("--generation", type=int, default=None,
                    help="cases per generation (default: a tenth of the budget, at least 4)")
     f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--family", default="straight",
+                   help="the scenarios searched: straight (one straight path each, anywhere), "
+                        "vertical (columns climbing and descending through each other), "
+                        "grid (a grid's points shuffled), walk (waypoints in one height band) "
+                        "(default straight; docs/falsify.md)")
     f.add_argument("--uavs", type=int, default=6, help="UAVs per case (default 6)")
     f.add_argument("--area", type=float, default=60.0,
                    help="side of the square starts and goals lie in [m] (default 60)")
     f.add_argument("--min-height", type=float, default=5.0, help="[m] (default 5)")
     f.add_argument("--max-height", type=float, default=20.0, help="[m] (default 20)")
-    f.add_argument("--ceiling", type=float, default=30.0,
-                   help="the geofence's ceiling [m] (default 30)")
+    f.add_argument("--ceiling", type=float, default=None,
+                   help="the geofence's ceiling [m] (default 30; the grid family's 25)")
     f.add_argument("--speed", type=float, default=5.0, help="cruise speed [m/s] (default 5)")
     f.add_argument("--duration", type=float, default=60.0,
                    help="simulated seconds per flight (default 60)")

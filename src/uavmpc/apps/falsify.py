@@ -9,6 +9,15 @@ a geofence whose ceiling is ``ceiling_m``; the link and the faults are the run's
 seed per case: the losses and the faults are drawn from it). A case whose starts or goals lie
 closer than :data:`MIN_GAP_M` is drawn again.
 
+That is the ``straight`` family, the default. The others (``--family``, :data:`FAMILIES`) map
+θ to other scenarios the same search runs over: ``vertical`` (UAVs in a few columns climbing
+and descending through each other's heights), ``grid`` (a grid's points shuffled among its
+UAVs, under a 25 m ceiling unless one is given) and ``walk`` (waypoints in one height band).
+Each says how many coordinates θ has (:meth:`Family.dims`), the case a θ is
+(:meth:`Family.plan`: each UAV's waypoints, delay and priority) and what it asks of a case
+besides the gaps (:meth:`Family.valid`); a space it cannot draw from is a ConfigError
+(:meth:`Family.check`). The scenario file is written the same way for all.
+
 The search is the cross-entropy method over θ, as falsification tools search the inputs of a
 closed loop for the lowest robustness of a property (here: the closest approach of any pair,
 and the highest altitude against the ceiling): a first generation drawn uniformly (random
@@ -31,6 +40,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -56,11 +66,257 @@ MIN_SPREAD = 0.03
 MAX_DRAWS = 1000
 #: The worst cases written as scenario files.
 KEEP = 5
+#: Two consecutive waypoints of a UAV closer than this are drawn again [m].
+MIN_LEG_M = 1.0
+#: family vertical: how far a UAV stands from its column's axis, at most, in x and in y [m].
+COLUMN_RADIUS_M = 1.0
+#: family grid: the grid's spacing [m] (``grid_shuffle``'s).
+GRID_SPACING_M = 10.0
+#: family walk: the waypoints each UAV flies to after its start.
+WALK_LEGS = 4
+#: family walk: the height band the walks fly in [m].
+WALK_BAND_M = 2.0
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a case flies: per UAV its waypoints (k ≥ 2, 3) [m], the first its start, when it
+    sets off after :data:`START_S` [s] and its priority (1…N)."""
+
+    paths: tuple[np.ndarray, ...]
+    delays: np.ndarray
+    priorities: np.ndarray
+
+
+def _priorities(keys: np.ndarray) -> np.ndarray:
+    """The priorities 1…N in the order of ``keys``."""
+    priorities = np.empty(len(keys), dtype=np.int64)
+    priorities[np.argsort(keys, kind="stable")] = np.arange(1, len(keys) + 1)
+    return priorities
+
+
+def _xy(u: np.ndarray, space: Space) -> np.ndarray:
+    """Unit coordinates (…, 2) as x, y in the square of ``area_m`` [m]."""
+    return (2.0 * u - 1.0) * (0.5 * space.area_m)
+
+
+def _z(u: np.ndarray, space: Space) -> np.ndarray:
+    """Unit coordinates as heights between ``min_height_m`` and ``max_height_m`` [m]."""
+    return space.min_height_m + u * (space.max_height_m - space.min_height_m)
+
+
+class Family(Protocol):
+    """A family of scenarios: how a θ of the unit cube is a case to fly."""
+
+    @property
+    def name(self) -> str:
+        """What ``--family`` calls it."""
+
+    @property
+    def ceiling_m(self) -> float:
+        """The geofence's ceiling unless one is given [m]."""
+
+    def dims(self, space: Space) -> int:
+        """The coordinates of θ."""
+
+    def check(self, space: Space) -> None:
+        """A ConfigError if no case of ``space`` can be drawn."""
+
+    def plan(self, space: Space, theta: np.ndarray) -> Plan:
+        """θ as the case to fly."""
+
+    def valid(self, space: Space, plan: Plan) -> bool:
+        """What the family asks of a case beyond the gaps :meth:`Space.valid` checks."""
+
+
+@dataclass(frozen=True)
+class Straight:
+    """Each UAV flies one straight path from its start to its goal, anywhere in the space.
+    θ per UAV: start x, y, z, goal x, y, z, delay, priority key."""
+
+    name: str = "straight"
+    ceiling_m: float = 30.0
+
+    def dims(self, space: Space) -> int:
+        return DIMS_PER_UAV * space.uavs
+
+    def check(self, space: Space) -> None:
+        """Nothing a straight case cannot fit (the draws say when the area is too small)."""
+
+    def plan(self, space: Space, theta: np.ndarray) -> Plan:
+        t = theta.reshape(space.uavs, DIMS_PER_UAV)
+        half = 0.5 * space.area_m
+        span = space.max_height_m - space.min_height_m
+
+        def place(u: np.ndarray) -> np.ndarray:
+            return np.column_stack([(2.0 * u[:, 0] - 1.0) * half, (2.0 * u[:, 1] - 1.0) * half,
+                                    space.min_height_m + u[:, 2] * span])
+
+        starts, goals = place(t[:, 0:3]), place(t[:, 3:6])
+        return Plan(tuple(np.array([s, g]) for s, g in zip(starts, goals, strict=True)),
+                    t[:, 6] * MAX_DELAY_S, _priorities(t[:, 7]))
+
+    def valid(self, space: Space, plan: Plan) -> bool:
+        """Nothing besides the gaps (today's search, bit for bit)."""
+        return True
+
+
+@dataclass(frozen=True)
+class Vertical:
+    """Heavy vertical traffic: the UAVs stand in :meth:`columns` columns (each at x, y from
+    θ), each UAV within :data:`COLUMN_RADIUS_M` of its column's axis, and each flies to a
+    column (its own or another) at a height across the whole range, so that paths climb and
+    descend through each other's heights (``vertical_swap``'s two stacks swapping places and
+    inverting their heights is one case). In a column the UAVs are stacked at least
+    :data:`MIN_GAP_M` apart in the order of their height keys. θ: per column x, y; then per
+    UAV start column, goal column, start height key, goal height key, x and y offset from
+    the axis, delay, priority key."""
+
+    name: str = "vertical"
+    ceiling_m: float = 30.0
+
+    @staticmethod
+    def columns(space: Space) -> int:
+        """Two columns, or one per three UAVs."""
+        return max(2, math.ceil(space.uavs / 3))
+
+    @staticmethod
+    def per_column(space: Space) -> int:
+        """The most UAVs a column stacks :data:`MIN_GAP_M` apart in the height range."""
+        return int((space.max_height_m - space.min_height_m) // MIN_GAP_M) + 1
+
+    def dims(self, space: Space) -> int:
+        return 2 * self.columns(space) + DIMS_PER_UAV * space.uavs
+
+    def check(self, space: Space) -> None:
+        c, m = self.columns(space), self.per_column(space)
+        if c * m < space.uavs:
+            raise ConfigError(
+                f"family vertical: {space.uavs} UAVs do not fit {c} columns of at most {m} "
+                f"each ({MIN_GAP_M:g} m apart between {space.min_height_m:g} and "
+                f"{space.max_height_m:g} m): widen the heights or fly fewer")
+
+    def plan(self, space: Space, theta: np.ndarray) -> Plan:
+        c = self.columns(space)
+        axes = _xy(theta[:2 * c].reshape(c, 2), space)
+        t = theta[2 * c:].reshape(space.uavs, DIMS_PER_UAV)
+        offset = (2.0 * t[:, 4:6] - 1.0) * COLUMN_RADIUS_M
+        ends = []
+        for col_key, height_key in ((0, 2), (1, 3)):
+            column = np.minimum((t[:, col_key] * c).astype(np.int64), c - 1)
+            z = self._stack(space, column, t[:, height_key])
+            ends.append(np.column_stack([axes[column] + offset, z]))
+        return Plan(tuple(np.array([s, g]) for s, g in zip(ends[0], ends[1], strict=True)),
+                    t[:, 6] * MAX_DELAY_S, _priorities(t[:, 7]))
+
+    @staticmethod
+    def _stack(space: Space, column: np.ndarray, keys: np.ndarray) -> np.ndarray:
+        """Heights [m]: in each column, its UAVs in the order of their keys, each at least
+        :data:`MIN_GAP_M` above the one below (less only if the range is too short, which
+        :meth:`check` refuses), the keys spreading them over the range."""
+        span = space.max_height_m - space.min_height_m
+        z = np.empty(len(keys))
+        for col in np.unique(column):
+            members = np.flatnonzero(column == col)
+            members = members[np.argsort(keys[members], kind="stable")]
+            gap = MIN_GAP_M if len(members) < 2 else min(MIN_GAP_M, span / (len(members) - 1))
+            free = span - gap * (len(members) - 1)
+            z[members] = (space.min_height_m + np.sort(keys[members]) * free
+                          + gap * np.arange(len(members)))
+        return z
+
+    def valid(self, space: Space, plan: Plan) -> bool:
+        """No UAV's goal within :data:`MIN_LEG_M` of its start."""
+        return _legs_ok(plan)
+
+
+@dataclass(frozen=True)
+class Grid:
+    """Starts on a grid of :data:`GRID_SPACING_M` around the origin (``grid_shuffle``'s),
+    UAV i at point i in rows of ⌈√N⌉; each flies straight to another UAV's start point: the
+    goals are the permutation of the goal keys' order, one without a fixed point (a case
+    with a UAV flying to its own start is drawn again). Under a lower ceiling by default
+    (25 m). θ per UAV: goal key, start height, goal height, delay, priority key."""
+
+    name: str = "grid"
+    ceiling_m: float = 25.0
+
+    def dims(self, space: Space) -> int:
+        return 5 * space.uavs
+
+    def check(self, space: Space) -> None:
+        """Any number of UAVs from 2 has a grid and a permutation without a fixed point."""
+
+    @staticmethod
+    def points(n: int) -> np.ndarray:
+        """The grid's first ``n`` points (n, 2) [m], rows of ⌈√n⌉ centred on the origin."""
+        cols = math.ceil(math.sqrt(n))
+        rows = math.ceil(n / cols)
+        k = np.arange(n)
+        return np.column_stack([GRID_SPACING_M * (k % cols - 0.5 * (cols - 1)),
+                                GRID_SPACING_M * (k // cols - 0.5 * (rows - 1))])
+
+    def plan(self, space: Space, theta: np.ndarray) -> Plan:
+        t = theta.reshape(space.uavs, 5)
+        grid = self.points(space.uavs)
+        goal_of = np.argsort(t[:, 0], kind="stable")
+        starts = np.column_stack([grid, _z(t[:, 1], space)])
+        goals = np.column_stack([grid[goal_of], _z(t[:, 2], space)])
+        return Plan(tuple(np.array([s, g]) for s, g in zip(starts, goals, strict=True)),
+                    t[:, 3] * MAX_DELAY_S, _priorities(t[:, 4]))
+
+    def valid(self, space: Space, plan: Plan) -> bool:
+        """Nobody's goal is its own start point."""
+        return all(np.linalg.norm(p[-1, :2] - p[0, :2]) > 1e-9 for p in plan.paths)
+
+
+@dataclass(frozen=True)
+class Walk:
+    """A random walk through the area in one height band (the reference protocol's, with
+    its waypoints searched): each UAV flies from its start through :data:`WALK_LEGS`
+    waypoints (x, y in the square of ``area_m``), all at its own height within
+    :data:`WALK_BAND_M` around the middle of the height range. θ per UAV: start x, y, each
+    waypoint's x, y, height, delay, priority key."""
+
+    name: str = "walk"
+    ceiling_m: float = 30.0
+    legs: int = WALK_LEGS
+
+    def dims(self, space: Space) -> int:
+        return (2 * self.legs + 5) * space.uavs
+
+    def check(self, space: Space) -> None:
+        """Any space has room for a walk (the draws say when the area is too small)."""
+
+    def plan(self, space: Space, theta: np.ndarray) -> Plan:
+        k = self.legs + 1
+        t = theta.reshape(space.uavs, 2 * k + 3)
+        middle = 0.5 * (space.min_height_m + space.max_height_m)
+        band = min(WALK_BAND_M, space.max_height_m - space.min_height_m)
+        z = middle + (t[:, 2 * k] - 0.5) * band
+        xy = _xy(t[:, :2 * k].reshape(space.uavs, k, 2), space)
+        paths = tuple(np.column_stack([xy[i], np.full(k, z[i])]) for i in range(space.uavs))
+        return Plan(paths, t[:, 2 * k + 1] * MAX_DELAY_S, _priorities(t[:, 2 * k + 2]))
+
+    def valid(self, space: Space, plan: Plan) -> bool:
+        """No two consecutive waypoints within :data:`MIN_LEG_M`."""
+        return _legs_ok(plan)
+
+
+def _legs_ok(plan: Plan) -> bool:
+    """No two consecutive waypoints of a UAV closer than :data:`MIN_LEG_M`."""
+    return all(float(np.linalg.norm(np.diff(w, axis=0), axis=1).min()) >= MIN_LEG_M
+               for w in plan.paths)
+
+
+#: The families by name (``--family``).
+FAMILIES: dict[str, Family] = {f.name: f for f in (Straight(), Vertical(), Grid(), Walk())}
 
 
 @dataclass(frozen=True)
 class Space:
-    """The scenario space searched (SI units, ENU)."""
+    """The scenario space searched (SI units, ENU): the settings every family shares, and
+    the family (:data:`FAMILIES`) that gives a θ as the case to fly."""
 
     uavs: int = 6
     area_m: float = 60.0
@@ -71,6 +327,7 @@ class Space:
     duration_s: float = 60.0
     link: LinkSettings = field(default_factory=LinkSettings)
     faults: FaultSpec = field(default_factory=FaultSpec)
+    family: str = "straight"
 
     def __post_init__(self) -> None:
         n = self.uavs
@@ -87,35 +344,49 @@ class Space:
         if not self.ceiling_m >= self.max_height_m + 2.0:
             raise ConfigError(f"ceiling_m: {self.ceiling_m} leaves no room above the highest "
                               f"start or goal ({self.max_height_m} m; need ≥ 2 m)")
+        if self.family not in FAMILIES:
+            raise ConfigError(f"family: {self.family!r} is not one of "
+                              f"{', '.join(FAMILIES)}")
+        self.shape.check(self)
+
+    @property
+    def shape(self) -> Family:
+        """The family that gives a θ as its case."""
+        return FAMILIES[self.family]
 
     @property
     def dims(self) -> int:
-        return DIMS_PER_UAV * self.uavs
+        return self.shape.dims(self)
+
+    def plan(self, theta: np.ndarray) -> Plan:
+        """θ as the case to fly."""
+        t = np.asarray(theta, dtype=float)
+        if t.shape != (self.dims,):
+            raise ConfigError(f"theta: family {self.family} of {self.uavs} UAVs has "
+                              f"{self.dims} coordinates, got shape {t.shape}")
+        return self.shape.plan(self, t)
 
     def points(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """θ (8N,) as (starts (N, 3), goals (N, 3), delays (N,) [s], priorities (N,) 1…N)."""
-        t = np.asarray(theta, dtype=float).reshape(self.uavs, DIMS_PER_UAV)
-        half = 0.5 * self.area_m
-        span = self.max_height_m - self.min_height_m
-
-        def place(u: np.ndarray) -> np.ndarray:
-            return np.column_stack([(2.0 * u[:, 0] - 1.0) * half, (2.0 * u[:, 1] - 1.0) * half,
-                                    self.min_height_m + u[:, 2] * span])
-
-        starts, goals = place(t[:, 0:3]), place(t[:, 3:6])
-        priorities = np.empty(self.uavs, dtype=np.int64)
-        priorities[np.argsort(t[:, 7], kind="stable")] = np.arange(1, self.uavs + 1)
-        return starts, goals, t[:, 6] * MAX_DELAY_S, priorities
+        """θ as (starts (N, 3), goals (N, 3), delays (N,) [s], priorities (N,) 1…N): each
+        UAV's first and last waypoint."""
+        p = self.plan(theta)
+        return (np.array([w[0] for w in p.paths]), np.array([w[-1] for w in p.paths]),
+                p.delays, p.priorities)
 
     def valid(self, theta: np.ndarray) -> bool:
-        """Starts and goals each at least :data:`MIN_GAP_M` apart."""
-        starts, goals, _, _ = self.points(theta)
-        return _closest(starts)[0] >= MIN_GAP_M and _closest(goals)[0] >= MIN_GAP_M
+        """Starts and goals each at least :data:`MIN_GAP_M` apart, and what the family asks
+        besides."""
+        p = self.plan(theta)
+        starts = np.array([w[0] for w in p.paths])
+        goals = np.array([w[-1] for w in p.paths])
+        return (_closest(starts)[0] >= MIN_GAP_M and _closest(goals)[0] >= MIN_GAP_M
+                and self.shape.valid(self, p))
 
     def toml(self, theta: np.ndarray, name: str, header: str = "") -> str:
         """Case θ as a scenario file (what is flown is what this file loads)."""
-        starts, goals, delays, priorities = self.points(theta)
-        half = 0.5 * self.area_m + 10.0
+        p = self.plan(theta)
+        reach = max(float(np.abs(w[:, :2]).max()) for w in p.paths)
+        half = max(0.5 * self.area_m, reach) + 10.0
         lines = [f"# {line}" for line in header.splitlines()]
         lines += [f'name = "{name}"', f"duration_s = {self.duration_s!r}", "",
                   "[link]", f"latency_s = {self.link.latency_s!r}",
@@ -123,13 +394,14 @@ class Space:
                   f"burst_len = {self.link.burst_len!r}", "",
                   "[geofence]", f"box = [{-half!r}, {-half!r}, {half!r}, {half!r}]",
                   "min_altitude_m = 0.0", f"max_altitude_m = {self.ceiling_m!r}"]
-        for i in range(self.uavs):
-            here = ", ".join(repr(round(float(v), 3)) for v in starts[i])
-            there = ", ".join(repr(round(float(v), 3)) for v in goals[i])
-            lines += ["", "[[uavs]]", f'id = "uav{i + 1}"', f"priority = {int(priorities[i])}",
-                      f"start = [{here}]", "[uavs.path]", f"waypoints = [[{here}], [{there}]]",
+        for i, path in enumerate(p.paths):
+            points = [", ".join(repr(round(float(v), 3)) for v in w) for w in path]
+            waypoints = ", ".join(f"[{w}]" for w in points)
+            lines += ["", "[[uavs]]", f'id = "uav{i + 1}"',
+                      f"priority = {int(p.priorities[i])}",
+                      f"start = [{points[0]}]", "[uavs.path]", f"waypoints = [{waypoints}]",
                       f"speed_mps = {self.speed_mps!r}",
-                      f"start_s = {round(START_S + float(delays[i]), 3)!r}"]
+                      f"start_s = {round(START_S + float(p.delays[i]), 3)!r}"]
         return "\n".join(lines) + "\n"
 
 
@@ -261,7 +533,8 @@ def write_results(space: Space, outcomes: list[Outcome], out: Path, *,
         path = out / f"worst_{rank}.toml"
         command = (f"uavmpc run {path} --seed {o.seed}" + (f" {flags}" if flags else "")
                    + ("" if avoidance else " --no-avoidance"))
-        header = (f"uavmpc falsify: worst case {rank} of {len(outcomes)} flights: "
+        family = "" if space.family == "straight" else f" (family {space.family})"
+        header = (f"uavmpc falsify{family}: worst case {rank} of {len(outcomes)} flights: "
                   f"{o.min_distance_m:.2f} m ({o.pair[0]}–{o.pair[1]} at {o.at_s:.1f} s), "
                   f"highest {o.top_m:.1f} m under a {space.ceiling_m:g} m ceiling.\n"
                   f"Replay: {command}")
@@ -299,8 +572,12 @@ def space_from_args(args: argparse.Namespace) -> Space:
     if args.launch_check is not None:
         raise ConfigError("--launch-check: the search flies every case with all UAVs "
                           "setting off at their times; it is not a dimension searched")
+    family = FAMILIES.get(args.family)
+    if family is None:
+        raise ConfigError(f"--family: {args.family!r} is not one of {', '.join(FAMILIES)}")
     link = LinkSettings.from_dict({"loss": args.loss, "latency_s": args.latency}, "link")
     return Space(uavs=args.uavs, area_m=args.area, min_height_m=args.min_height,
-                 max_height_m=args.max_height, ceiling_m=args.ceiling,
+                 max_height_m=args.max_height,
+                 ceiling_m=family.ceiling_m if args.ceiling is None else args.ceiling,
                  speed_mps=args.speed, duration_s=args.duration, link=link,
-                 faults=fault_spec(args))
+                 faults=fault_spec(args), family=family.name)
