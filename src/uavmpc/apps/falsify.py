@@ -145,12 +145,9 @@ class Straight:
 
     def plan(self, space: Space, theta: np.ndarray) -> Plan:
         t = theta.reshape(space.uavs, DIMS_PER_UAV)
-        half = 0.5 * space.area_m
-        span = space.max_height_m - space.min_height_m
 
         def place(u: np.ndarray) -> np.ndarray:
-            return np.column_stack([(2.0 * u[:, 0] - 1.0) * half, (2.0 * u[:, 1] - 1.0) * half,
-                                    space.min_height_m + u[:, 2] * span])
+            return np.column_stack([_xy(u[:, :2], space), _z(u[:, 2], space)])
 
         starts, goals = place(t[:, 0:3]), place(t[:, 3:6])
         return Plan(tuple(np.array([s, g]) for s, g in zip(starts, goals, strict=True)),
@@ -303,6 +300,11 @@ class Walk:
         return _legs_ok(plan)
 
 
+def _ends(plan: Plan) -> tuple[np.ndarray, np.ndarray]:
+    """Each UAV's first and last waypoint: (starts (N, 3), goals (N, 3)) [m]."""
+    return np.array([w[0] for w in plan.paths]), np.array([w[-1] for w in plan.paths])
+
+
 def _legs_ok(plan: Plan) -> bool:
     """No two consecutive waypoints of a UAV closer than :data:`MIN_LEG_M`."""
     return all(float(np.linalg.norm(np.diff(w, axis=0), axis=1).min()) >= MIN_LEG_M
@@ -370,15 +372,14 @@ class Space:
         """θ as (starts (N, 3), goals (N, 3), delays (N,) [s], priorities (N,) 1…N): each
         UAV's first and last waypoint."""
         p = self.plan(theta)
-        return (np.array([w[0] for w in p.paths]), np.array([w[-1] for w in p.paths]),
-                p.delays, p.priorities)
+        starts, goals = _ends(p)
+        return starts, goals, p.delays, p.priorities
 
     def valid(self, theta: np.ndarray) -> bool:
         """Starts and goals each at least :data:`MIN_GAP_M` apart, and what the family asks
         besides."""
         p = self.plan(theta)
-        starts = np.array([w[0] for w in p.paths])
-        goals = np.array([w[-1] for w in p.paths])
+        starts, goals = _ends(p)
         return (_closest(starts)[0] >= MIN_GAP_M and _closest(goals)[0] >= MIN_GAP_M
                 and self.shape.valid(self, p))
 
