@@ -54,3 +54,20 @@ def test_the_2x5_swap_checks_every_climb_and_holds_in_3d() -> None:
     assert not res.collisions, res.collisions
     assert float(res.min_distance_m.min()) > 1.0
     assert res.positions_m[:, :, 2].max() <= 42.0  # the ceiling, 12 m above the top
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_lossy_2x5_swap_holds_in_3d_without_a_collision(seed: int) -> None:
+    """30 % loss and 200 ms: the 2 × 5 swap collided in one run of three (seed 1, uav7 and
+    uav8, 0.09 m at 8.7 s): a held UAV took a new layer while holding, its climb was
+    re-checked a round later against a band that counted it at its end already, cut short
+    and chosen again, and each hold ended for a layer it never climbed to, so its mission
+    went on between the holds. A hold now stops in 3-D (no new layer while held, only the
+    one its hold ends for, whose way up is checked as any climb's), and a climb under way is
+    judged by the band it was chosen with. Not yet 2 m (docs/safety.md)."""
+    from uavmpc.scenarios import LinkSettings
+
+    res = World(RunSpec(vertical_swap(5, duration_s=30.0), seed=seed,
+                        link=LinkSettings(loss=0.3, latency_s=0.2))).run()
+    assert not res.collisions, res.collisions
+    assert float(res.min_distance_m.min()) > 1.0

@@ -69,6 +69,9 @@ class StrategyRows(NamedTuple):
         z_offset_m: (N,) the offset in force.
         listed_s: (N,) when a UAV near it last listed it.
         last_conflict_s, last_update_s: (N,) its last conflict, its last update.
+        climb_from_m, climb_since_s: (N,) where and when the climb under way started (the
+            offset reached then, and the time; NaN: none), from rest at the lifted limits:
+            it can be no higher than that climb.
         stuck: (N,) bool :attr:`~uavmpc.avoidance.strategy.AvoidanceDecision.stuck` kept.
         holding: (N,) bool it holds short, with the plan from before the hold: its first
             ``hold_n`` (N,) times ``hold_t_s`` (N, m) and positions ``hold_m`` (N, m, 3).
@@ -83,6 +86,8 @@ class StrategyRows(NamedTuple):
     listed_s: np.ndarray
     last_conflict_s: np.ndarray
     last_update_s: np.ndarray
+    climb_from_m: np.ndarray
+    climb_since_s: np.ndarray
     stuck: np.ndarray
     holding: np.ndarray
     hold_n: np.ndarray
@@ -95,9 +100,10 @@ class StrategyRows(NamedTuple):
     @classmethod
     def empty(cls, n: int, points: int = 0, cols: int = 0) -> StrategyRows:
         rows = cls(np.zeros((n, N_PARAMS)), np.full(n, math.inf), np.zeros(n), np.zeros(n),
-                   np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_),
+                   np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_),
                    np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
-                   np.zeros((n, points)), np.zeros((n, points, 3)), np.zeros((n, cols)),
+                   np.zeros((n, points)), np.zeros((n, points, 3)),
+                   np.zeros((n, cols)),
                    np.zeros((n, KEY_LEN)), np.zeros(n, dtype=np.int64))
         for i in range(n):
             reset_row(rows, i)
@@ -123,6 +129,7 @@ def reset_row(rows: StrategyRows, i: int) -> None:
     stay)."""
     rows.z_offset_m[i] = 0.0
     rows.listed_s[i] = rows.last_conflict_s[i] = rows.last_update_s[i] = np.nan
+    rows.climb_from_m[i] = rows.climb_since_s[i] = np.nan
     rows.stuck[i] = rows.holding[i] = False
     rows.hold_n[i] = 0
     rows.unlisted_s[i] = np.nan
@@ -258,11 +265,12 @@ def _conflicts_any(enc: EncounterRows, keep: np.ndarray, offset_m: float, half_h
 @kernel(allocates=True)
 def _blocked_way(enc: EncounterRows, candidates: np.ndarray, z: float, climbed: float,
                  ahead_s: np.ndarray, half_h: float, prm: np.ndarray, here: float,
-                 out: np.ndarray) -> None:
+                 from_m: float, since_s: float, out: np.ndarray) -> None:
     """(docs/safety.md, A4: the way up.) Into ``out`` (c, k): whether the climb from the
     offset in force ``z`` (``climbed`` of it reached so far) to each of ``candidates`` (c,)
     meets each encounter on the way, at the points ``ahead_s`` (m,) seconds from now;
-    ``here``: the offset the UAV is at, from which a climb escapes."""
+    ``here``: the offset the UAV is at, from which a climb escapes; ``from_m``: where the
+    climb under way started, ``since_s`` seconds ago (NaN: none under way)."""
     m = ahead_s.shape[0]
     a, v, lag = prm[P_CLIMB_ACCEL], prm[P_CLIMB_SPEED], prm[P_CLIMB_LAG]
     fast = np.empty(m)
@@ -270,6 +278,13 @@ def _blocked_way(enc: EncounterRows, candidates: np.ndarray, z: float, climbed: 
     for p in range(m):
         t = ahead_s[p]
         fast[p] = z + climb_height(t if t > 0.0 else 0.0, a, v)
+        # A climb under way is no higher than the fastest one from where and when it
+        # started: the same band in every round as in the one that chose it. Bounded by
+        # ``z`` alone, a climb re-checked a round after it was chosen counted itself at its
+        # end already, found its way blocked and stopped, to be chosen again in the next
+        # round (a grid of 16, seed 1: raised and cancelled every other round).
+        if not math.isnan(from_m):
+            fast[p] = _lower(fast[p], from_m + climb_height(_higher(t + since_s, 0.0), a, v))
         t = ahead_s[p] - lag
         slow[p] = climbed + climb_height(t if t > 0.0 else 0.0, a, v)
     k = enc.near.shape[0]
@@ -345,9 +360,11 @@ def _layer_below(enc: EncounterRows, must: np.ndarray, z: float, half_h: float,
 
 @kernel(allocates=True)
 def _climb_blocked(enc: EncounterRows, half_h: float, ahead_s: np.ndarray, climbed: float,
-                   z: float, prm: np.ndarray, waiting: np.ndarray) -> bool:
+                   z: float, prm: np.ndarray, from_m: float, since_s: float,
+                   waiting: np.ndarray) -> bool:
     """(docs/safety.md, A4.) Whether a climb under way (``climbed`` of the offset in force
-    ``z``) meets someone on its way up (:func:`_blocked_way`); the UAVs in the way into
+    ``z``, started at ``from_m`` ``since_s`` ago) meets someone on its way up
+    (:func:`_blocked_way`); the UAVs in the way into
     ``waiting`` (k,), every other entry False. Then it stops at what it has climbed."""
     k = enc.near.shape[0]
     for j in range(k):
@@ -355,7 +372,8 @@ def _climb_blocked(enc: EncounterRows, half_h: float, ahead_s: np.ndarray, climb
     if not climbed < z - LEVEL_M:
         return False
     way = np.empty((1, k), dtype=np.bool_)
-    _blocked_way(enc, np.array([z]), z, climbed, ahead_s, half_h, prm, climbed, way)
+    _blocked_way(enc, np.array([z]), z, climbed, ahead_s, half_h, prm, climbed, from_m,
+                 since_s, way)
     for j in range(k):
         waiting[j] = way[0, j]
     return way[0].any()
@@ -363,8 +381,8 @@ def _climb_blocked(enc: EncounterRows, half_h: float, ahead_s: np.ndarray, climb
 
 @kernel(allocates=True)
 def _climb(enc: EncounterRows, must: np.ndarray, half_h: float, ahead_s: np.ndarray,
-           climbed: float, z: float, ceiling: float, prm: np.ndarray, waiting: np.ndarray
-           ) -> tuple[float, bool]:
+           climbed: float, z: float, ceiling: float, prm: np.ndarray, from_m: float,
+           since_s: float, waiting: np.ndarray) -> tuple[float, bool]:
     """(docs/safety.md: A6 the layers, A4 the way up, A1 the plans as announced.) The lowest
     offset z + jΔz (j ≥ 1) clear of everyone we yield to, reached without crossing anyone,
     and clear of everyone else near too when such an offset exists (those we yield to:
@@ -403,7 +421,7 @@ def _climb(enc: EncounterRows, must: np.ndarray, half_h: float, ahead_s: np.ndar
     """
     k = enc.near.shape[0]
     dz = prm[P_DZ]
-    if _climb_blocked(enc, half_h, ahead_s, climbed, z, prm, waiting):
+    if _climb_blocked(enc, half_h, ahead_s, climbed, z, prm, from_m, since_s, waiting):
         return climbed, False
     steps = math.floor((_lower(prm[P_MAX_OFFSET], ceiling) - z) / dz + EPS)
     if steps < 1:
@@ -416,7 +434,8 @@ def _climb(enc: EncounterRows, must: np.ndarray, half_h: float, ahead_s: np.ndar
     for c in range(steps):
         blocked_end[c] = _conflicts_any(enc, must, candidates[c], half_h)
     blocked_way = np.empty((steps, k), dtype=np.bool_)
-    _blocked_way(enc, candidates, z, climbed, ahead_s, half_h, prm, z, blocked_way)
+    _blocked_way(enc, candidates, z, climbed, ahead_s, half_h, prm, z, from_m, since_s,
+                 blocked_way)
     clear_way = np.empty(steps, dtype=np.bool_)
     for c in range(steps):
         clear_way[c] = not blocked_way[c].any()
@@ -459,68 +478,100 @@ def _standing_still(pos: np.ndarray, until: int) -> bool:
     return best <= STANDING_M * STANDING_M
 
 
+@kernel
+def _must_respect(enc: EncounterRows, j: int, own_priority: int, unheard: bool,
+                  deaf_col: np.ndarray) -> bool:
+    """Encounter ``j`` is one we yield to: its flag is down, it outranks us, it has not
+    heard us (``deaf_col``: this round's deaf columns), or nobody hears us (``unheard``)."""
+    return (not enc.avoiding[j] or outranks(enc.priority[j], own_priority, enc.before_us[j])
+            or unheard or deaf_col[enc.col[j]])
+
+
+@kernel
+def _in_the_way(probe: EncounterRows, j: int, offset_m: float, half_h: float) -> bool:
+    """Encounter ``j`` of a plan we would fly (a probe) is in its way at ``offset_m``: in
+    conflict somewhere, but for a conflict from the first point on that ends for good while
+    we only go away from it in 3-D (neither closer horizontally nor vertically), which
+    flying that plan leaves behind.
+
+    Left behind: a UAV at the hold point itself, parked at its goal there, does not hold us.
+    Found with 32 UAVs under a 30 m ceiling: a UAV held beside the one whose goal its start
+    was, each waiting for the other. But one that comes closer first is passing through us:
+    found in the lossy 16-UAV antipodal swap (seed 0), a UAV held 4 m from a higher priority
+    crossing its way went on every other round and passed it at 1.24 m. Away in 3-D: found in
+    the vertical stack swap (2 × 5), uav2, held under uav3 in one column, went on every other
+    round (horizontally it only drew away), and each time its mission's climb carried it on
+    up into uav3 (0.29 m)."""
+    h = half_h + probe.widen_v[j]
+    m = probe.near.shape[1]
+    all_hit = True
+    for p in range(m):
+        if not in_cylinder(probe.near[j, p], probe.dz[j, p], offset_m, h):
+            all_hit = False
+            break
+    run = True  # logical_and.accumulate(conflict & apart)
+    for p in range(m):
+        hit = in_cylinder(probe.near[j, p], probe.dz[j, p], offset_m, h)
+        apart = p == 0 or (
+            probe.dxy[j, p] >= probe.dxy[j, p - 1]
+            and abs(probe.dz[j, p] + offset_m) >= abs(probe.dz[j, p - 1] + offset_m) - EPS)
+        run = run and hit and apart
+        if hit and not (run and not all_hit):
+            return True
+    return False
+
+
 @kernel(allocates=True)
 def _way_clear(e: EncounterRows, e_start: np.ndarray, q_lo: int, q_hi: int, own_priority: int,
                deaf_col: np.ndarray, unheard: bool, z: float, ceiling: float, prm: np.ndarray,
-               way_up: bool) -> bool:
-    """(docs/safety.md, A6.) Some offset from ``z`` up to the ceiling (only ``z`` without
-    ``way_up``: the climb to any other is blocked) is clear, along every probe (plans
+               way_up: bool, ahead_s: np.ndarray, climbed: float, from_m: float,
+               since_s: float) -> float:
+    """(docs/safety.md, A6.) The lowest offset from ``z`` up to the ceiling (only ``z``
+    without ``way_up``: the climb to any other is blocked) clear, along every probe (plans
     ``q_lo`` … ``q_hi`` − 1), of everyone we yield to (``deaf_col``: this round's deaf
-    columns)."""
+    columns), and, above ``z``, whose way up from ``climbed`` (the climb under way from
+    ``from_m`` ``since_s`` ago, :func:`_blocked_way`) meets nobody along the probes; NaN
+    when there is none."""
     dz = prm[P_DZ]
     half_h = 0.5 * prm[P_HEIGHT]
     top = _lower(prm[P_MAX_OFFSET], ceiling)
     n_c = math.floor(_higher(top - z, 0.0) / dz + EPS) + 1 if way_up else 1
     blocked = np.zeros(n_c, dtype=np.bool_)
+    cands = np.empty(n_c)
+    for c in range(n_c):
+        cands[c] = z + dz * float(c)
     for q in range(q_lo, q_hi):
         probe = _plan_rows(e, e_start[q], e_start[q + 1])
-        k, m = probe.near.shape
+        k = probe.near.shape[0]
+        # A layer above ends the hold only if the climb to it, which going on takes, meets
+        # nobody on its way: the climb checked as in any other round. Found in a grid of 16
+        # (seed 1): a hold ended for a layer clear at its end whose way up was blocked; the
+        # UAV went on at its offset, met the one it held for in the next round and held
+        # again, every other round, creeping closer between the holds.
+        if n_c > 1:
+            way = np.empty((n_c - 1, k), dtype=np.bool_)
+            _blocked_way(probe, cands[1:], z, climbed, ahead_s, half_h, prm, z, from_m,
+                         since_s, way)
+            for c in range(1, n_c):
+                if way[c - 1].any():
+                    blocked[c] = True
         for j in range(k):
-            must = (not probe.avoiding[j]
-                    or outranks(probe.priority[j], own_priority, probe.before_us[j])
-                    or unheard or deaf_col[probe.col[j]])
-            if not must:
+            if not _must_respect(probe, j, own_priority, unheard, deaf_col):
                 continue
-            h = half_h + probe.widen_v[j]
             for c in range(n_c):
-                if blocked[c]:
-                    continue
-                cand = z + dz * float(c)
-                # A conflict from the first point on that ends for good while we only go
-                # away from them is one going on leaves behind (a UAV at the hold point
-                # itself, parked at its goal there): not in the way. Found with 32 UAVs
-                # under a 30 m ceiling: a UAV held beside the one whose goal its start was,
-                # each waiting for the other. But one that comes closer first is passing
-                # through us: found in the lossy 16-UAV antipodal swap (seed 0), a UAV held
-                # 4 m from a higher priority crossing its way went on every other round and
-                # passed it at 1.24 m.
-                all_hit = True
-                for p in range(m):
-                    if not in_cylinder(probe.near[j, p], probe.dz[j, p], cand, h):
-                        all_hit = False
-                        break
-                # Away in 3-D: neither closer horizontally nor vertically. Found in the
-                # vertical stack swap (2 × 5): uav2, held under uav3 in one column, went on
-                # every other round (horizontally it only drew away), and each time its
-                # mission's climb carried it on up into uav3 (0.29 m).
-                run = True  # logical_and.accumulate(conflict & apart)
-                for p in range(m):
-                    hit = in_cylinder(probe.near[j, p], probe.dz[j, p], cand, h)
-                    apart = p == 0 or (
-                        probe.dxy[j, p] >= probe.dxy[j, p - 1]
-                        and abs(probe.dz[j, p] + cand) >= abs(probe.dz[j, p - 1] + cand) - EPS)
-                    run = run and hit and apart
-                    if hit and not (run and not all_hit):
-                        blocked[c] = True
-                        break
-    return not blocked.all()
+                if not blocked[c] and _in_the_way(probe, j, cands[c], half_h):
+                    blocked[c] = True
+    for c in range(n_c):
+        if not blocked[c]:
+            return cands[c]
+    return np.nan
 
 
 @kernel(allocates=True)
 def _hold_short(st: StrategyRows, i: int, start: bool, times: np.ndarray, pos: np.ndarray,
                 has_pos: bool, e: EncounterRows, e_start: np.ndarray, q_lo: int, q_hi: int,
                 has_probes: bool, own_priority: int, deaf_col: np.ndarray, unheard: bool,
-                way_up: bool) -> bool:
+                way_up: bool, now_s: float, ahead_s: np.ndarray, climbed: float) -> bool:
     """(docs/safety.md, A6: time as well as height.) Whether we hold short after this
     round. A hold starts (``start``: a conflict with one we yield to is left unresolved)
     with the plan it interrupts; it ends once some layer, at or above the
@@ -529,8 +580,10 @@ def _hold_short(st: StrategyRows, i: int, start: bool, times: np.ndarray, pos: n
     now or up to ``hold_delay_s`` later meets none of them (a layer above only with
     ``way_up``: the climb to it is not waiting for anyone; found in the vertical stack swap,
     a hold that ended for a layer its climb could not reach began again in the next round,
-    and the mission's climb went on between the holds). The order is the priorities'
-    (a total order): the highest never holds, and each holds only for higher ones."""
+    and the mission's climb went on between the holds). Going on for a layer above takes it:
+    the offset is raised to it, whose way up :func:`_way_clear` found clear. The order is the
+    priorities' (a total order): the highest never holds, and each holds only for higher
+    ones."""
     if not st.holding[i]:
         if start and st.params[i, P_HOLD_DELAY] > 0.0 and has_pos:
             m = times.shape[0]
@@ -541,10 +594,22 @@ def _hold_short(st: StrategyRows, i: int, start: bool, times: np.ndarray, pos: n
                 for ax in range(3):
                     st.hold_m[i, p, ax] = pos[p, ax]
         return st.holding[i]
-    if has_probes and _way_clear(e, e_start, q_lo, q_hi, own_priority, deaf_col, unheard,
-                                 st.z_offset_m[i], st.ceiling_m[i], st.params[i], way_up):
+    if not has_probes:
+        return True
+    z = st.z_offset_m[i]
+    under_way = climbed < z - LEVEL_M
+    from_m = st.climb_from_m[i] if under_way else np.nan
+    layer = _way_clear(e, e_start, q_lo, q_hi, own_priority, deaf_col, unheard, z,
+                       st.ceiling_m[i], st.params[i], way_up, ahead_s, climbed, from_m,
+                       now_s - st.climb_since_s[i])
+    if not math.isnan(layer):
         st.holding[i] = False
         st.hold_n[i] = 0
+        if layer > z:
+            st.z_offset_m[i] = layer
+            if not under_way:
+                st.climb_from_m[i] = climbed
+                st.climb_since_s[i] = now_s
     return st.holding[i]
 
 
@@ -665,7 +730,7 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
     """Row ``i``'s decision from plan ``f``'s encounters (:meth:`~uavmpc.avoidance.
     HeightOffsetStrategy.decide`; nobody near: only the release runs). Returns
     (:data:`CALM_KIND` or not, the offset, the first conflict's time from now (NaN: none));
-    its flags into ``flags`` (6,), its masks into ``masks`` (k, 5)."""
+    its flags into ``flags`` (7,), its masks into ``masks`` (k, 5)."""
     prm = st.params[i]
     half_h = 0.5 * prm[P_HEIGHT]
     hyst = prm[P_HYSTERESIS]
@@ -674,6 +739,11 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
     masks[:, :] = False
     lo, hi = e_start[f], e_start[f + 1]
     k = hi - lo
+    ahead = np.empty(times.shape[0])
+    for p in range(times.shape[0]):
+        ahead[p] = times[p] - now_s
+    z_start = st.z_offset_m[i]
+    climbed = z_start if math.isnan(climbed_m) else _lower(climbed_m, z_start)
     if k == 0:  # nobody near: only the release runs (and a hold goes on until it clears)
         if n_silent == 0 and rest_row(st, i, now_s):
             return CALM_KIND, 0.0, np.nan
@@ -682,7 +752,8 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
             _release(st, i, now_s)
         st.last_update_s[i] = now_s
         holding = _hold_short(st, i, False, times, pos, has_pos, e, e_start, q_lo, q_hi,
-                              has_probes, own_priority, deaf_col, False, True)
+                              has_probes, own_priority, deaf_col, False, True, now_s, ahead,
+                              climbed)
         st.stuck[i] = False
         last = st.last_conflict_s[i]
         recent = holding or (not math.isnan(last) and now_s - last < hyst)
@@ -707,7 +778,6 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
             must[j] = must[j] or deaf[j] or unheard
             if deaf[j]:
                 deaf_col[enc.col[j]] = True
-    z_start = st.z_offset_m[i]
     hit_start = masks[:, M_CONFLICT]
     first = conflict_rows(enc.near, enc.dz, enc.widen_v, half_h, z_start, hit_start)
     any_start = first >= 0
@@ -717,17 +787,23 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
         yield_hit[j] = hit_start[j] and must[j]
         any_yield = any_yield or yield_hit[j]
     ceiling_hit = False
-    ahead = np.empty(times.shape[0])
-    for p in range(times.shape[0]):
-        ahead[p] = times[p] - now_s
-    climbed = z_start if math.isnan(climbed_m) else _lower(climbed_m, z_start)
-    if any_start and any_yield:
+    under_way = climbed < z_start - LEVEL_M
+    from_m = st.climb_from_m[i] if under_way else np.nan
+    since_s = now_s - st.climb_since_s[i]
+    # A hold stops in 3-D: a held UAV takes no new layer but the one its hold ends for
+    # (:func:`_hold_short`, whose way up is checked as a climb's).
+    if any_start and any_yield and not st.holding[i]:
         # Found in the lossy 24 h campaign (trial 78): a UAV that had missed two messages of
         # another climbed into its layer. A new offset must be clear of the silent ones too.
         z_new, ceiling_hit = _climb(enc, must, half_h, ahead, climbed, z_start,
-                                    st.ceiling_m[i], prm, masks[:, M_WAITING])
+                                    st.ceiling_m[i], prm, from_m, since_s,
+                                    masks[:, M_WAITING])
         st.z_offset_m[i] = z_new
-    elif _climb_blocked(enc, half_h, ahead, climbed, z_start, prm, masks[:, M_WAITING]):
+        if z_new > z_start and not under_way:
+            st.climb_from_m[i] = climbed
+            st.climb_since_s[i] = now_s
+    elif _climb_blocked(enc, half_h, ahead, climbed, z_start, prm, from_m, since_s,
+                        masks[:, M_WAITING]):
         # A climb under way is checked in every round, not only in those that yield: its
         # conflict may be resolved while someone moves into its way. Found in the vertical
         # stack swap (2 × 5): uav9, climbing 15 m for those above it, went on through uav10
@@ -767,7 +843,7 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
     st.last_update_s[i] = now_s
     holding = _hold_short(st, i, any_unresolved, times, pos, has_pos, e, e_start, q_lo, q_hi,
                           has_probes, own_priority, deaf_col, unheard,
-                          not masks[:, M_WAITING].any())
+                          not masks[:, M_WAITING].any(), now_s, ahead, climbed)
     z = st.z_offset_m[i]
     if any_unresolved:
         # Stuck (docs/safety.md, A6): a hold is a stop within our plan, so that the one we
@@ -848,7 +924,7 @@ def decide_rows(st: StrategyRows, rows: np.ndarray, now_s: np.ndarray, times: np
 
     Outputs: ``kind[j]`` (:data:`CALM_KIND`, :data:`SAME_KIND` when every field equals its
     last decision's, else :data:`NEW_KIND`), ``z_out[j]`` the offset, ``first_out[j]`` the
-    first conflict's time from now (NaN: none), ``flags[j]`` (6,) (``F_*``), and per
+    first conflict's time from now (NaN: none), ``flags[j]`` (7,) (``F_*``), and per
     encounter row ``masks`` (E, 5) (``M_*``): its plan's rows name its decision's UAVs."""
     cols = st.unlisted_s.shape[1]
     deaf_col = np.zeros(max(cols, 1), dtype=np.bool_)

@@ -517,7 +517,8 @@ class HeightOffsetStrategy:
         cols = [home.col_of(i) for i, _ in unlisted]
         new = home.ensure(old.hold_t_s.shape[1])
         for name in ("params", "ceiling_m", "z_offset_m", "listed_s", "last_conflict_s",
-                     "last_update_s", "stuck", "holding", "hold_n"):
+                     "last_update_s", "climb_from_m", "climb_since_s", "stuck", "holding",
+                     "hold_n"):
             getattr(new, name)[row] = getattr(old, name)[r0]
         new.hold_t_s[row, :points] = old.hold_t_s[r0, :points]
         new.hold_m[row, :points] = old.hold_m[r0, :points]
