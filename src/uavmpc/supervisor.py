@@ -122,6 +122,9 @@ class Supervisor:
         self.motors_cut = False
         #: Paused (:meth:`pause`): the trajectory that waits for :meth:`resume`.
         self.paused: Reference | None = None
+        #: The fence's room for an offset over the mission flown [m], before the UAV's
+        #: uncertainty is taken off (None before the first trajectory, or without a fence).
+        self._fence_room_m: float | None = None
 
     # ------------------------------------------------------------------ launch hold
     def hold(self, mission: Reference, hover: Reference) -> None:
@@ -218,8 +221,23 @@ class Supervisor:
         (A3: where its estimate is at the ceiling, its truth may lie that far above; found
         with single-band GNSS, a UAV raised to the ceiling was outside by its truth)."""
         if self.fence is not None:
-            room_m = self.fence.ceiling_m(z_m) - self._sigma_above_m()
-            self.stack.steering.limit_offset(max(0.0, room_m))
+            self._fence_room_m = self.fence.ceiling_m(z_m)
+            self._limit_offset()
+
+    def state_sigma(self, sigma_m: tuple[float, float]) -> None:
+        """The (horizontal, vertical) 1σ [m] the UAV states from now on
+        (:attr:`~uavmpc.onboard.OnboardStack.position_sigma_m`); the avoidance's ceiling
+        follows it. Found on real PX4: its σ arrives after the mission is set, and a ceiling
+        taken with none let a UAV sit at the top layer while its truth drifted 1.2 m above
+        its estimate, past the fence's 1 m margin."""
+        self.stack.position_sigma_m = sigma_m
+        if self._fence_room_m is not None:
+            self._limit_offset()
+
+    def _limit_offset(self) -> None:
+        assert self._fence_room_m is not None
+        room_m = self._fence_room_m - self._sigma_above_m()
+        self.stack.steering.limit_offset(max(0.0, room_m))
 
     def _sigma_above_m(self) -> float:
         """How far above its estimate the UAV may truly be [m]: ``uncertainty_k`` σ_v."""
