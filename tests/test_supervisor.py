@@ -166,26 +166,30 @@ def test_the_ceiling_caps_the_climb_over_the_mission_flown() -> None:
     assert all(s.report().max_z_offset_m <= low + 1e-9 for s in stacks2)
 
 
-def test_the_ceiling_follows_the_uncertainty_stated_after_the_mission_was_set() -> None:
+def test_the_ceiling_follows_the_estimator_s_uncertainty_stated_after_the_mission_was_set(
+        ) -> None:
     """A node hears its autopilot's σ only once it flies, after the mission was set (real
     PX4: 0.32 m vertical, while its estimate was 1.2 m under the truth at the top layer). The
-    ceiling is lowered by uncertainty_k σ_v from then on, and rises again when σ falls."""
+    ceiling is lowered by uncertainty_k σ_v of the estimator from then on, rises again when σ
+    falls, and does not follow the tracking error added to what the UAV states."""
     stacks, _table = _pair()
     sup = Supervisor(stacks[0], fence=FenceGuard(FENCE))
     sup.fly(Reference.goto(20.0, 0.0, 5.0))
     room = FENCE.offset_ceiling_m(np.array([5.0]))
-    assert stacks[0].steering.offset_ceiling_m == pytest.approx(room)
+    assert stacks[0].avoidance.offset_ceiling_m == pytest.approx(room)
     k = stacks[0].params.uncertainty_k
-    sup.state_sigma((0.2, 0.5))
-    assert stacks[0].position_sigma_m == (0.2, 0.5)
-    assert stacks[0].steering.offset_ceiling_m == pytest.approx(room - k * 0.5)
-    sup.state_sigma((0.2, 10.0))  # more than the room: no climb at all, never negative
-    assert stacks[0].steering.offset_ceiling_m == 0.0
-    sup.state_sigma((0.2, 0.1))
-    assert stacks[0].steering.offset_ceiling_m == pytest.approx(room - k * 0.1)
+    sup.state_sigma((0.2, 0.9), 0.5)  # stated: σ widened by the tracking error
+    assert stacks[0].position_sigma_m == (0.2, 0.9)
+    assert stacks[0].avoidance.offset_ceiling_m == pytest.approx(room - k * 0.5)
+    sup.state_sigma((0.2, 10.0), 10.0)  # more than the room: no climb at all, never negative
+    assert stacks[0].avoidance.offset_ceiling_m == 0.0
+    sup.state_sigma((0.2, 0.1), 0.1)
+    assert stacks[0].avoidance.offset_ceiling_m == pytest.approx(room - k * 0.1)
+    with pytest.raises(ValueError, match="estimate_sigma_v_m"):
+        sup.state_sigma((0.2, 0.1), float("nan"))
     # without a fence, σ is stated and there is no ceiling to follow
     free = Supervisor(stacks[1])
-    free.state_sigma((0.3, 0.4))
+    free.state_sigma((0.3, 0.4), 0.4)
     assert stacks[1].position_sigma_m == (0.3, 0.4)
 
 

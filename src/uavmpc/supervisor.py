@@ -22,6 +22,7 @@ call and hands each its own).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -125,6 +126,8 @@ class Supervisor:
         #: The fence's room for an offset over the mission flown [m], before the UAV's
         #: uncertainty is taken off (None before the first trajectory, or without a fence).
         self._fence_room_m: float | None = None
+        #: Its estimator's vertical 1σ [m] as a driver states it (:meth:`state_sigma`).
+        self._estimate_sigma_v_m: float | None = None
 
     # ------------------------------------------------------------------ launch hold
     def hold(self, mission: Reference, hover: Reference) -> None:
@@ -224,13 +227,19 @@ class Supervisor:
             self._fence_room_m = self.fence.ceiling_m(z_m)
             self._limit_offset()
 
-    def state_sigma(self, sigma_m: tuple[float, float]) -> None:
+    def state_sigma(self, sigma_m: tuple[float, float], estimate_sigma_v_m: float) -> None:
         """The (horizontal, vertical) 1σ [m] the UAV states from now on
-        (:attr:`~uavmpc.onboard.OnboardStack.position_sigma_m`); the avoidance's ceiling
-        follows it. Found on real PX4: its σ arrives after the mission is set, and a ceiling
-        taken with none let a UAV sit at the top layer while its truth drifted 1.2 m above
-        its estimate, past the fence's 1 m margin."""
+        (:attr:`~uavmpc.onboard.OnboardStack.position_sigma_m`), and its estimator's own
+        vertical 1σ [m], which the avoidance's ceiling follows from now on (what is stated
+        may add the tracking error, which the fence's margin covers: the world states its
+        estimator's σ alone). Found on real PX4: EKF2's σ arrives after the mission is set,
+        and a ceiling taken with none let a vehicle sit at the top layer while its truth
+        drifted 1.2 m above its estimate, past the fence's 1 m margin."""
+        if not (math.isfinite(estimate_sigma_v_m) and estimate_sigma_v_m >= 0.0):
+            raise ValueError(f"estimate_sigma_v_m: must be finite and ≥ 0, got "
+                             f"{estimate_sigma_v_m}")
         self.stack.position_sigma_m = sigma_m
+        self._estimate_sigma_v_m = float(estimate_sigma_v_m)
         if self._fence_room_m is not None:
             self._limit_offset()
 
@@ -240,8 +249,11 @@ class Supervisor:
         self.stack.steering.limit_offset(max(0.0, room_m))
 
     def _sigma_above_m(self) -> float:
-        """How far above its estimate the UAV may truly be [m]: ``uncertainty_k`` σ_v."""
-        return float(self.stack.params.uncertainty_k) * self.stack.position_sigma_m[1]
+        """How far above its estimate the UAV may truly be [m]: ``uncertainty_k`` σ_v of its
+        estimator (:meth:`state_sigma`; until a driver states it, the σ its stack states)."""
+        sigma_v = (self.stack.position_sigma_m[1] if self._estimate_sigma_v_m is None
+                   else self._estimate_sigma_v_m)
+        return float(self.stack.params.uncertainty_k) * sigma_v
 
     def fence_due(self, tick: int) -> bool:
         """With a geofence, whether control tick ``tick`` (counted by the driver) is one the

@@ -293,12 +293,6 @@ class Steering:
         if self._decider is not None:
             self._decider.limit_offset(ceiling_m)
 
-    @property
-    def offset_ceiling_m(self) -> float:
-        """The ceiling its avoidance climbs to at most [m] (:meth:`limit_offset`); without an
-        encounter strategy, none (inf)."""
-        return math.inf if self._decider is None else self._decider.offset_ceiling_m
-
     # ------------------------------------------------------------------ its tracker
     def apply(self, decision: AvoidanceDecision) -> None:
         """Steer by an avoidance decision: its z offset and limits from the next tick on."""

@@ -323,11 +323,6 @@ class EncounterStrategy(ResolutionStrategy, Protocol):
         mission flown) as well as ``params.max_offset_m``."""
         ...
 
-    @property
-    def offset_ceiling_m(self) -> float:
-        """The ceiling in force (:meth:`limit_offset`) [m]."""
-        ...
-
     def finder(self, table: InboxTable, *, use_index: bool | None = True) -> EncounterFinder:
         """A finder of this strategy's encounters among the messages ``table`` holds (with its
         parameters; ``use_index`` as :class:`~uavmpc.avoidance.encounters.EncounterFinder`

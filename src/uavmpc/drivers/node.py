@@ -487,7 +487,7 @@ class Node:
         if fresh:  # an old estimate would read as a tracking error (PX4 flies on a fresh one)
             w.tracking(now, state.position_m, stack.command().position_m,
                        airborne=bool(state.position_m[2] - vehicle.ground_z_m > TAKEOFF_BELOW_M))
-        sup.state_sigma(w.stated_sigma_m())
+        sup.state_sigma(w.stated_sigma_m(), w.sigma_m[1])
         self.broken = w.broken(now)
         if self.broken and sup.paused is None:
             # Hold where the virtual UAV comes to rest braking at its limits from now (a
