@@ -3,7 +3,8 @@
 ``python benchmarks/sweep_dense.py [--seeds 10] [--links 0,0.3:0.2] [--scenarios a,b]
 [--ceiling 30] [--workers 2]`` flies each scenario (default: antipodal_8, antipodal_12,
 noncooperative_crossing; ``antipodal_<N>``: any N, from
-:func:`uavmpc.scenarios.dense.antipodal`, under a geofence whose ceiling is ``--ceiling`` m
+:func:`uavmpc.scenarios.dense.antipodal`, ``antipodal_<N>_reversed`` with its priorities
+reversed, under a geofence whose ceiling is ``--ceiling`` m
 when given) for seeds 0..N−1 on each link (``LOSS[:LATENCY_S]``: the scenario's link with that
 loss probability and, when given, that latency), with avoidance, and prints one row per
 scenario × link, then every collision and every missed goal precisely, and, last, one JSON
@@ -25,6 +26,11 @@ The antipodal swaps of docs/safety.md (N = 8 … 32 under a 30 m ceiling):
 
     python benchmarks/sweep_dense.py --ceiling 30 --links 0,0.3:0.2 --workers 2 \
         --scenarios antipodal_8,antipodal_12,antipodal_16,antipodal_24,antipodal_32
+
+24 through one point with the priorities reversed, under a 40 m ceiling:
+
+    python benchmarks/sweep_dense.py --seeds 3 --ceiling 40 --links 0,0.3:0.2 --workers 2 \
+        --scenarios antipodal_24_reversed
 
 Columns: runs with a collision; closest approach between any two UAVs (3-D, m) over the runs,
 min and median; UAV goals reached at the end (within 1 m); time to all goals (s: per run the
@@ -54,7 +60,7 @@ from uavmpc.scenarios.dense import antipodal, grid_shuffle, time_to_goals, verti
 from uavmpc.scenarios.run import RunSpec
 
 DENSE = ("antipodal_8", "antipodal_12", "noncooperative_crossing")
-_ANTIPODAL = re.compile(r"^antipodal_(\d+)$")
+_ANTIPODAL = re.compile(r"^antipodal_(\d+)(_reversed)?$")
 _VERTICAL = re.compile(r"^vertical_(\d+)$")
 _GRID = re.compile(r"^grid_(\d+)$")
 
@@ -78,7 +84,8 @@ def load(name: str, ceiling_m: float | None = None, seed: int = 0) -> Scenario:
     if m is None:
         raise ValueError(f"{name}: neither a built-in scenario, antipodal_<N>, vertical_<K> "
                          "nor grid_<N>")
-    return antipodal(int(m.group(1)), duration_s=120.0, ceiling_m=ceiling_m)
+    return antipodal(int(m.group(1)), duration_s=120.0, ceiling_m=ceiling_m,
+                     reversed_priorities=m.group(2) is not None)
 
 
 def direct_s(sc: Scenario) -> float:

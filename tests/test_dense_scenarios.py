@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from uavmpc.config import ConfigError
-from uavmpc.scenarios.dense import grid_shuffle
+from uavmpc.scenarios.dense import antipodal, grid_shuffle
 
 
 def test_a_shuffled_grid_sends_every_uav_to_another_grid_point() -> None:
@@ -22,6 +22,21 @@ def test_a_shuffled_grid_sends_every_uav_to_another_grid_point() -> None:
     other = grid_shuffle(16, spacing_m=10.0, seed=5)
     assert [u.goal_m for u in again.uavs] == [u.goal_m for u in sc.uavs]
     assert [u.goal_m for u in other.uavs] != [u.goal_m for u in sc.uavs]
+
+
+def test_reversed_priorities_mirror_the_order_round_the_circle_and_nothing_else() -> None:
+    """The issue's "24 through one point with reversed priorities": the same paths, UAV i
+    with priority N − i instead of i + 1 (the highest where the lowest was)."""
+    ahead, back = antipodal(24, ceiling_m=40.0), antipodal(24, ceiling_m=40.0,
+                                                          reversed_priorities=True)
+    assert back.name == "antipodal_24_reversed"
+    assert [u.priority for u in back.uavs] == [24 - i for i in range(24)]
+    assert sorted(u.priority for u in back.uavs) == [u.priority for u in ahead.uavs]
+    for a, b in zip(ahead.uavs, back.uavs, strict=True):
+        assert a.uav_id == b.uav_id and a.start_m == b.start_m and a.goal_m == b.goal_m
+        assert np.array_equal(a.mission.points, b.mission.points)
+    assert back.geofence is not None and ahead.geofence is not None
+    assert back.geofence.to_table() == ahead.geofence.to_table()
 
 
 @pytest.mark.parametrize(("kw", "match"), [

@@ -69,13 +69,13 @@ def _fence(box: list[float], ceiling_m: float | None, highest_m: float,
 def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
               speed_mps: float = SPEED_MPS, start_s: float = START_S,
               duration_s: float = DURATION_S, *, link: LinkSettings | None = None,
-              ceiling_m: float | None = None) -> Scenario:
+              ceiling_m: float | None = None, reversed_priorities: bool = False) -> Scenario:
     """N UAVs on a circle of ``radius_m`` [m] around the origin at ``height_m`` [m], UAV i
-    (``uav{i+1}``, priority i + 1) at the angle 2πi/N, heading the way it will fly; each flies
-    a straight path to the opposite point at ``speed_mps`` [m/s] from ``start_s`` [s].
-    ``duration_s`` [s] is the run's length. ``ceiling_m`` [m]: an operational volume (a
-    geofence) over the circle, from the ground up to that altitude: the layers above the
-    circle's height run out sooner."""
+    (``uav{i+1}``, priority i + 1, or N − i with ``reversed_priorities``) at the angle 2πi/N,
+    heading the way it will fly; each flies a straight path to the opposite point at
+    ``speed_mps`` [m/s] from ``start_s`` [s]. ``duration_s`` [s] is the run's length.
+    ``ceiling_m`` [m]: an operational volume (a geofence) over the circle, from the ground up
+    to that altitude: the layers above the circle's height run out sooner."""
     if isinstance(n_uavs, bool) or not isinstance(n_uavs, int) or not 2 <= n_uavs <= 1000:
         raise ConfigError(f"uavs: must be an integer in [2, 1000], got {n_uavs!r}")
     radius = positive(radius_m, "radius_m", upper=1e4)
@@ -98,11 +98,13 @@ def antipodal(n_uavs: int, radius_m: float = 30.0, height_m: float = 10.0,
         # As the scenario loader builds a [uavs.path]: the built-in files fly the same.
         mission = Reference.along_path(np.array([here, there]), speed, start)
         goal = tuple(float(v) for v in mission.points[-1, :3])
-        uavs.append(UavSpec(f"uav{i + 1}", i + 1, "f550", here, heading, mission,
+        priority = n_uavs - i if reversed_priorities else i + 1
+        uavs.append(UavSpec(f"uav{i + 1}", priority, "f550", here, heading, mission,
                             (goal[0], goal[1], goal[2])))
     side = radius + 10.0
     fence = _fence([-side, -side, side, side], ceiling_m, height, "the circle's")
-    return Scenario(f"antipodal_{n_uavs}", duration, tuple(uavs),
+    name = f"antipodal_{n_uavs}" + ("_reversed" if reversed_priorities else "")
+    return Scenario(name, duration, tuple(uavs),
                     link if link is not None else LinkSettings(), geofence=fence)
 
 
