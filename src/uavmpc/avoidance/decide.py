@@ -102,8 +102,7 @@ class StrategyRows(NamedTuple):
         rows = cls(np.zeros((n, N_PARAMS)), np.full(n, math.inf), np.zeros(n), np.zeros(n),
                    np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_),
                    np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
-                   np.zeros((n, points)), np.zeros((n, points, 3)),
-                   np.zeros((n, cols)),
+                   np.zeros((n, points)), np.zeros((n, points, 3)), np.zeros((n, cols)),
                    np.zeros((n, KEY_LEN)), np.zeros(n, dtype=np.int64))
         for i in range(n):
             reset_row(rows, i)
@@ -479,6 +478,23 @@ def _standing_still(pos: np.ndarray, until: int) -> bool:
 
 
 @kernel
+def _climb_from(st: StrategyRows, i: int, climbed: float, z: float) -> float:
+    """Where the climb under way to the offset ``z`` started (``climbed`` of it reached so
+    far), NaN when none is under way."""
+    return st.climb_from_m[i] if climbed < z - LEVEL_M else np.nan
+
+
+@kernel
+def _climb_started(st: StrategyRows, i: int, z_before: float, climbed: float,
+                   now_s: float) -> None:
+    """Row ``i``'s offset was just set over ``z_before``: a climb starts now from
+    ``climbed`` unless one was under way already (then it keeps its start)."""
+    if st.z_offset_m[i] > z_before and not climbed < z_before - LEVEL_M:
+        st.climb_from_m[i] = climbed
+        st.climb_since_s[i] = now_s
+
+
+@kernel
 def _must_respect(enc: EncounterRows, j: int, own_priority: int, unheard: bool,
                   deaf_col: np.ndarray) -> bool:
     """Encounter ``j`` is one we yield to: its flag is down, it outranks us, it has not
@@ -597,19 +613,15 @@ def _hold_short(st: StrategyRows, i: int, start: bool, times: np.ndarray, pos: n
     if not has_probes:
         return True
     z = st.z_offset_m[i]
-    under_way = climbed < z - LEVEL_M
-    from_m = st.climb_from_m[i] if under_way else np.nan
     layer = _way_clear(e, e_start, q_lo, q_hi, own_priority, deaf_col, unheard, z,
-                       st.ceiling_m[i], st.params[i], way_up, ahead_s, climbed, from_m,
-                       now_s - st.climb_since_s[i])
+                       st.ceiling_m[i], st.params[i], way_up, ahead_s, climbed,
+                       _climb_from(st, i, climbed, z), now_s - st.climb_since_s[i])
     if not math.isnan(layer):
         st.holding[i] = False
         st.hold_n[i] = 0
         if layer > z:
             st.z_offset_m[i] = layer
-            if not under_way:
-                st.climb_from_m[i] = climbed
-                st.climb_since_s[i] = now_s
+            _climb_started(st, i, z, climbed, now_s)
     return st.holding[i]
 
 
@@ -787,8 +799,7 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
         yield_hit[j] = hit_start[j] and must[j]
         any_yield = any_yield or yield_hit[j]
     ceiling_hit = False
-    under_way = climbed < z_start - LEVEL_M
-    from_m = st.climb_from_m[i] if under_way else np.nan
+    from_m = _climb_from(st, i, climbed, z_start)
     since_s = now_s - st.climb_since_s[i]
     # A hold stops in 3-D: a held UAV takes no new layer but the one its hold ends for
     # (:func:`_hold_short`, whose way up is checked as a climb's).
@@ -799,9 +810,7 @@ def _decide_one(st: StrategyRows, i: int, now_s: float, times: np.ndarray, pos: 
                                     st.ceiling_m[i], prm, from_m, since_s,
                                     masks[:, M_WAITING])
         st.z_offset_m[i] = z_new
-        if z_new > z_start and not under_way:
-            st.climb_from_m[i] = climbed
-            st.climb_since_s[i] = now_s
+        _climb_started(st, i, z_start, climbed, now_s)
     elif _climb_blocked(enc, half_h, ahead, climbed, z_start, prm, from_m, since_s,
                         masks[:, M_WAITING]):
         # A climb under way is checked in every round, not only in those that yield: its
