@@ -193,6 +193,66 @@ def test_the_ceiling_follows_the_estimator_s_uncertainty_stated_after_the_missio
     assert stacks[1].position_sigma_m == (0.3, 0.4)
 
 
+def test_a_trajectory_is_lowered_under_the_ceiling_by_the_estimator_s_uncertainty() -> None:
+    """Where its estimate is at a mission's 9 m, a UAV 2σ_v uncertain may truly be above the
+    10 m ceiling: the trajectory it flies is lowered to the margin under the ceiling less
+    k σ_v (times kept, lower points untouched), follows σ as it changes, and the fence
+    reports the most it was lowered. Without σ the mission is flown as commanded."""
+    stacks, _table = _pair()
+    sup = Supervisor(stacks[0], fence=FenceGuard(FENCE))
+    k = stacks[0].params.uncertainty_k
+    mission = Reference(np.array([0.0, 4.0, 8.0]),
+                        np.array([[0.0, 0.0, 5.0, 0.0], [10.0, 0.0, 9.0, 0.0],
+                                  [20.0, 0.0, 8.5, 0.0]]))
+    sup.fly(mission)
+    flown = stacks[0].tracker.reference
+    assert flown is mission  # σ 0: the margin alone (10 − 1 = 9 m) holds it
+    sup.state_sigma((0.2, 0.5), 0.5)
+    flown = stacks[0].tracker.reference
+    top = FENCE.max_altitude_m - FENCE.margin_m - k * 0.5
+    np.testing.assert_allclose(flown.points[:, 2], [5.0, top, top])
+    np.testing.assert_array_equal(flown.times_s, mission.times_s)
+    np.testing.assert_array_equal(flown.points[:, [0, 1, 3]], mission.points[:, [0, 1, 3]])
+    assert stacks[0].avoidance.offset_ceiling_m == 0.0
+    sup.state_sigma((0.2, 0.55), 0.55)  # a wander under the tolerance sets nothing again
+    assert stacks[0].tracker.reference is flown
+    sup.state_sigma((0.2, 10.0), 10.0)  # never under the floor's margin
+    assert stacks[0].tracker.reference.points[:, 2].min() == pytest.approx(
+        FENCE.min_altitude_m + FENCE.margin_m)
+    sup.state_sigma((0.2, 0.0), 0.0)  # σ falls: the mission as commanded again
+    np.testing.assert_array_equal(stacks[0].tracker.reference.points, mission.points)
+    assert sup.fence is not None
+    assert sup.fence.report()["capped_m"] == pytest.approx(9.0 - (
+        FENCE.min_altitude_m + FENCE.margin_m))
+
+
+def test_in_the_world_single_band_gnss_flies_a_mission_at_the_ceiling_lower() -> None:
+    """A mission 1 m under a 30 m ceiling, flown on single-band GNSS (σ_v 2.5 m): the world's
+    UAVs state that σ before their missions are set, so each flies the margin under the
+    ceiling less k σ_v, and its truth stays under the ceiling (found by the falsifier: walks
+    to 29 m flew to 34.7 m by their truth)."""
+    from test_geofence import _swap
+
+    from uavmpc import scenarios
+    from uavmpc.drivers.world import World
+    from uavmpc.estimation.observer import ObserverParams
+    from uavmpc.scenarios.faults import FaultSpec
+
+    data = _swap({"box": [-40, -20, 40, 20], "min_altitude_m": 1.0, "max_altitude_m": 30.0})
+    for u in data["uavs"]:
+        u["start"][2] = 20.0
+        u["goto"][2] = 29.0
+    world = World(RunSpec(scenarios.from_dict(data), seed=3, faults=FaultSpec(gnss="single")))
+    res = world.run(20.0)
+    sigma_v = ObserverParams.preset("single").position_sigma_m[1]
+    top = 30.0 - 1.0 - world.params.uncertainty_k * sigma_v
+    for u in world.uavs:
+        assert u.stack.tracker.reference.points[:, 2].max() == pytest.approx(top)
+    assert all(r["capped_m"] == pytest.approx(29.0 - top)
+               for r in res.sections["geofence"].values())
+    assert res.positions_m[:, :, 2].max() < 30.0
+
+
 def test_the_world_and_a_node_take_the_same_failsafe_decision() -> None:
     """The world looks at every UAV's margin at once and hands each its own; a node asks its
     supervisor alone: the same way back for a UAV found outside."""

@@ -37,6 +37,9 @@ from uavmpc.reference import Reference
 
 #: Tolerance of the mission's schedule against round-off in the tick times [s].
 _SCHEDULE_TOL_S = 1e-9
+#: A change of the highest height a trajectory may ask for [m] (:meth:`FenceGuard.top_m`)
+#: smaller than this does not set the trajectory again: an estimator's σ wanders each cycle.
+_TOP_TOL_M = 0.25
 #: The geofence failsafe looks every this many control ticks (10 Hz at 100 Hz, the
 #: avoidance's rate), in every driver (:meth:`Supervisor.fence_due`).
 FENCE_CHECK_TICKS = 10
@@ -52,6 +55,8 @@ class FenceGuard:
         #: Missions from the network refused for leaving the volume (counted by the driver
         #: that took them).
         self.refused = 0
+        #: The most a trajectory was lowered to stay under the ceiling (:meth:`capped`) [m].
+        self.capped_m = 0.0
 
     def check_mission(self, reference: Reference) -> None:
         """Accept ``reference`` as the next mission (it replaces a failsafe's hold).
@@ -93,9 +98,33 @@ class FenceGuard:
         """The avoidance's ceiling [m] over a mission at heights ``z_m`` (K,)."""
         return self.geofence.offset_ceiling_m(z_m)
 
+    def top_m(self, sigma_above_m: float) -> float:
+        """The highest estimated height [m] a trajectory may ask for: ``margin_m`` under the
+        ceiling, less ``sigma_above_m`` (how far above its estimate the UAV may truly be),
+        and never under the floor's margin."""
+        fence = self.geofence
+        return max(fence.min_altitude_m + fence.margin_m,
+                   fence.max_altitude_m - fence.margin_m - sigma_above_m)
+
+    def capped(self, reference: Reference, sigma_above_m: float) -> Reference:
+        """``reference`` with no point above :meth:`top_m` (those points lowered to it, their
+        times kept); itself when none is. A mission checked against the volume by its
+        estimate may still take the truth over the ceiling: found by the falsifier with
+        single-band GNSS (σ_v 2.5 m), walks to 29 m under a 30 m ceiling flew to 34.7 m."""
+        top = self.top_m(sigma_above_m)
+        z = reference.points[:, 2]
+        if not (z > top).any():
+            return reference
+        self.capped_m = max(self.capped_m, float(z.max()) - top)
+        points = reference.points.copy()
+        points[:, 2] = np.minimum(z, top)
+        return Reference(reference.times_s, points, reference.loop)
+
     def report(self) -> dict[str, Any]:
-        """The failsafe's report and the missions refused."""
-        return {**self.watch.report(), "missions_refused": self.refused}
+        """The failsafe's report, the missions refused and the most a trajectory was lowered
+        under the ceiling (:meth:`capped`) [m]."""
+        return {**self.watch.report(), "missions_refused": self.refused,
+                "capped_m": self.capped_m}
 
 
 class Supervisor:
@@ -128,6 +157,10 @@ class Supervisor:
         self._fence_room_m: float | None = None
         #: Its estimator's vertical 1σ [m] as a driver states it (:meth:`state_sigma`).
         self._estimate_sigma_v_m: float | None = None
+        #: The last trajectory given to :meth:`_steer`, before the ceiling lowered it, and the
+        #: highest height it was given under then [m] (:meth:`FenceGuard.capped`).
+        self._commanded: Reference | None = None
+        self._top_m = math.inf
 
     # ------------------------------------------------------------------ launch hold
     def hold(self, mission: Reference, hover: Reference) -> None:
@@ -215,6 +248,10 @@ class Supervisor:
         its steps, a pause and its end, the fence's way back): the avoidance's ceiling over
         it, then the trajectory. A mission step that climbs lowers the room left above it
         (found: a walk's waypoint higher than the first kept the first's ceiling)."""
+        self._commanded = reference
+        if self.fence is not None:
+            self._top_m = self.fence.top_m(self._sigma_above_m())
+            reference = self.fence.capped(reference, self._sigma_above_m())
         self.limit_ceiling(reference.points[:, 2])
         self.stack.set_mission(reference)
 
@@ -240,7 +277,13 @@ class Supervisor:
                              f"{estimate_sigma_v_m}")
         self.stack.position_sigma_m = sigma_m
         self._estimate_sigma_v_m = float(estimate_sigma_v_m)
-        if self._fence_room_m is not None:
+        if self.fence is None or self._commanded is None:
+            return
+        top = self.fence.top_m(self._sigma_above_m())
+        if (abs(top - self._top_m) > _TOP_TOL_M
+                and float(self._commanded.points[:, 2].max()) > min(top, self._top_m)):
+            self._steer(self._commanded)  # the trajectory flown is lowered (or raised) to it
+        elif self._fence_room_m is not None:
             self._limit_offset()
 
     def _limit_offset(self) -> None:

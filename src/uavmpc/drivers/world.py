@@ -216,7 +216,7 @@ def _world_uav(world: World, i: int, spec: UavSpec, af: Airframe, wind_mps: floa
         supervisor.hold(reference, Reference.goto(*spec.start_m, spec.heading_rad,
                                                   start_s=off))
     else:
-        stack.set_mission(reference)
+        supervisor.fly(reference)
     supervisor.limit_ceiling(spec.mission.points[:, 2])
     return WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, supervisor, off, sensor)
 

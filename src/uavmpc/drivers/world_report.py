@@ -286,7 +286,7 @@ def fleet_extras(result: WorldResult, uavs: Sequence[WorldUav], *,
     """The geofence, the launch check and who flew without avoidance, into ``result``."""
     fenced = [(u.uav_id, u.supervisor.fence) for u in uavs]
     if any(f is not None for _, f in fenced):
-        result.sections["geofence"] = {uid: f.watch.report() for uid, f in fenced if f is not None}
+        result.sections["geofence"] = {uid: f.report() for uid, f in fenced if f is not None}
     if launch_check_s is not None:
         result.sections["launch"] = {
             "max_wait_s": launch_check_s, **launches,
