@@ -14,6 +14,7 @@ from uavmpc.apps.cli import main
 from uavmpc.apps.falsify import Space, falsify, fly_case, write_results
 from uavmpc.config import ConfigError
 from uavmpc.drivers.world import World
+from uavmpc.scenarios import LinkSettings
 from uavmpc.scenarios.run import RunSpec
 
 
@@ -74,6 +75,7 @@ def test_a_space_too_crowded_to_draw_a_case_says_so() -> None:
 @pytest.mark.parametrize(("argv", "named"), [
     (["--budget", "0"], "budget"), (["--loss", "1.5"], "link.loss"),
     (["--launch-check", "3"], "--launch-check"), (["--ceiling", "10"], "ceiling_m"),
+    (["--workers", "0"], "workers"),
 ])
 def test_cli_mistakes_are_one_line(argv: list[str], named: str, capsys, tmp_path) -> None:
     assert main(["falsify", "--out", str(tmp_path / "f"), *argv]) == 2
@@ -89,7 +91,6 @@ def test_the_falsifier_s_case_of_clocks_apart_keeps_2_m(loss: float) -> None:
     1.08 m of it (0.94 m, a collision, on a loss-free link). The inbox now measures a sender's
     clock offset and puts its messages on the receiver's clock."""
     from uavmpc.drivers.world import World
-    from uavmpc.scenarios import LinkSettings
     from uavmpc.scenarios.faults import FaultSpec
     from uavmpc.scenarios.run import RunSpec
 
@@ -111,7 +112,6 @@ def test_the_falsifier_s_case_of_a_uav_held_in_the_way_keeps_2_m(all_faults: boo
     with single-band GNSS on a clean link, 1.88 m with every fault). It now says it is
     stuck (its flag down) once the other closes in, and the other makes way."""
     from uavmpc.drivers.world import World
-    from uavmpc.scenarios import LinkSettings
     from uavmpc.scenarios.faults import FaultSpec
     from uavmpc.scenarios.run import RunSpec
 
@@ -133,7 +133,6 @@ def test_the_falsifier_s_case_of_a_uav_released_while_holding_keeps_2_m() -> Non
     descended to escape it (1.64 m). A hold now keeps its offset, and a descent escapes only
     from one above by more than the pair's uncertainty."""
     from uavmpc.drivers.world import World
-    from uavmpc.scenarios import LinkSettings
     from uavmpc.scenarios.faults import FaultSpec
     from uavmpc.scenarios.run import RunSpec
 
@@ -143,6 +142,16 @@ def test_the_falsifier_s_case_of_a_uav_released_while_holding_keeps_2_m() -> Non
         faults=FaultSpec(clock_offset_s=0.5, gnss="single", burst_len=3.0))).run()
     assert not res.collisions
     assert float(res.min_distance_m.min()) >= 2.0
+
+
+def test_flights_shared_among_processes_are_the_flights_of_one() -> None:
+    """A generation's cases are drawn before any is flown, and a flight's seed is its index:
+    two worker processes fly the search one does, case for case, to the last bit."""
+    space = Space(uavs=3, area_m=30.0, duration_s=10.0, link=LinkSettings(loss=0.3))
+    one = falsify(space, 4, seed=5, generation=2)
+    two = falsify(space, 4, seed=5, generation=2, workers=2)
+    assert two == one
+    assert len({o.theta for o in one}) == 4
 
 
 @pytest.mark.parametrize("family", ["vertical", "grid", "walk"])

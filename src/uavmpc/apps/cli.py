@@ -909,6 +909,9 @@ def _add_falsify_parser(sub: Subparsers) -> None:
     f.add_argument("--loss", type=float, default=0.0, help="message loss probability")
     f.add_argument("--latency", type=float, default=0.05, help="link latency [s]")
     f.add_argument("--no-avoidance", action="store_true", help="search without avoidance")
+    f.add_argument("--workers", type=int, default=1,
+                   help="processes a generation's flights are shared among (default 1; the "
+                        "results do not depend on it)")
     f.add_argument("--out", default="out/falsify", help="output folder (default out/falsify)")
     add_fault_arguments(f)
     f.set_defaults(func=_falsify)
@@ -933,7 +936,7 @@ def _falsify(args: argparse.Namespace) -> int:
             write_results(space, so_far, Path(args.out), avoidance=not args.no_avoidance)
 
     outcomes = falsify(space, args.budget, seed=args.seed, generation=args.generation,
-                       avoidance=not args.no_avoidance, on_flight=said)
+                       avoidance=not args.no_avoidance, workers=args.workers, on_flight=said)
     paths = write_results(space, outcomes, Path(args.out), avoidance=not args.no_avoidance)
     for line in summary_lines(space, outcomes, paths):
         print(line)

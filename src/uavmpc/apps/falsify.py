@@ -38,6 +38,7 @@ import json
 import math
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -464,33 +465,50 @@ def _draw(space: Space, rng: np.random.Generator, mean: np.ndarray | None,
                       f"{space.area_m:g} m square: widen --area or fly fewer")
 
 
+def _fly_one(job: tuple[Space, np.ndarray, int, int, bool]) -> Outcome:
+    """:func:`fly_case` of one job (a worker process's entry point)."""
+    return fly_case(*job)
+
+
 def falsify(space: Space, budget: int, *, seed: int = 0, generation: int | None = None,
-            avoidance: bool = True,
+            avoidance: bool = True, workers: int = 1,
             on_flight: Callable[[Outcome], None] | None = None) -> list[Outcome]:
     """Search ``budget`` flights (cross-entropy over θ, see the module); every outcome in
     the order flown. ``generation``: cases per generation (default: a tenth of the budget,
-    at least 4)."""
+    at least 4). ``workers``: processes the flights of a generation are shared among; the
+    outcomes do not depend on it (a generation's cases are drawn before any is flown, each
+    flight's seed is its index)."""
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ConfigError(f"budget: must be an integer ≥ 1, got {budget!r}")
     size = max(4, budget // 10) if generation is None else generation
     if isinstance(size, bool) or not isinstance(size, int) or size < 1:
         raise ConfigError(f"generation: must be an integer ≥ 1, got {size!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"workers: must be an integer ≥ 1, got {workers!r}")
     rng = np.random.default_rng(seed)
     outcomes: list[Outcome] = []
     mean: np.ndarray | None = None
     spread: np.ndarray | None = None
-    while len(outcomes) < budget:
-        for _ in range(min(size, budget - len(outcomes))):
-            theta = _draw(space, rng, mean, spread)
-            flight_seed = seed * 1_000_000 + len(outcomes)
-            out = fly_case(space, theta, flight_seed, len(outcomes), avoidance)
-            outcomes.append(out)
-            if on_flight is not None:
-                on_flight(out)
-        best = sorted(outcomes, key=_badness)[:max(2, math.ceil(ELITE * len(outcomes)))]
-        elite = np.array([o.theta for o in best])
-        mean = elite.mean(axis=0)
-        spread = np.maximum(elite.std(axis=0), MIN_SPREAD)
+    pool = ProcessPoolExecutor(workers) if workers > 1 else None
+    try:
+        while len(outcomes) < budget:
+            jobs: list[tuple[Space, np.ndarray, int, int, bool]] = []
+            for _ in range(min(size, budget - len(outcomes))):
+                index = len(outcomes) + len(jobs)
+                jobs.append((space, _draw(space, rng, mean, spread),
+                             seed * 1_000_000 + index, index, avoidance))
+            flown = map(_fly_one, jobs) if pool is None else pool.map(_fly_one, jobs)
+            for out in flown:
+                outcomes.append(out)
+                if on_flight is not None:
+                    on_flight(out)
+            best = sorted(outcomes, key=_badness)[:max(2, math.ceil(ELITE * len(outcomes)))]
+            elite = np.array([o.theta for o in best])
+            mean = elite.mean(axis=0)
+            spread = np.maximum(elite.std(axis=0), MIN_SPREAD)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     return outcomes
 
 
