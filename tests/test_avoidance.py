@@ -911,3 +911,37 @@ def test_the_cylinders_kernels_are_its_law_point_by_point() -> None:
             assert first == (cols[0] if cols.size else -1)
             way_down = near & (dz >= -h - off) & (dz <= h)
             assert conflict_below(near, dz, widen, half, float(off)) == bool(way_down.any())
+
+
+def test_a_climb_whose_lift_is_dropped_is_braked_as_hard_as_it_started() -> None:
+    """A conflict over, a decision drops the lifted climb while the virtual UAV still climbs
+    at 4.5 m/s: it is braked at the lifted 3 m/s² until it is back within the nominal speeds
+    (at the nominal 1 m/s² it went on 10 m past its offset: found by the falsifier, a walk on
+    single-band GNSS 2.9 m over the ceiling by its truth), then flies the nominal limits and
+    comes to rest."""
+    from uavmpc.avoidance.strategy import CALM
+    from uavmpc.onboard import OnboardStack
+    from uavmpc.plant.airframe import Airframe
+    from uavmpc.reference import Reference
+
+    stack = OnboardStack(Airframe.named("f550"), position_m=(0.0, 0.0, 20.0), uav_id="a",
+                         priority=1, avoidance=HeightOffsetStrategy())
+    stack.set_mission(Reference.goto(0.0, 0.0, 20.0))
+    steering, tracker = stack.steering, stack.tracker
+    nominal = steering.nominal_limits
+    steering.apply(AvoidanceDecision(z_offset_m=0.0, avoiding=True, climb_speed_mps=5.0,
+                                     climb_accel_mps2=3.0))
+    state = tracker.state
+    state[2, 1], state[2, 2] = 4.5, 0.0
+    tracker.set_state(state)
+    steering.apply(CALM)
+    assert tracker.limits.descend_accel_mps2 == 3.0
+    assert tracker.limits.ascend_speed_mps == nominal.ascend_speed_mps
+    top, steps = 20.0, 0
+    while tracker.state[2, 1] > 0.0 and steps < 2000:
+        tracker.step()
+        steering.apply(CALM)  # each round looks again while it brakes
+        top, steps = max(top, float(tracker.state[2, 0])), steps + 1
+    # 4.5²/(2·3) = 3.4 m to the nominal speed and its stop, not 4.5²/2 = 10 m
+    assert top - 20.0 < 4.5**2 / (2 * 3.0) + nominal.ascend_speed_mps**2 / 2.0
+    assert tracker.limits == nominal  # back within the nominal speeds: nominal limits

@@ -59,6 +59,8 @@ _LEVEL_DZ_M, _LEVEL_DT_S = 1e-3, 0.1
 #: The limits key (horizontal scale, climb speed, climb acceleration, holding) of the nominal
 #: limits (:meth:`Steering.apply`).
 _NOMINAL_KEY: tuple[float, float | None, float | None, bool] = (1.0, None, None, False)
+#: A vertical speed this far over a limit outpaces it [m/s] (the tracker's own round-off).
+_SPEED_TOL_MPS = 0.05
 #: The mission's point is "over" the virtual UAV (or at its height) within this distance [m].
 _OVER_M = 1.0
 
@@ -216,6 +218,10 @@ class Steering:
         self._avoiding = avoiding
         self._table = table
         self._limits_key = _NOMINAL_KEY
+        #: The acceleration of the last climb lifted [m/s²] (0: none yet), and whether a climb
+        #: faster than the nominal limits is being braked at it (:meth:`apply`).
+        self._lifted_accel_mps2 = 0.0
+        self._braking = False
         self._decider = strategy if isinstance(strategy, EncounterStrategy) else None
         self._height: HeightOffsetStrategy | None = None
         if (isinstance(strategy, HeightOffsetStrategy)
@@ -266,8 +272,8 @@ class Steering:
         assert self._decider is not None, "rest: the strategy takes encounters"
         if not self._decider.rest(plan_s):
             return False
-        self.apply(CALM)
         self._batch.resting[self._row] = True
+        self.apply(CALM)  # a climb still braking keeps it from resting
         return True
 
     def hold_probes(self, plan_s: float, times_s: np.ndarray, here_m: np.ndarray
@@ -296,7 +302,7 @@ class Steering:
     # ------------------------------------------------------------------ its tracker
     def apply(self, decision: AvoidanceDecision) -> None:
         """Steer by an avoidance decision: its z offset and limits from the next tick on."""
-        if decision is self.decision:
+        if decision is self.decision and not self._braking:
             return  # steering by it already (only this and release() change what it sets)
         self.decision = decision
         tracker, row, batch = self.tracker, self._row, self._batch
@@ -311,6 +317,17 @@ class Steering:
             tracker.hold_height(None)
         key = (decision.horizontal_scale, decision.climb_speed_mps, decision.climb_accel_mps2,
                decision.holding)
+        if decision.climb_accel_mps2 is not None:
+            self._lifted_accel_mps2 = decision.climb_accel_mps2
+        # A climb lifted and then dropped is braked as hard as it started until the virtual
+        # UAV is back within the nominal speeds. Found by the falsifier (walks, single-band
+        # GNSS): a conflict over, the limits fell back to 1 m/s² while it climbed at 5 m/s,
+        # and it went on 12 m past its offset, 2.9 m over the ceiling by its truth.
+        self._braking = (decision.climb_speed_mps is None and self._lifted_accel_mps2 > 0.0
+                         and self._outpaces(self.nominal_limits))
+        if self._braking:
+            key = (key[0], None, self._lifted_accel_mps2, key[3])
+            self._batch.resting[row] = False  # its next round looks again
         if key != self._limits_key:
             self._limits_key = key
             tracker.set_limits(avoidance_limits(self.nominal_limits, *key))
@@ -324,9 +341,16 @@ class Steering:
         self._batch.holding.discard(self._row)
         self.tracker.hold_height(None)
         self._avoiding[self._row] = False
+        self._braking = False
         if self._limits_key != _NOMINAL_KEY:
             self._limits_key = _NOMINAL_KEY
             self.tracker.set_limits(self.nominal_limits)
+
+    def _outpaces(self, limits: DynamicLimits) -> bool:
+        """The virtual UAV climbs or descends faster than ``limits`` allow."""
+        vz = float(self.tracker.state[2, 1])
+        return (vz > limits.ascend_speed_mps + _SPEED_TOL_MPS
+                or vz < -limits.descend_speed_mps - _SPEED_TOL_MPS)
 
     def _rest_height_m(self) -> float:
         """The height a hold keeps, in the mission's frame (before the offset). While the
