@@ -224,6 +224,11 @@ def test_a_trajectory_is_lowered_under_the_ceiling_by_the_estimator_s_uncertaint
     assert sup.fence is not None
     assert sup.fence.report()["capped_m"] == pytest.approx(9.0 - (
         FENCE.min_altitude_m + FENCE.margin_m))
+    # A trajectory its driver gave the stack since (a node's landing) is left alone.
+    landing = Reference.goto(20.0, 0.0, 2.0)
+    stacks[0].set_mission(landing)
+    sup.state_sigma((0.2, 1.0), 1.0)
+    assert stacks[0].tracker.reference is landing
 
 
 def test_in_the_world_single_band_gnss_flies_a_mission_at_the_ceiling_lower() -> None:

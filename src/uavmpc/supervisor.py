@@ -161,6 +161,8 @@ class Supervisor:
         #: highest height it was given under then [m] (:meth:`FenceGuard.capped`).
         self._commanded: Reference | None = None
         self._top_m = math.inf
+        #: What :meth:`_steer` gave the stack last (the commanded trajectory, lowered).
+        self._flown: Reference | None = None
 
     # ------------------------------------------------------------------ launch hold
     def hold(self, mission: Reference, hover: Reference) -> None:
@@ -252,6 +254,7 @@ class Supervisor:
         if self.fence is not None:
             self._top_m = self.fence.top_m(self._sigma_above_m())
             reference = self.fence.capped(reference, self._sigma_above_m())
+        self._flown = reference
         self.limit_ceiling(reference.points[:, 2])
         self.stack.set_mission(reference)
 
@@ -280,7 +283,10 @@ class Supervisor:
         if self.fence is None or self._commanded is None:
             return
         top = self.fence.top_m(self._sigma_above_m())
+        # Only the trajectory it set is set again: a driver may have given the stack its own
+        # since (a node's landing).
         if (abs(top - self._top_m) > _TOP_TOL_M
+                and self.stack.tracker.reference is self._flown
                 and float(self._commanded.points[:, 2].max()) > min(top, self._top_m)):
             self._steer(self._commanded)  # the trajectory flown is lowered (or raised) to it
         elif self._fence_room_m is not None:
