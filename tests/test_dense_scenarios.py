@@ -62,3 +62,23 @@ def test_a_grid_of_16_keeps_2_m_where_two_held_uavs_crept_into_each_other() -> N
     res = World(RunSpec(grid_shuffle(16, seed=1, ceiling_m=25.0), seed=1)).run()
     assert not res.collisions, res.collisions
     assert float(res.min_distance_m.min()) > 2.0
+
+
+def test_sixteen_through_one_point_under_30_m_reach_every_goal_on_a_clean_link() -> None:
+    """The antipodal swap of 16 under a 30 m ceiling, seed 0 (docs/safety.md): uav12 held
+    1.5 m under uav16, stuck at the top layer with its flag down, and never went on, because
+    its way down to its own layer first drew 0.28 m nearer horizontally while it drew away
+    vertically; uav16 waited for it, and both ended the run over the centre. A plan that
+    leaves one with its flag down behind may now come nearer by 0.1 m in 3-D on its way."""
+    from uavmpc.drivers.world import World
+    from uavmpc.scenarios.run import RunSpec
+
+    sc = antipodal(16, ceiling_m=30.0, duration_s=120.0)
+    world = World(RunSpec(sc, seed=0))
+    res = world.run()
+    assert not res.collisions, res.collisions
+    assert float(res.min_distance_m.min()) > 2.9
+    end = res.positions_m[-1]
+    missed = [u.uav_id for i, u in enumerate(world.uavs)
+              if np.linalg.norm(end[i] - u.goal_m) > 1.0]
+    assert missed == []

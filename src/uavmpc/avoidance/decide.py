@@ -34,6 +34,9 @@ LEVEL_M = 1.0
 #: (:attr:`~uavmpc.avoidance.strategy.AvoidanceDecision.stuck`): a hold's creep at
 #: :data:`~uavmpc.avoidance.strategy.HOLD_SPEED_MPS` over the horizon is a tenth of it.
 STANDING_M = 1.0
+#: A plan that leaves a conflict behind may first bring the pair this much nearer in 3-D [m]
+#: (:func:`_in_the_way`): the other's creep while it holds, our start from rest.
+LEAVE_TOL_M = 0.1
 #: Relative slack for "offset is a multiple of Δz that fits under the ceiling" (round-off).
 EPS = 1e-9
 
@@ -507,8 +510,9 @@ def _must_respect(enc: EncounterRows, j: int, own_priority: int, unheard: bool,
 def _in_the_way(probe: EncounterRows, j: int, offset_m: float, half_h: float) -> bool:
     """Encounter ``j`` of a plan we would fly (a probe) is in its way at ``offset_m``: in
     conflict somewhere, but for a conflict from the first point on that ends for good while
-    we only go away from it in 3-D (neither closer horizontally nor vertically), which
-    flying that plan leaves behind.
+    we only go away from it in 3-D (never closer vertically, and horizontally closer only
+    to one whose flag is down, which does not make way, while the pair stays at least as far
+    apart as now, less :data:`LEAVE_TOL_M`), which flying that plan leaves behind.
 
     Left behind: a UAV at the hold point itself, parked at its goal there, does not hold us.
     Found with 32 UAVs under a 30 m ceiling: a UAV held beside the one whose goal its start
@@ -517,7 +521,11 @@ def _in_the_way(probe: EncounterRows, j: int, offset_m: float, half_h: float) ->
     crossing its way went on every other round and passed it at 1.24 m. Away in 3-D: found in
     the vertical stack swap (2 × 5), uav2, held under uav3 in one column, went on every other
     round (horizontally it only drew away), and each time its mission's climb carried it on
-    up into uav3 (0.29 m)."""
+    up into uav3 (0.29 m). Horizontally closer while going away vertically: found in the
+    clean antipodal swap of 16 (seed 0), uav12, held 1.9 m under uav16 (stuck at the top
+    layer), would have descended away from it to its own layer, but its way there first drew
+    0.28 m nearer horizontally (4.35 → 4.07 m, 4.9 m apart in 3-D); it held to the end of
+    the run, and so did uav16, which waited for it."""
     h = half_h + probe.widen_v[j]
     m = probe.near.shape[1]
     all_hit = True
@@ -526,11 +534,15 @@ def _in_the_way(probe: EncounterRows, j: int, offset_m: float, half_h: float) ->
             all_hit = False
             break
     run = True  # logical_and.accumulate(conflict & apart)
+    d0 = math.hypot(probe.dxy[j, 0], probe.dz[j, 0] + offset_m)
     for p in range(m):
         hit = in_cylinder(probe.near[j, p], probe.dz[j, p], offset_m, h)
+        dz_p = abs(probe.dz[j, p] + offset_m)
         apart = p == 0 or (
-            probe.dxy[j, p] >= probe.dxy[j, p - 1]
-            and abs(probe.dz[j, p] + offset_m) >= abs(probe.dz[j, p - 1] + offset_m) - EPS)
+            dz_p >= abs(probe.dz[j, p - 1] + offset_m) - EPS
+            and (probe.dxy[j, p] >= probe.dxy[j, p - 1]
+                 or (not probe.avoiding[j]
+                     and math.hypot(probe.dxy[j, p], dz_p) >= d0 - LEAVE_TOL_M)))
         run = run and hit and apart
         if hit and not (run and not all_hit):
             return True
