@@ -522,10 +522,10 @@ def _in_the_way(probe: EncounterRows, j: int, offset_m: float, half_h: float) ->
     the vertical stack swap (2 × 5), uav2, held under uav3 in one column, went on every other
     round (horizontally it only drew away), and each time its mission's climb carried it on
     up into uav3 (0.29 m). Horizontally closer while going away vertically: found in the
-    clean antipodal swap of 16 (seed 0), uav12, held 1.9 m under uav16 (stuck at the top
-    layer), would have descended away from it to its own layer, but its way there first drew
-    0.28 m nearer horizontally (4.35 → 4.07 m, 4.9 m apart in 3-D); it held to the end of
-    the run, and so did uav16, which waited for it."""
+    clean antipodal swap of 16 (seed 0), uav12, held 1.85 m under uav16 by their plans
+    (stuck at the top layer), would have descended away from it to its own layer, but its
+    way there first drew 0.28 m nearer horizontally (4.35 → 4.07 m, 4.7 m apart in 3-D);
+    it held to the end of the run, and so did uav16, which waited for it."""
     h = half_h + probe.widen_v[j]
     m = probe.near.shape[1]
     all_hit = True
