@@ -252,8 +252,9 @@ class Supervisor:
         (found: a walk's waypoint higher than the first kept the first's ceiling)."""
         self._commanded = reference
         if self.fence is not None:
-            self._top_m = self.fence.top_m(self._sigma_above_m())
-            reference = self.fence.capped(reference, self._sigma_above_m())
+            sigma_above = self._sigma_above_m()
+            self._top_m = self.fence.top_m(sigma_above)
+            reference = self.fence.capped(reference, sigma_above)
         self._flown = reference
         self.limit_ceiling(reference.points[:, 2])
         self.stack.set_mission(reference)

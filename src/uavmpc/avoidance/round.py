@@ -324,7 +324,7 @@ class Steering:
         # GNSS): a conflict over, the limits fell back to 1 m/s² while it climbed at 5 m/s,
         # and it went on 12 m past its offset, 2.9 m over the ceiling by its truth.
         self._braking = (decision.climb_speed_mps is None and self._lifted_accel_mps2 > 0.0
-                         and self._outpaces(self.nominal_limits))
+                         and self._outpaces_nominal())
         if self._braking:
             key = (key[0], None, self._lifted_accel_mps2, key[3])
             self._batch.resting[row] = False  # its next round looks again
@@ -346,8 +346,9 @@ class Steering:
             self._limits_key = _NOMINAL_KEY
             self.tracker.set_limits(self.nominal_limits)
 
-    def _outpaces(self, limits: DynamicLimits) -> bool:
-        """The virtual UAV climbs or descends faster than ``limits`` allow."""
+    def _outpaces_nominal(self) -> bool:
+        """The virtual UAV climbs or descends faster than its nominal limits allow."""
+        limits = self.nominal_limits
         vz = float(self.tracker.state[2, 1])
         return (vz > limits.ascend_speed_mps + _SPEED_TOL_MPS
                 or vz < -limits.descend_speed_mps - _SPEED_TOL_MPS)

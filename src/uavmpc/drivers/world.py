@@ -215,9 +215,10 @@ def _world_uav(world: World, i: int, spec: UavSpec, af: Airframe, wind_mps: floa
         # Hover where it starts; the mission waits for the link (:meth:`World._launch`).
         supervisor.hold(reference, Reference.goto(*spec.start_m, spec.heading_rad,
                                                   start_s=off))
+        # While it waits, the ceiling over the mission it will fly, not over the hover.
+        supervisor.limit_ceiling(spec.mission.points[:, 2])
     else:
         supervisor.fly(reference)
-    supervisor.limit_ceiling(spec.mission.points[:, 2])
     return WorldUav(spec.uav_id, np.array(spec.goal_m), stack, plant, supervisor, off, sensor)
 
 
